@@ -1,0 +1,15 @@
+//! The motion coordinator: one deterministic, SYNC-driven cycle that reads the drives' actual
+//! values, advances every axis, evaluates comparators and record chains, computes synchronised
+//! multi-axis setpoints in fixed point and writes them back.
+//!
+//! This crate will hold (see `docs/architecture.md`): `units` (fixed-point conversions),
+//! `profile` (trapezoidal and jerk-limited profiles), `axis` (FHPP and CiA 402 master-side state
+//! machines), `comparator`, `records`, `budget` (bus admission), `cycle` (the pure step),
+//! `config` and `runtime` (the real-time thread, the executor, shared-memory publishing).
+//! Until then it only re-exports the bus layer it builds on.
+//!
+//! ```
+//! assert_eq!(coordinator::drivers::can::bit_timing::worst_case_bits(false, 8), 135);
+//! ```
+
+pub use drivers;

@@ -1,0 +1,13 @@
+//! The CAN layer: one [`Frame`] type, the [`Bus`] trait, the bit-timing model and the backends.
+//!
+//! Backends (with the `std` feature): `socketcan` for real interfaces and vcan, `virtual_bus`
+//! (deterministic, in one process, virtual or real time, with fault injection), `shm_bus`
+//! (the same bus across processes over iceoryx2, named `vbus:NAME`); capture as candump logs and
+//! pcap files.
+
+pub mod bit_timing;
+mod bus;
+mod frame;
+
+pub use bus::{Bus, BusCounters, BusError, BusState};
+pub use frame::{Frame, FrameError, ParseFrameError};

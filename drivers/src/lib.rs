@@ -1,0 +1,23 @@
+//! Buses and devices for the motion coordinator.
+//!
+//! - [`can`]: one CAN frame type, the [`can::Bus`] trait, the bit-timing model, and (with the
+//!   `std` feature) the backends: SocketCAN, the deterministic virtual bus in one process and
+//!   across processes over shared memory, fault injection, candump and pcap capture.
+//! - [`canopen`]: a sans-I/O CiA 301 stack (object dictionary, NMT, SDO, PDO, SYNC, EMCY,
+//!   heartbeat, node guarding): state machines fed frames and time that return frames to send.
+//! - [`time`]: the timestamps every sans-I/O state machine is fed.
+//!
+//! Without default features the crate is `no_std` and allocation-free: the codecs and state
+//! machines build for `thumbv7em-none-eabihf`.
+//!
+//! ```
+//! use drivers::can::Frame;
+//! let sync = Frame::new_std(0x080, &[]).unwrap();
+//! assert_eq!(sync.cob_id(), Some(0x080));
+//! assert_eq!(drivers::can::bit_timing::worst_case_bits(false, 8), 135);
+//! ```
+#![cfg_attr(not(feature = "std"), no_std)]
+
+pub mod can;
+pub mod canopen;
+pub mod time;
