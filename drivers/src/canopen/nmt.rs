@@ -540,8 +540,12 @@ impl<const N: usize, const Q: usize> NmtMaster<N, Q> {
         let &[byte] = f.data() else {
             return Err(NmtError::WrongLength(f.dlc()).into());
         };
-        // Bit 7 is the guarding toggle; heartbeats keep it 0.
-        let state = NmtState::from_byte(byte & 0x7F)?;
+        // Bit 7 is the guarding toggle; heartbeats keep it 0. Initialising is only ever the
+        // boot-up byte 00h, handled above.
+        let state = match NmtState::from_byte(byte & 0x7F)? {
+            NmtState::Initialising => return Err(NmtError::UnknownState(byte).into()),
+            s => s,
+        };
         self.set_state(idx, state)
     }
 
@@ -801,6 +805,10 @@ mod tests {
             Err(NmtMasterError::Frame(NmtError::UnknownState(6)))
         );
         assert_eq!(
+            m.handle_frame(&f("704#80")),
+            Err(NmtMasterError::Frame(NmtError::UnknownState(0x80)))
+        );
+        assert_eq!(
             m.handle_frame(&f("704#0505")),
             Err(NmtMasterError::Frame(NmtError::WrongLength(2)))
         );
@@ -830,5 +838,49 @@ mod tests {
         assert_eq!(m.state(n(1)), Some(NmtState::Operational));
         // Legacy boot-ups are not accepted by this master.
         m.handle_frame(&f("081#")).unwrap();
+    }
+
+    #[test]
+    fn decoders_never_panic() {
+        use crate::canopen::{emcy, guarding, heartbeat, sync};
+        let mut nmt: NmtMaster<2, 4> = NmtMaster::new(true);
+        nmt.add_node(n(1)).unwrap();
+        let mut slave = NmtSlave::new(n(1), BootUpStyle::Ds301);
+        slave.boot();
+        let mut emcy_c = emcy::EmcyConsumer::new(true);
+        let mut sync_c = sync::SyncConsumer::new(sync::SyncCobId::DEFAULT, 1_000, 100, 16).unwrap();
+        let mut hb: heartbeat::HeartbeatConsumer<2, 4> = heartbeat::HeartbeatConsumer::new();
+        hb.configure(0x0001_0064).unwrap();
+        let mut gm: guarding::GuardingMaster<2, 4> = guarding::GuardingMaster::new();
+        gm.add_node(n(1), 10, 2, crate::time::Instant::ZERO)
+            .unwrap();
+        let mut t = crate::time::Instant::ZERO;
+        for id in [0x000u16, 0x080, 0x081, 0x0FF, 0x701, 0x77F] {
+            for len in 0..=8usize {
+                for b in 0..=255u8 {
+                    let data = [b, b.wrapping_mul(7), 0, b, 0xFF, 0, b, 1];
+                    let data_frame = Frame::new_std(id, &data[..len]).unwrap();
+                    let remote = Frame::new_std_remote(id, len as u8).unwrap();
+                    for fr in [data_frame, remote] {
+                        t += core::time::Duration::from_micros(1);
+                        let _ = NmtRequest::from_frame(&fr);
+                        let _ = decode_boot_up(&fr, true);
+                        let _ = nmt.handle_frame(&fr);
+                        let _ = slave.handle_frame(&fr);
+                        let _ = emcy::EmcyMessage::from_frame(&fr);
+                        let _ = emcy_c.handle_frame(&fr);
+                        let _ = sync::decode_sync(&fr);
+                        let _ = sync_c.handle_frame(&fr, t);
+                        let _ = heartbeat::decode_heartbeat(&fr);
+                        let _ = hb.handle_frame(&fr, t);
+                        let _ = guarding::GuardReply::from_frame(&fr);
+                        let _ = gm.handle_frame(&fr, t);
+                        let _ = gm.poll_transmit(t);
+                        while nmt.poll_event().is_some() || hb.poll_event().is_some() {}
+                        while gm.poll_event().is_some() {}
+                    }
+                }
+            }
+        }
     }
 }

@@ -246,6 +246,13 @@ impl SyncConsumer {
             return Ok(None);
         }
         let counter = decode_sync(f)?;
+        if let Some(c) = counter
+            && self.overflow >= 2
+            && c > self.overflow
+        {
+            // The producer counts to a larger overflow value than 1019h says: misconfigured.
+            return Err(SyncError::BadCounter(c));
+        }
         let missed = match (counter, self.last_counter) {
             (Some(c), Some(prev)) if self.overflow >= 2 => {
                 let expected = if prev >= self.overflow { 1 } else { prev + 1 };
@@ -422,6 +429,10 @@ mod tests {
                 })
             );
         }
+        assert_eq!(
+            c.handle_frame(&f("080#04"), Instant::from_millis(8)),
+            Err(SyncError::BadCounter(4))
+        );
         // 1 -> 3 skips counter 2; after 3 comes 1, so 3 -> 3 skips two.
         let e = c
             .handle_frame(&f("080#03"), Instant::from_millis(9))
