@@ -4,7 +4,12 @@
 
 mod abort;
 mod cob;
+pub mod emcy;
+pub mod guarding;
+pub mod heartbeat;
+pub mod nmt;
 pub mod od;
+pub mod sync;
 
 pub use abort::AbortCode;
 pub use cob::{Address, FunctionCode, NodeId, ids};
