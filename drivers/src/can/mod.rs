@@ -11,3 +11,14 @@ mod frame;
 
 pub use bus::{Bus, BusCounters, BusError, BusState};
 pub use frame::{Frame, FrameError, ParseFrameError};
+
+#[cfg(feature = "std")]
+pub mod fault;
+#[cfg(feature = "std")]
+pub mod virtual_bus;
+#[cfg(feature = "std")]
+pub use fault::{FaultAction, FaultId, FaultRule, IdMatch, TimeWindow};
+#[cfg(feature = "std")]
+pub use virtual_bus::{
+    ClockMode, PortId, VirtualBus, VirtualBusConfig, VirtualBusError, VirtualPort,
+};
