@@ -15,6 +15,8 @@ pub use frame::{Frame, FrameError, ParseFrameError};
 #[cfg(feature = "std")]
 pub mod fault;
 #[cfg(feature = "std")]
+pub mod station;
+#[cfg(feature = "std")]
 pub mod virtual_bus;
 #[cfg(feature = "std")]
 pub use fault::{FaultAction, FaultId, FaultRule, IdMatch, TimeWindow};

@@ -5,6 +5,7 @@
 mod abort;
 mod cob;
 pub mod emcy;
+pub mod endpoint;
 pub mod guarding;
 pub mod heartbeat;
 pub mod nmt;
