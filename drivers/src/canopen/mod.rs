@@ -4,7 +4,10 @@
 
 mod abort;
 mod cob;
+#[cfg(feature = "std")]
+pub mod eds;
 pub mod od;
+pub mod pdo;
 
 pub use abort::AbortCode;
 pub use cob::{Address, FunctionCode, NodeId, ids};
