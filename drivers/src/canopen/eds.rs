@@ -499,6 +499,8 @@ fn parse_access(value: &str, line: usize) -> Result<AccessType, EdsError> {
 /// The keys an entry needs, possibly inherited from a compact object's section.
 struct EntryKeys<'a> {
     section: &'a Section,
+    /// A DOMAIN object (ObjectType 2) may leave out its DataType.
+    domain: bool,
 }
 
 impl<'a> EntryKeys<'a> {
@@ -516,6 +518,9 @@ impl<'a> EntryKeys<'a> {
     }
 
     fn data_type(&self, node: Option<u8>) -> Result<DataType, EdsError> {
+        if self.domain && self.section.get("datatype").is_none() {
+            return Ok(DataType::Domain);
+        }
         let (v, line) = self.required("datatype")?;
         let c = Ctx {
             line,
@@ -684,7 +689,10 @@ impl Eds {
             let SectionKind::Object(index) = section_kind(&s.name) else {
                 continue;
             };
-            let keys = EntryKeys { section: s };
+            let mut keys = EntryKeys {
+                section: s,
+                domain: false,
+            };
             let object_type = match s.get("objecttype") {
                 None | Some(("", _)) => 7,
                 Some((v, line)) => {
@@ -700,7 +708,10 @@ impl Eds {
             let object_line = s.get("objecttype").map_or(s.line, |(_, l)| l);
             match object_type {
                 5 | 6 => continue,
-                2 | 7 => eds.entries.push(keys.entry(Address::new(index, 0), node)?),
+                2 | 7 => {
+                    keys.domain = object_type == 2;
+                    eds.entries.push(keys.entry(Address::new(index, 0), node)?)
+                }
                 8 | 9 => {
                     let compact = match s.get("compactsubobj") {
                         None | Some(("", _)) => 0,
@@ -735,7 +746,10 @@ impl Eds {
                             }
                         }
                         for (sub, ss) in list {
-                            let k = EntryKeys { section: ss };
+                            let k = EntryKeys {
+                                section: ss,
+                                domain: false,
+                            };
                             eds.entries.push(k.entry(Address::new(index, *sub), node)?);
                         }
                     }
@@ -772,7 +786,10 @@ impl Eds {
                 data_type: DataType::Unsigned8,
                 code: AbortCode::ValueTooHigh,
             })?;
-        let keys = EntryKeys { section: s };
+        let keys = EntryKeys {
+            section: s,
+            domain: false,
+        };
         let base_name = keys.required("parametername")?.0.to_string();
         self.entries.push(EdsEntry {
             addr: Address::new(index, 0),
@@ -1077,6 +1094,85 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    /// The configuration plan run against the drive's own dictionary, as the SDO client would
+    /// run it against the device: every address exists, every size matches the EDS type, the
+    /// read-backs verify, and the engines built from the result send what was asked.
+    #[test]
+    fn plan_applied_to_the_eds_drive() {
+        use crate::canopen::pdo::{
+            CommParams, ConfigPlan, Mapping, PdoDirection, PdoSettings, Rpdo, RpdoEvent, Tpdo,
+        };
+        use crate::time::Instant;
+        let eds = drive();
+        let mut od: ObjectDictionary<'_, 128, 512> = ObjectDictionary::new();
+        eds.load_into(&mut od).unwrap();
+        let node = NodeId::new(5).unwrap();
+        let tpdo2 = PdoSettings {
+            direction: PdoDirection::Tpdo,
+            number: 2,
+            cob_id: None,
+            mapping: &[0x6041_0010, 0x6064_0020],
+            transmission_type: 2,
+            inhibit_100us: 0,
+            event_timer_ms: 0,
+            sync_start: 0,
+        };
+        let plan = ConfigPlan::new(node, &tpdo2).unwrap();
+        for w in plan.writes() {
+            let size = od.size(w.addr).unwrap();
+            assert_eq!(size, w.size as usize, "{}", w.addr);
+            let bytes = w.value.to_le_bytes();
+            od.write(w.addr, &bytes[..size]).unwrap();
+        }
+        for r in plan.reads() {
+            let mut b = [0u8; 4];
+            od.read(r.addr, 0, &mut b).unwrap();
+            plan.verify(r.addr, u32::from_le_bytes(b)).unwrap();
+        }
+        let comm = CommParams::from_od(&od, 0x1801).unwrap();
+        assert!(comm.cob_id.valid);
+        let map = Mapping::from_od(&od, 0x1A01).unwrap();
+        map.validate(&od, true).unwrap();
+        od.set_u16(Address::new(0x6041, 0), 0x0237).unwrap();
+        od.set_i32(Address::new(0x6064, 0), -5).unwrap();
+        let mut tx = Tpdo::new(comm, map);
+        let mut frames = Vec::new();
+        for i in 0..4 {
+            let mut data = [0u8; 8];
+            let n = map.pack_from_od(&od, &mut data).unwrap();
+            tx.set_data(&data[..n]);
+            tx.handle_sync(None, Instant::from_millis(i));
+            frames.extend(tx.poll_transmit(Instant::from_millis(i)));
+        }
+        assert_eq!(frames.len(), 2);
+        assert_eq!(frames[0].to_string(), "285#3702FBFFFFFF");
+        // The master's side: an RPDO with the same parameters unpacks it.
+        let mut rx: Rpdo = Rpdo::new(comm, map);
+        assert!(rx.handle_frame(&frames[0], Instant::ZERO));
+        rx.handle_sync(Instant::ZERO);
+        match rx.poll_event() {
+            Some(RpdoEvent::Applied(v)) => {
+                assert_eq!(v.values[0], 0x0237);
+                assert_eq!(crate::canopen::pdo::sign_extend(v.values[1], 32), -5);
+            }
+            e => panic!("{e:?}"),
+        }
+    }
+
+    #[test]
+    fn domain_without_data_type() {
+        let t =
+            "[1F50]\nParameterName=Program\nObjectType=0x2\nAccessType=rw\nDefaultValue=prog.bin\n";
+        let eds = Eds::parse(t, None).unwrap();
+        let e = eds.entry(Address::new(0x1F50, 0)).unwrap();
+        assert_eq!(
+            (e.data_type, &e.default),
+            (DataType::Domain, &EdsValue::Bytes(Vec::new()))
+        );
+        // A writable DOMAIN gets room to be written.
+        assert_eq!(e.to_def().capacity, DEFAULT_STRING_CAPACITY);
     }
 
     #[test]

@@ -159,7 +159,8 @@ impl DataType {
         }
     }
 
-    /// The dummy-mapping type for a dummy entry index 0001h..0007h of a PDO mapping.
+    /// Whether `index` is one a PDO mapping may name as a dummy entry: the data type indices
+    /// 0001h..0007h (BOOLEAN to UNSIGNED32) stand for "this many bits, no object".
     pub const fn is_dummy_index(index: u16) -> bool {
         index >= 0x0001 && index <= 0x0007
     }
@@ -298,8 +299,10 @@ impl<'a> EntryDef<'a> {
         data_type: DataType,
         access: AccessType,
     ) -> Self {
-        let default = match data_type.class() {
-            TypeClass::Bytes => Value::Bytes(&[]),
+        let default = match data_type {
+            DataType::Real32 => Value::Real32(0.0),
+            DataType::Real64 => Value::Real64(0.0),
+            _ if matches!(data_type.class(), TypeClass::Bytes) => Value::Bytes(&[]),
             _ => Value::Unsigned(0),
         };
         EntryDef {
@@ -789,6 +792,28 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         self.set_value(addr, Value::Signed(v))
     }
 
+    /// A REAL32.
+    pub fn get_f32(&self, addr: Address) -> Result<f32, AbortCode> {
+        match self.value(addr)? {
+            Value::Real32(v) => Ok(v),
+            _ => Err(AbortCode::TypeMismatch),
+        }
+    }
+    /// Sets a REAL32 or REAL64 (local write, limits checked).
+    pub fn set_f32(&mut self, addr: Address, v: f32) -> Result<(), AbortCode> {
+        self.set_value(addr, Value::Real32(v))
+    }
+    /// A REAL64.
+    pub fn get_f64(&self, addr: Address) -> Result<f64, AbortCode> {
+        match self.value(addr)? {
+            Value::Real64(v) => Ok(v),
+            _ => Err(AbortCode::TypeMismatch),
+        }
+    }
+    /// Sets a REAL64 (local write, limits checked).
+    pub fn set_f64(&mut self, addr: Address, v: f64) -> Result<(), AbortCode> {
+        self.set_value(addr, Value::Real64(v))
+    }
     /// A BOOLEAN.
     pub fn get_bool(&self, addr: Address) -> Result<bool, AbortCode> {
         Ok(self.get_unsigned(addr, 1)? != 0)
@@ -965,6 +990,22 @@ mod tests {
         od.reset_to_defaults();
         assert_eq!(od.raw(NAME), Ok(&b"TLC"[..]));
         assert_eq!(od.get_u16(CW), Ok(6));
+    }
+
+    #[test]
+    fn reals() {
+        let r = Address::new(0x2100, 0);
+        let mut od: ObjectDictionary<'static, 2, 16> = ObjectDictionary::new();
+        od.insert(
+            EntryDef::new(r, "gain", DataType::Real32, AccessType::Rw)
+                .limits(Value::Real32(0.0), Value::Real32(10.0)),
+        )
+        .unwrap();
+        assert_eq!(od.get_f32(r), Ok(0.0));
+        assert_eq!(od.write(r, &2.5f32.to_le_bytes()), Ok(()));
+        assert_eq!(od.get_f32(r), Ok(2.5));
+        assert_eq!(od.set_f32(r, 11.0), Err(AbortCode::ValueTooHigh));
+        assert_eq!(od.get_f64(r), Err(AbortCode::TypeMismatch));
     }
 
     #[test]

@@ -4,7 +4,8 @@
 use core::time::Duration;
 
 use crate::can::Frame;
-use crate::canopen::{Address, FunctionCode, NodeId};
+use crate::canopen::od::ObjectDictionary;
+use crate::canopen::{AbortCode, Address, FunctionCode, NodeId};
 
 /// Sub-index of the COB-ID (UNSIGNED32).
 pub const SUB_COB_ID: u8 = 1;
@@ -30,6 +31,14 @@ pub enum CommError {
     /// Transmission types 241..=251 are reserved.
     #[error("transmission type {0} is reserved (241..=251)")]
     ReservedType(u8),
+    /// A parameter could not be read from the dictionary.
+    #[error("{addr} could not be read: {code}")]
+    Od {
+        /// The entry.
+        addr: Address,
+        /// Why.
+        code: AbortCode,
+    },
     /// The identifier does not fit the frame type (above 7FFh for 11 bits, 1FFF FFFFh for 29).
     #[error("CAN identifier {id:#x} does not fit a {} identifier", if *extended { "29-bit" } else { "11-bit" })]
     IdOutOfRange {
@@ -137,6 +146,7 @@ pub enum TransmissionType {
     /// the next SYNC.
     SyncAcyclic,
     /// 1..=240: synchronous, cyclic. TPDO: sent every n-th SYNC. RPDO: applied at the next SYNC.
+    /// Build it with [`TransmissionType::from_u8`], which keeps n in range.
     SyncCyclic(u8),
     /// 252: data sampled at SYNC, sent on RTR.
     SyncRtr,
@@ -271,6 +281,28 @@ impl CommParams {
             sync_start,
         })
     }
+    /// Reads the record at `index` from a dictionary (a device building its engines from its
+    /// own configuration). sub01 and sub02 must exist; a missing sub03, sub05 or sub06 is 0.
+    pub fn from_od<const N: usize, const B: usize>(
+        od: &ObjectDictionary<'_, N, B>,
+        index: u16,
+    ) -> Result<CommParams, CommError> {
+        let get = |sub: u8, required: bool| {
+            let addr = Address::new(index, sub);
+            match od.get_u32(addr) {
+                Ok(v) => Ok(v),
+                Err(AbortCode::NoSubIndex | AbortCode::NoObject) if !required => Ok(0),
+                Err(code) => Err(CommError::Od { addr, code }),
+            }
+        };
+        let cob = get(SUB_COB_ID, true)?;
+        let ty = get(SUB_TRANSMISSION_TYPE, true)?;
+        let inhibit = get(SUB_INHIBIT_TIME, false)?;
+        let event = get(SUB_EVENT_TIMER, false)?;
+        let start = get(SUB_SYNC_START, false)?;
+        CommParams::from_od_values(cob, ty as u8, inhibit as u16, event as u16, start as u8)
+    }
+
     /// The entries as `(sub-index, value, size in bytes)` for sub01, 02, 03, 05, 06, in that
     /// order, for the record at `index` (1400h + k - 1 or 1800h + k - 1).
     pub const fn od_values(&self, index: u16) -> [(Address, u32, u8); 5] {

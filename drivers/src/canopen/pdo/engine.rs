@@ -208,6 +208,9 @@ pub enum RpdoEvent {
 
 /// A receive PDO: up to `Q` events wait for [`Rpdo::poll_event`].
 ///
+/// Types 0..=240 apply at the SYNC after reception, 254 and 255 at once. 252 and 253 do not
+/// exist for RPDOs (the configuration plan refuses them); here they count as synchronous.
+///
 /// For synchronous types the newest frame received before a SYNC is the one applied at it
 /// (an older one is overwritten, as on a device). If the event queue is full the oldest event is
 /// dropped and counted in [`Rpdo::overruns`].

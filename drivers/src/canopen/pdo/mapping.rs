@@ -6,7 +6,7 @@
 //! classic CAN PDO holds at most 64 bits, the whole frame is one little-endian `u64` and every
 //! entry is a shift and a mask.
 
-use crate::canopen::od::{AccessType, ObjectDictionary, TypeClass, le_u64};
+use crate::canopen::od::{DataType, ObjectDictionary, TypeClass, le_u64};
 use crate::canopen::{AbortCode, Address};
 
 /// The most entries one mapping holds. CiA 301 allows up to 64 (one-bit entries); this stack
@@ -46,7 +46,7 @@ impl MappingEntry {
     /// Whether this is a dummy entry (index 0001h..0007h, a data type index): its bits are sent
     /// as zero and ignored on reception.
     pub const fn is_dummy(self) -> bool {
-        self.addr.index >= 0x0001 && self.addr.index <= 0x0007
+        DataType::is_dummy_index(self.addr.index)
     }
 }
 
@@ -212,6 +212,31 @@ impl Mapping {
         Mapping::new(&e[..raw.len()])
     }
 
+    /// Reads the mapping record at `index` (sub00 = count, sub01.. = entries) from a
+    /// dictionary.
+    pub fn from_od<const N: usize, const B: usize>(
+        od: &ObjectDictionary<'_, N, B>,
+        index: u16,
+    ) -> Result<Mapping, MappingError> {
+        let read = |sub: u8| {
+            let addr = Address::new(index, sub);
+            od.get_u32(addr).map_err(|code| MappingError::Object {
+                position: sub,
+                addr,
+                code,
+            })
+        };
+        let count = read(0)? as usize;
+        if count > MAX_ENTRIES {
+            return Err(MappingError::TooManyEntries { count });
+        }
+        let mut raw = [0u32; MAX_ENTRIES];
+        for (i, r) in raw.iter_mut().enumerate().take(count) {
+            *r = read(i as u8 + 1)?;
+        }
+        Mapping::from_raw(&raw[..count])
+    }
+
     /// The entries, in frame order.
     pub fn entries(&self) -> &[MappingEntry] {
         self.entries.get(..self.count as usize).unwrap_or(&[])
@@ -289,8 +314,9 @@ impl Mapping {
     }
 
     /// Checks every entry against a dictionary as a device does when the mapping is written:
-    /// the object exists (0602 0000h), is mappable in this direction (0604 0041h) and is at
-    /// least as long as the entry (0607 0012h). Dummy entries are always accepted.
+    /// the object exists (0602 0000h), is mappable in this direction (0604 0041h, from the
+    /// PDO-mappable flag and `rwr`/`rww`) and is at least as long as the entry (0604 0041h).
+    /// Dummy entries are always accepted.
     pub fn validate<const N: usize, const B: usize>(
         &self,
         od: &ObjectDictionary<'_, N, B>,
@@ -311,12 +337,14 @@ impl Mapping {
             } else {
                 def.access.rpdo_direction()
             };
-            if !def.pdo_mappable || !direction || def.access == AccessType::Const && !transmit {
+            if !def.pdo_mappable || !direction {
                 return Err(err(AbortCode::NotMappable));
             }
+            // An entry longer than its object (or of a variable-length object) cannot be
+            // mapped either; CANopenNode answers the same code.
             match def.data_type.size() {
                 Some(size) if e.bits as usize <= size * 8 => {}
-                _ => return Err(err(AbortCode::TooLong)),
+                _ => return Err(err(AbortCode::NotMappable)),
             }
         }
         Ok(())
@@ -373,7 +401,7 @@ impl Mapping {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::canopen::od::{DataType, EntryDef};
+    use crate::canopen::od::{AccessType, EntryDef};
     use proptest::prelude::*;
 
     #[test]
@@ -532,7 +560,7 @@ mod tests {
         let too_long = Mapping::from_raw(&[0x6040_0020]).unwrap();
         assert_eq!(
             too_long.validate(&od, false).unwrap_err().abort_code(),
-            AbortCode::TooLong
+            AbortCode::NotMappable
         );
     }
 
