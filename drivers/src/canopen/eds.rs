@@ -424,7 +424,8 @@ fn parse_value(c: &Ctx<'_>, dt: DataType, node: Option<u8>) -> Result<EdsValue, 
         TypeClass::Bytes => match dt {
             DataType::OctetString => {
                 let hex: String = c.value.chars().filter(|ch| !ch.is_whitespace()).collect();
-                if !hex.len().is_multiple_of(2) {
+                // Checked first so the byte slicing below stays on character boundaries.
+                if !hex.chars().all(|ch| ch.is_ascii_hexdigit()) || !hex.len().is_multiple_of(2) {
                     return Err(c.bad_number());
                 }
                 let bytes = (0..hex.len())
@@ -1173,6 +1174,43 @@ mod tests {
         );
         // A writable DOMAIN gets room to be written.
         assert_eq!(e.to_def().capacity, DEFAULT_STRING_CAPACITY);
+    }
+
+    #[test]
+    fn octet_strings() {
+        let t = |v: &str| {
+            Eds::parse(
+                &format!(
+                    "[2000]\nParameterName=o\nDataType=0x000A\nAccessType=rw\nDefaultValue={v}\n"
+                ),
+                None,
+            )
+        };
+        let eds = t("01 ab FF").unwrap();
+        assert_eq!(
+            eds.entry(Address::new(0x2000, 0)).unwrap().default,
+            EdsValue::Bytes(vec![0x01, 0xAB, 0xFF])
+        );
+        assert!(matches!(
+            t("a\u{e9}b"),
+            Err(EdsError::BadNumber { line: 5, .. })
+        ));
+        assert!(matches!(t("abc"), Err(EdsError::BadNumber { .. })));
+    }
+
+    proptest::proptest! {
+        /// Whatever the text, parsing returns (a fuzz target can call `Eds::parse` the same way).
+        #[test]
+        fn parse_never_panics(lines in proptest::collection::vec(
+            proptest::prop_oneof![
+                proptest::string::string_regex("\\[[0-9A-Fa-f]{1,4}(sub[0-9a-f]{1,3}|Name|Value)?\\]").unwrap(),
+                proptest::string::string_regex("(ParameterName|ObjectType|DataType|AccessType|DefaultValue|LowLimit|HighLimit|PDOMapping|SubNumber|CompactSubObj|ParameterValue|NodeID|1|2)=[-+$0-9A-Za-zx\\u{e9} ]{0,12}").unwrap(),
+                proptest::string::string_regex(".{0,10}").unwrap(),
+            ],
+            0..40,
+        )) {
+            let _ = Eds::parse(&lines.join("\n"), NodeId::new(1));
+        }
     }
 
     #[test]

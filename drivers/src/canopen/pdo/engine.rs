@@ -330,6 +330,18 @@ mod tests {
         assert_eq!(p.poll_timeout(), None);
     }
 
+    proptest::proptest! {
+        /// Type n sends at SYNCs 0, n, 2n, ... counting from the first, and nowhere else.
+        #[test]
+        fn cyclic_pattern(n in 1u8..=240, syncs in 1usize..600) {
+            let mut p = tpdo(TransmissionType::SyncCyclic(n));
+            let sent = sync_pattern(&mut p, &vec![None; syncs]);
+            for (i, s) in sent.iter().enumerate() {
+                proptest::prop_assert_eq!(*s == 1, i % n as usize == 0, "SYNC {}", i);
+            }
+        }
+    }
+
     #[test]
     fn cyclic_honours_the_sync_start_value() {
         let mut p = tpdo(TransmissionType::SyncCyclic(2));
