@@ -4,12 +4,15 @@
 
 mod abort;
 mod cob;
+#[cfg(feature = "std")]
+pub mod eds;
 pub mod emcy;
 pub mod endpoint;
 pub mod guarding;
 pub mod heartbeat;
 pub mod nmt;
 pub mod od;
+pub mod pdo;
 pub mod sync;
 
 pub use abort::AbortCode;
