@@ -5,6 +5,7 @@
 mod abort;
 mod cob;
 pub mod od;
+pub mod sdo;
 
 pub use abort::AbortCode;
 pub use cob::{Address, FunctionCode, NodeId, ids};
