@@ -137,6 +137,18 @@ enum State {
 /// `BUF` bounds a download (the whole value is collected, then written at once) and a block
 /// upload's sub-block (`7 * blksize` bytes; 889 bytes allow every block size a client may ask).
 ///
+/// Choices where CiA 301 leaves room:
+/// - A frame that is not 8 bytes long is ignored and reported as [`ServerEvent::Malformed`].
+/// - An initiate frame while a transfer runs starts the new transfer (the client gave up).
+/// - Download sizes: announced above `BUF` -> 0504 0005h at the initiate; more data than
+///   announced -> 0607 0012h; less -> 0607 0013h; more than `BUF` without size -> 0504 0005h.
+/// - A download to a missing object is refused at the initiate with the dictionary's
+///   0602 0000h / 0609 0011h, before any data crosses the bus.
+/// - In a block download, out-of-sequence segments are dropped and the end of the sub-block
+///   (seqno = blksize, or `c`) is acknowledged with the last good seqno; if the sub-block's
+///   last segment itself is lost, [`SdoServerConfig::sub_block_timeout`] triggers that
+///   acknowledge.
+///
 /// ```
 /// use drivers::canopen::sdo::{SdoServer, SdoServerConfig};
 /// use drivers::canopen::NodeId;
@@ -759,12 +771,10 @@ impl<const BUF: usize> SdoServer<BUF> {
                 Ok(_) => {}
                 Err(c) => return self.abort(addr, c),
             }
-            // Every byte is read once, so the CRC can be run as the value is read.
-            let new_crc = if fresh_at >= read {
-                crc16_update(crc, &self.buf[have..want])
-            } else {
-                crc
-            };
+            // Every byte is read from the dictionary once (resent segments come from the
+            // buffer), so the CRC runs as the value is read.
+            debug_assert_eq!(fresh_at, read);
+            let new_crc = crc16_update(crc, &self.buf[have..want]);
             self.len = want;
             if let State::BlockUp {
                 crc: ref mut c,
