@@ -13,6 +13,7 @@ pub mod heartbeat;
 pub mod nmt;
 pub mod od;
 pub mod pdo;
+pub mod sdo;
 pub mod sync;
 
 pub use abort::AbortCode;
