@@ -4,12 +4,14 @@
 
 mod abort;
 mod cob;
+pub mod device;
 #[cfg(feature = "std")]
 pub mod eds;
 pub mod emcy;
 pub mod endpoint;
 pub mod guarding;
 pub mod heartbeat;
+pub mod master;
 pub mod nmt;
 pub mod od;
 pub mod pdo;

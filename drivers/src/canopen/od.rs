@@ -627,7 +627,16 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     /// Restores every entry's default value.
     pub fn reset_to_defaults(&mut self) {
+        self.reset_range(0x0000, 0xFFFF);
+    }
+
+    /// Restores the default values of the entries with `first <= index <= last` (a reset
+    /// communication reloads 1000h..1FFFh only).
+    pub fn reset_range(&mut self, first: u16, last: u16) {
         for s in self.slots.iter_mut() {
+            if s.def.addr.index < first || s.def.addr.index > last {
+                continue;
+            }
             let cap = s.def.storage_size();
             let region = &mut self.arena[s.offset..s.offset + cap];
             // Defaults were checked at insert.
