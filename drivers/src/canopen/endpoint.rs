@@ -30,3 +30,19 @@ impl<E: Endpoint + ?Sized> Endpoint for &mut E {
         (**self).handle_timeout(now)
     }
 }
+
+#[cfg(feature = "std")]
+impl<E: Endpoint + ?Sized> Endpoint for Box<E> {
+    fn handle_frame(&mut self, frame: &Frame, now: Instant) {
+        (**self).handle_frame(frame, now)
+    }
+    fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
+        (**self).poll_transmit(now)
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        (**self).poll_timeout()
+    }
+    fn handle_timeout(&mut self, now: Instant) {
+        (**self).handle_timeout(now)
+    }
+}
