@@ -22,6 +22,15 @@
 //! the in-process virtual bus; this bus connects processes (simulated drives, `canbus dump`,
 //! tools in other languages).
 //!
+//! # Lifetimes
+//!
+//! A sample lives in its sender's shared memory. A receiver connects to a sender when it polls
+//! ([`Bus::try_recv`]) while that sender is alive; frames of a sender that has already gone
+//! before the receiver's first poll are lost. Long-lived endpoints (drives, the coordinator,
+//! `canbus dump`) poll all the time; short-lived senders stay open briefly after their last
+//! frame (`canbus send` lingers 250 ms). Endpoints that die (even by SIGKILL) leave resources
+//! that the next [`ShmBus::open`] on the machine removes (iceoryx2 dead-node cleanup).
+//!
 //! # Sample layout (for tools in other languages)
 //!
 //! Service `vbus/NAME`, messaging pattern publish-subscribe, payload type name
