@@ -64,3 +64,72 @@ fn reads_candump_l_output_and_reports_line_numbers() {
         other => panic!("expected a line-2 frame error, got {other:?}"),
     }
 }
+
+/// python-can reads our logs and we read its logs (it appends a direction flag, ` R`).
+#[test]
+fn python_can_interoperates() {
+    let have = std::process::Command::new("python3")
+        .args(["-c", "import can"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !have {
+        eprintln!("SKIP python_can_interoperates: python3 with python-can is not installed");
+        return;
+    }
+    let dir = std::env::temp_dir();
+    let ours = dir.join(format!("candump_ours_{}.log", std::process::id()));
+    let theirs = dir.join(format!("candump_theirs_{}.log", std::process::id()));
+    let frames: Vec<Frame> = ["605#4000100000000000", "12345678#DEAD", "705#R", "080#"]
+        .iter()
+        .map(|s| s.parse().unwrap())
+        .collect();
+    let mut w = CandumpWriter::new(Vec::new());
+    for (i, f) in frames.iter().enumerate() {
+        w.write(
+            Instant::from_micros(1_700_000_000_000_000 + i as u64 * 1_500),
+            "vbus:p",
+            f,
+        )
+        .unwrap();
+    }
+    std::fs::write(&ours, w.into_inner()).unwrap();
+    // python-can reads our file and writes every message back in its own words.
+    let script = "import can, sys\n\
+                  w = can.CanutilsLogWriter(sys.argv[2], channel='vbus:p')\n\
+                  for m in can.CanutilsLogReader(sys.argv[1]):\n    \
+                  print(hex(m.arbitration_id), m.is_extended_id, m.is_remote_frame, m.data.hex())\n    \
+                  w.on_message_received(m)\n\
+                  w.stop()\n";
+    let out = std::process::Command::new("python3")
+        .args(["-c", script])
+        .arg(&ours)
+        .arg(&theirs)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let seen = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(
+        seen.lines().collect::<Vec<_>>(),
+        [
+            "0x605 False False 4000100000000000",
+            "0x12345678 True False dead",
+            "0x705 False True ",
+            "0x80 False False "
+        ]
+    );
+    let back = read_log(std::io::BufReader::new(
+        std::fs::File::open(&theirs).unwrap(),
+    ))
+    .unwrap();
+    let _ = std::fs::remove_file(&ours);
+    let _ = std::fs::remove_file(&theirs);
+    assert_eq!(back.iter().map(|r| r.frame).collect::<Vec<_>>(), frames);
+    assert_eq!(
+        back[1].timestamp,
+        Instant::from_micros(1_700_000_000_001_500)
+    );
+}

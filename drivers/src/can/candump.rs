@@ -9,7 +9,8 @@
 //!
 //! Standard identifiers have 3 hex digits, extended ones 8; remote frames are `ID#R` (with the
 //! DLC appended when it is not zero, `ID#R1`). CAN FD (`ID##...`) lines are rejected with a typed
-//! error. Timestamps keep microseconds, so a log read back equals what was written.
+//! error. Anything after the frame (python-can 4 appends a direction flag, ` R` or ` T`) is
+//! ignored. Timestamps keep microseconds, so a log read back equals what was written.
 
 use super::{Frame, ParseFrameError};
 use crate::time::Instant;

@@ -155,6 +155,9 @@ fn unique_sender_id() -> u64 {
 }
 
 /// One endpoint on a cross-process virtual bus.
+///
+/// Not `Send`: it uses iceoryx2's single-threaded `ipc` service, whose ports take no locks.
+/// Open it on the thread that uses it (the real-time thread opens its own endpoint).
 pub struct ShmBus {
     name: String,
     bitrate: u32,
@@ -395,7 +398,7 @@ mod tests {
     }
 
     #[test]
-    fn rejects_bad_bitrate_and_name() {
+    fn rejects_a_bitrate_outside_classic_can() {
         assert_eq!(ShmBus::open("x", 1).unwrap_err(), ShmBusError::Bitrate(1));
     }
 }
