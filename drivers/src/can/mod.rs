@@ -7,7 +7,15 @@
 
 pub mod bit_timing;
 mod bus;
+#[cfg(feature = "std")]
+pub mod candump;
 mod frame;
+#[cfg(feature = "std")]
+pub mod pcap;
+#[cfg(feature = "shm")]
+pub mod shm_bus;
+#[cfg(feature = "socketcan")]
+pub mod socketcan;
 
 pub use bus::{Bus, BusCounters, BusError, BusState};
 pub use frame::{Frame, FrameError, ParseFrameError};
