@@ -266,7 +266,8 @@ impl<const BUF: usize> SdoServer<BUF> {
             let end = (start + SEGMENT_DATA).min(self.len);
             let chunk = self.buf.get(start..end).unwrap_or(&[]);
             *sent += 1;
-            let last = *sent == segs && offset + self.len >= size;
+            // The `c` bit marks the segment that reaches the end of the value.
+            let last = end == self.len && offset + self.len >= size;
             if *sent >= segs {
                 *phase = UpPhase::AwaitAck;
                 // The client's silence counts from the last segment sent.
@@ -782,7 +783,9 @@ impl<const BUF: usize> SdoServer<BUF> {
                 *r = offset + want;
             }
         }
-        let segs = self.len.div_ceil(SEGMENT_DATA).max(1) as u8;
+        // After the client shrank its block size, unacknowledged data may exceed one sub-block;
+        // the rest waits in the buffer for the next one.
+        let segs = self.len.div_ceil(SEGMENT_DATA).clamp(1, blksize as usize) as u8;
         if let State::BlockUp {
             segs: ref mut s,
             ref mut sent,

@@ -369,6 +369,29 @@ fn block_upload_recovers_a_lost_last_segment_of_sub_block() {
 }
 
 #[test]
+fn block_upload_server_follows_a_shrinking_block_size() {
+    let mut s: SdoServer<4096> = SdoServer::new(node(), SdoServerConfig::default());
+    let mut od = TestOd::new();
+    let t = Instant::ZERO;
+    assert_eq!(
+        ask(&mut s, &mut od, [0xA4, 0x00, 0x20, 0x01, 10, 0, 0, 0]).unwrap()[0],
+        0xC6
+    );
+    s.handle_frame(&sframe([0xA3, 0, 0, 0, 0, 0, 0, 0]), t, &mut od);
+    let first: Vec<_> = core::iter::from_fn(|| s.poll_transmit(t)).collect();
+    assert_eq!(first.len(), 10);
+    // Only 2 segments arrived; the next sub-block may hold 3.
+    s.handle_frame(&sframe([0xA2, 2, 3, 0, 0, 0, 0, 0]), t, &mut od);
+    let next: Vec<_> = core::iter::from_fn(|| s.poll_transmit(t)).collect();
+    assert_eq!(next.len(), 3);
+    for (i, f) in next.iter().enumerate() {
+        assert_eq!(f.data()[0], i as u8 + 1);
+        assert_eq!(&f.data()[1..], &od.domain_ro[14 + 7 * i..21 + 7 * i]);
+    }
+    assert_eq!(s.poll_timeout(), Some(t + Duration::from_millis(500)));
+}
+
+#[test]
 fn crc_mismatch_aborts() {
     let mut s: SdoServer<4096> = SdoServer::new(node(), SdoServerConfig::default());
     let mut od = TestOd::new();
