@@ -61,6 +61,10 @@ pub struct SdoClientConfig {
     /// Block upload protocol switch threshold: 0 forbids the server to answer with a normal
     /// upload; otherwise values up to this many bytes may come that way.
     pub pst: u8,
+    /// In a block upload, silence this long after a segment of an unfinished sub-block makes
+    /// the client acknowledge what it has (the server then resends the rest). This recovers a
+    /// lost last segment of a sub-block.
+    pub sub_block_timeout: Duration,
 }
 
 impl Default for SdoClientConfig {
@@ -70,6 +74,7 @@ impl Default for SdoClientConfig {
             block_size: MAX_BLOCK_SIZE,
             crc: true,
             pst: 0,
+            sub_block_timeout: Duration::from_millis(100),
         }
     }
 }
@@ -191,6 +196,8 @@ enum Phase {
         crc: bool,
         received: usize,
         done: bool,
+        /// A segment arrived since the last acknowledge (see the sub-block timer).
+        seen: bool,
     },
 }
 
@@ -226,6 +233,7 @@ pub struct SdoClient<const Q: usize, const BUF: usize> {
     queue: Deque<Request, Q>,
     phase: Option<Phase>,
     deadline: Option<Instant>,
+    last_rx: Instant,
     data: [u8; BUF],
     data_used: usize,
     rx: [u8; BUF],
@@ -246,6 +254,7 @@ impl<const Q: usize, const BUF: usize> SdoClient<Q, BUF> {
             queue: Deque::new(),
             phase: None,
             deadline: None,
+            last_rx: Instant::ZERO,
             data: [0; BUF],
             data_used: 0,
             rx: [0; BUF],
@@ -426,6 +435,14 @@ impl<const Q: usize, const BUF: usize> SdoClient<Q, BUF> {
     pub fn poll_timeout(&self) -> Option<Instant> {
         match self.phase {
             None | Some(Phase::BlockDown { sending: true, .. }) => None,
+            Some(Phase::BlockUp {
+                done: false,
+                seen: true,
+                ..
+            }) => {
+                let sub = self.last_rx + self.config.sub_block_timeout;
+                self.deadline.map(|d| d.min(sub))
+            }
             Some(_) => self.deadline,
         }
     }
@@ -437,6 +454,32 @@ impl<const Q: usize, const BUF: usize> SdoClient<Q, BUF> {
             return;
         };
         if now < deadline {
+            return;
+        }
+        if let Some(Phase::BlockUp {
+            done: false,
+            seen: true,
+            expected,
+            size,
+            crc,
+            received,
+        }) = self.phase
+            && self.deadline.is_some_and(|d| now < d)
+        {
+            // Only after a segment since the last ack: with nothing received, the client could
+            // not tell a lost ack from a lost sub-block, and a guess would corrupt the value.
+            self.phase = Some(Phase::BlockUp {
+                expected: 1,
+                size,
+                crc,
+                received,
+                done: false,
+                seen: false,
+            });
+            self.send(ClientFrame::BlockUploadAck {
+                ackseq: expected - 1,
+                blksize: self.config.block_size,
+            });
             return;
         }
         let Some(req) = self.queue.front().copied() else {
@@ -464,6 +507,7 @@ impl<const Q: usize, const BUF: usize> SdoClient<Q, BUF> {
             return;
         };
         self.deadline = Some(now + req.timeout);
+        self.last_rx = now;
         if let Phase::BlockUp { done: false, .. } = phase
             && !is_block_abort(&b)
         {
@@ -617,6 +661,7 @@ impl<const Q: usize, const BUF: usize> SdoClient<Q, BUF> {
                     crc: crc && self.config.crc,
                     received: 0,
                     done: false,
+                    seen: false,
                 });
                 self.send(ClientFrame::BlockUploadStart);
             }
@@ -674,14 +719,15 @@ impl<const Q: usize, const BUF: usize> SdoClient<Q, BUF> {
         let ends = seg.last || seg.seqno >= blksize;
         if seg.seqno != expected {
             // Dropped; the ack at the end of the sub-block makes the server resend from here.
+            self.phase = Some(Phase::BlockUp {
+                expected: if ends { 1 } else { expected },
+                size,
+                crc,
+                received,
+                done: false,
+                seen: !ends,
+            });
             if ends {
-                self.phase = Some(Phase::BlockUp {
-                    expected: 1,
-                    size,
-                    crc,
-                    received,
-                    done: false,
-                });
                 self.send(ClientFrame::BlockUploadAck {
                     ackseq: expected - 1,
                     blksize,
@@ -705,6 +751,7 @@ impl<const Q: usize, const BUF: usize> SdoClient<Q, BUF> {
             crc,
             received,
             done: seg.last,
+            seen: !ends,
         });
         if ends {
             self.send(ClientFrame::BlockUploadAck {

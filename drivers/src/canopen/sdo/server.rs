@@ -111,8 +111,11 @@ enum State {
         done: bool,
         /// Bytes received in sequence, counting the last segment as 7.
         received: usize,
-        /// Whether the sub-block timer already produced an acknowledge since the last segment.
-        timer_acked: bool,
+        /// Whether a segment arrived since the last acknowledge. Only then may the sub-block
+        /// timer acknowledge: with nothing received, the server cannot tell whether its last
+        /// acknowledge was lost (the client waits for it) or the new sub-block was (the client
+        /// waits for an ack of that), and a guess would duplicate or skip data.
+        seen: bool,
     },
     /// Block upload: the buffer holds the value's bytes `offset..offset + len` (the current
     /// sub-block, kept until acknowledged so a partial ackseq can be served again).
@@ -263,7 +266,8 @@ impl<const BUF: usize> SdoServer<BUF> {
             let end = (start + SEGMENT_DATA).min(self.len);
             let chunk = self.buf.get(start..end).unwrap_or(&[]);
             *sent += 1;
-            let last = *sent == segs && offset + self.len >= size;
+            // The `c` bit marks the segment that reaches the end of the value.
+            let last = end == self.len && offset + self.len >= size;
             if *sent >= segs {
                 *phase = UpPhase::AwaitAck;
                 // The client's silence counts from the last segment sent.
@@ -293,7 +297,7 @@ impl<const BUF: usize> SdoServer<BUF> {
             } => None,
             State::BlockDown {
                 done: false,
-                timer_acked: false,
+                seen: true,
                 ..
             } => Some(self.last_rx + self.config.sub_block_timeout.min(self.config.timeout)),
             _ => Some(self.last_rx + self.config.timeout),
@@ -311,20 +315,13 @@ impl<const BUF: usize> SdoServer<BUF> {
         }
         if let State::BlockDown {
             done: false,
-            timer_acked: ref mut acked @ false,
-            ref mut expected,
+            seen: true,
+            expected,
             ..
         } = self.state
             && self.config.sub_block_timeout < self.config.timeout
         {
-            *acked = true;
-            let ackseq = *expected - 1;
-            *expected = 1;
-            self.send(ServerFrame::BlockDownloadAck {
-                ackseq,
-                blksize: self.config.block_size,
-            });
-            return;
+            return self.ack_sub_block(expected - 1, false);
         }
         self.abort(self.current_addr(), AbortCode::Timeout);
     }
@@ -419,7 +416,7 @@ impl<const BUF: usize> SdoServer<BUF> {
                     expected: 1,
                     done: false,
                     received: 0,
-                    timer_acked: false,
+                    seen: false,
                 };
                 self.send(ServerFrame::BlockDownloadInitiate {
                     addr,
@@ -786,7 +783,9 @@ impl<const BUF: usize> SdoServer<BUF> {
                 *r = offset + want;
             }
         }
-        let segs = self.len.div_ceil(SEGMENT_DATA).max(1) as u8;
+        // After the client shrank its block size, unacknowledged data may exceed one sub-block;
+        // the rest waits in the buffer for the next one.
+        let segs = self.len.div_ceil(SEGMENT_DATA).clamp(1, blksize as usize) as u8;
         if let State::BlockUp {
             segs: ref mut s,
             ref mut sent,
@@ -816,6 +815,9 @@ impl<const BUF: usize> SdoServer<BUF> {
             Ok(s) => s,
             Err(e) => return self.abort(addr, e.abort_code()),
         };
+        if let State::BlockDown { ref mut seen, .. } = self.state {
+            *seen = true;
+        }
         let blksize = self.config.block_size;
         let ends_sub_block = seg.last || seg.seqno >= blksize;
         if seg.seqno != expected {
@@ -838,13 +840,11 @@ impl<const BUF: usize> SdoServer<BUF> {
         if let State::BlockDown {
             expected: ref mut e,
             received: ref mut r,
-            ref mut timer_acked,
             ..
         } = self.state
         {
             *e += 1;
             *r += SEGMENT_DATA;
-            *timer_acked = false;
         }
         if ends_sub_block {
             self.ack_sub_block(seg.seqno, seg.last);
@@ -855,13 +855,13 @@ impl<const BUF: usize> SdoServer<BUF> {
         if let State::BlockDown {
             expected: ref mut e,
             done: ref mut d,
-            ref mut timer_acked,
+            ref mut seen,
             ..
         } = self.state
         {
             *e = 1;
             *d = done;
-            *timer_acked = false;
+            *seen = false;
         }
         self.send(ServerFrame::BlockDownloadAck {
             ackseq,
