@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use drivers::can::station::Station;
+use drivers::can::station::{self, Station, Steppable};
 use drivers::can::{ClockMode, Frame, VirtualBus, VirtualBusConfig, VirtualPort};
 use drivers::canopen::device::{
     CommProfile, Device, NoHooks, PdoDefault, insert_communication_objects,
@@ -230,20 +230,17 @@ impl Rig {
         &mut st.endpoint
     }
 
+    fn stations(&mut self) -> Vec<&mut dyn Steppable> {
+        let mut v: Vec<&mut dyn Steppable> = vec![&mut self.master];
+        v.extend(self.devices.iter_mut().map(|d| d as &mut dyn Steppable));
+        v
+    }
+
     fn settle(&mut self) {
-        for _ in 0..100_000 {
-            let mut moved = self.master.step();
-            for d in self.devices.iter_mut() {
-                moved += d.step();
-            }
-            while let Ok(Some(f)) = drivers::can::Bus::try_recv(&mut self.monitor) {
-                self.log.push(f);
-            }
-            if moved == 0 {
-                return;
-            }
+        station::settle(&mut self.stations());
+        while let Ok(Some(f)) = drivers::can::Bus::try_recv(&mut self.monitor) {
+            self.log.push(f);
         }
-        panic!("the rig did not settle: an endpoint keeps producing frames at one instant");
     }
 
     /// Runs event by event until `done` returns true (checked after each settled instant) or
@@ -255,27 +252,12 @@ impl Rig {
             if done(self) {
                 return true;
             }
-            let now = self.now();
-            if now >= until {
+            if self.now() >= until {
                 return false;
             }
-            let mut next = until;
-            let mut take = |t: Option<Instant>| {
-                if let Some(t) = t {
-                    next = next.min(t);
-                }
-            };
-            take(self.bus.next_event_time());
-            take(self.master.next_deadline());
-            for d in &self.devices {
-                take(d.next_deadline());
-            }
-            let next = if next <= now {
-                now + Duration::from_micros(1)
-            } else {
-                next
-            };
-            self.bus.advance_to(next);
+            let bus = self.bus.clone();
+            let next = station::next_event(&bus, &self.stations(), until);
+            bus.advance_to(next);
         }
     }
 

@@ -79,7 +79,7 @@ fn segmented_upload_of_a_1k_domain() {
 fn block_download_of_4k_with_crc() {
     let mut rig = Rig::new(&[5]);
     boot(&mut rig);
-    let data: Vec<u8> = (0..4096u32).map(|i| (i * 13 ^ (i >> 3)) as u8).collect();
+    let data: Vec<u8> = (0..4096u32).map(|i| ((i * 13) ^ (i >> 3)) as u8).collect();
     let start = rig.log.len();
     rig.master
         .endpoint
@@ -631,3 +631,4 @@ fn reset_communication_restores_pdo_defaults_and_boots_again() {
     );
     let _ = Instant::ZERO;
 }
+

@@ -1,5 +1,5 @@
-//! Driving sans-I/O endpoints on buses: a [`Station`] ties one endpoint to one bus port, and a
-//! [`Simulation`] runs several stations on one in-process [`VirtualBus`] in virtual time,
+//! Driving sans-I/O endpoints on buses: a [`Station`] ties one endpoint to one bus port, and
+//! [`run_until`] runs several stations on one in-process [`VirtualBus`] in virtual time,
 //! jumping from event to event (a frame completing, a timer of some endpoint) so an hour of bus
 //! traffic runs in seconds and every run is the same.
 
@@ -52,14 +52,11 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
         if self.endpoint.poll_timeout().is_some_and(|t| t <= now) {
             self.endpoint.handle_timeout(now);
         }
-        loop {
-            let Some(f) = self
-                .pending
-                .take()
-                .or_else(|| self.endpoint.poll_transmit(now))
-            else {
-                break;
-            };
+        while let Some(f) = self
+            .pending
+            .take()
+            .or_else(|| self.endpoint.poll_transmit(now))
+        {
             match self.bus.send(&f) {
                 Ok(()) => moved += 1,
                 Err(BusError::WouldBlock) => {
@@ -77,11 +74,10 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
         self.errors
     }
 
-    /// When this station next has something to do on its own (a timer).
+    /// When this station next has something to do on its own (a timer). A frame held back by
+    /// a full TX queue is not a deadline: the bus frees a slot when a frame completes, which is
+    /// the bus's own next event.
     pub fn next_deadline(&self) -> Option<Instant> {
-        if self.pending.is_some() {
-            return Some(self.bus.now());
-        }
         self.endpoint.poll_timeout()
     }
 }
@@ -103,77 +99,50 @@ impl<B: Bus, E: Endpoint> Steppable for Station<B, E> {
     }
 }
 
-/// Several stations on one virtual-time [`VirtualBus`], advanced event by event.
-pub struct Simulation<'a> {
-    bus: VirtualBus,
-    stations: Vec<&'a mut dyn Steppable>,
+/// Lets every station act at the bus's current time until none has anything left to do.
+/// Returns how many frames moved. Bounded: a station that keeps producing frames at one instant
+/// fills its TX queue and stops.
+pub fn settle(stations: &mut [&mut dyn Steppable]) -> usize {
+    let mut total = 0;
+    for _ in 0..10_000 {
+        let moved: usize = stations.iter_mut().map(|s| s.step()).sum();
+        if moved == 0 {
+            break;
+        }
+        total += moved;
+    }
+    total
 }
 
-impl<'a> Simulation<'a> {
-    /// A simulation of `bus` (which should use [`super::ClockMode::Virtual`]).
-    pub fn new(bus: VirtualBus) -> Self {
-        Simulation {
-            bus,
-            stations: Vec::new(),
+/// The next instant anything happens on a virtual-time bus: a frame completing or a station's
+/// timer, but no later than `until`. Always after the bus's current time, so a loop of
+/// [`settle`] and `bus.advance_to(next_event(..))` makes progress.
+pub fn next_event(bus: &VirtualBus, stations: &[&mut dyn Steppable], until: Instant) -> Instant {
+    let now = bus.now();
+    let mut next = until;
+    if let Some(t) = bus.next_event_time() {
+        next = next.min(t);
+    }
+    for s in stations {
+        if let Some(t) = s.next_deadline() {
+            next = next.min(t);
         }
     }
-
-    /// Adds a station (its port must belong to this simulation's bus).
-    pub fn add(&mut self, station: &'a mut dyn Steppable) {
-        self.stations.push(station);
+    // A deadline at or before now was just served by settle(); step past it.
+    if next <= now {
+        now + core::time::Duration::from_nanos(1)
+    } else {
+        next
     }
+}
 
-    /// The bus.
-    pub fn bus(&self) -> &VirtualBus {
-        &self.bus
-    }
-
-    /// Lets every station act at the current time until none has anything left to do.
-    pub fn settle(&mut self) {
-        // Bounded: a station that keeps producing frames at one instant fills its TX queue.
-        for _ in 0..10_000 {
-            let mut moved = 0;
-            for s in self.stations.iter_mut() {
-                moved += s.step();
-            }
-            if moved == 0 {
-                break;
-            }
+/// Runs `stations` on a virtual-time `bus` until `until`, event by event.
+pub fn run_until(bus: &VirtualBus, stations: &mut [&mut dyn Steppable], until: Instant) {
+    loop {
+        settle(stations);
+        if bus.now() >= until {
+            return;
         }
-    }
-
-    /// Runs until `until`, jumping from event to event. `check` runs after each step and can
-    /// stop the run early by returning `true`; the time of the stop is returned.
-    pub fn run_until(
-        &mut self,
-        until: Instant,
-        mut check: impl FnMut(&VirtualBus) -> bool,
-    ) -> Instant {
-        loop {
-            self.settle();
-            if check(&self.bus) {
-                return self.bus.now();
-            }
-            let now = self.bus.now();
-            if now >= until {
-                return now;
-            }
-            let mut next = until;
-            if let Some(t) = self.bus.next_event_time() {
-                next = next.min(t);
-            }
-            for s in &self.stations {
-                if let Some(t) = s.next_deadline() {
-                    next = next.min(t);
-                }
-            }
-            // Never stand still: a deadline in the past has just been served by settle().
-            let next = if next <= now {
-                now + core::time::Duration::from_nanos(1)
-            } else {
-                next
-            };
-            self.bus.advance_to(next);
-        }
+        bus.advance_to(next_event(bus, stations, until));
     }
 }
