@@ -6,10 +6,13 @@
 //! `profile` (trapezoidal and jerk-limited profiles), `axis` (FHPP and CiA 402 master-side state
 //! machines), `comparator`, `records`, `budget` (bus admission), `cycle` (the pure step),
 //! `config` and `runtime` (the real-time thread, the executor, shared-memory publishing).
-//! Until then it only re-exports the bus layer it builds on.
+//! Until then, [`demo`] is what `coordinator run` does: a CANopen master driving simulated
+//! devices over the virtual bus.
 //!
 //! ```
 //! assert_eq!(coordinator::drivers::can::bit_timing::worst_case_bits(false, 8), 135);
 //! ```
+
+pub mod demo;
 
 pub use drivers;

@@ -631,4 +631,3 @@ fn reset_communication_restores_pdo_defaults_and_boots_again() {
     );
     let _ = Instant::ZERO;
 }
-

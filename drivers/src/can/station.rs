@@ -124,11 +124,12 @@ pub fn next_event(bus: &VirtualBus, stations: &[&mut dyn Steppable], until: Inst
         next = next.min(t);
     }
     for s in stations {
-        if let Some(t) = s.next_deadline() {
+        // A deadline at or before now that settle() left standing waits for the bus (a frame
+        // held back by a full TX queue): the bus's next event is what unblocks it.
+        if let Some(t) = s.next_deadline().filter(|&t| t > now) {
             next = next.min(t);
         }
     }
-    // A deadline at or before now was just served by settle(); step past it.
     if next <= now {
         now + core::time::Duration::from_nanos(1)
     } else {

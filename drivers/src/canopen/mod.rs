@@ -9,6 +9,7 @@ pub mod device;
 pub mod eds;
 pub mod emcy;
 pub mod endpoint;
+pub mod example;
 pub mod guarding;
 pub mod heartbeat;
 pub mod master;
