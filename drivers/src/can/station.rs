@@ -2,6 +2,28 @@
 //! [`run_until`] runs several stations on one in-process [`VirtualBus`] in virtual time,
 //! jumping from event to event (a frame completing, a timer of some endpoint) so an hour of bus
 //! traffic runs in seconds and every run is the same.
+//!
+//! ```
+//! use drivers::can::station::{self, Station, Steppable};
+//! use drivers::can::{FaultRule, IdMatch, VirtualBus, VirtualBusConfig};
+//! use drivers::canopen::master::{Master, Supervision};
+//! use drivers::canopen::sdo::Completion;
+//! use drivers::canopen::{example::example_device, Address, NodeId};
+//! use std::time::Duration;
+//!
+//! let bus = VirtualBus::new(VirtualBusConfig::default()).unwrap(); // 1 Mbit/s, virtual time
+//! let n = NodeId::new(5).unwrap();
+//! let mut master = Station::new(bus.attach("master"), Master::<4, 4, 1024>::default());
+//! let mut device = Station::new(bus.attach("drive"), example_device(n, bus.now()));
+//! master.endpoint.add_node(n, Supervision::Heartbeat { consumer_ms: 250 }, bus.now()).unwrap();
+//! master.endpoint.sdo(n).unwrap().upload(Address::new(0x1018, 1)).unwrap();
+//! // Drop every heartbeat: the SDO exchange is unaffected.
+//! bus.add_fault(FaultRule::drop(IdMatch::Exact(0x705)));
+//! let until = bus.now() + Duration::from_millis(10);
+//! station::run_until(&bus, &mut [&mut master as &mut dyn Steppable, &mut device], until);
+//! let e = master.endpoint.poll_sdo_event(n).unwrap();
+//! assert_eq!(e.outcome, Ok(Completion::Uploaded(&0x59u32.to_le_bytes()[..])));
+//! ```
 
 use super::{Bus, BusError, Frame, VirtualBus};
 use crate::canopen::endpoint::Endpoint;
