@@ -15,6 +15,7 @@
 //! assert!(!plan.index_pulse);
 //! ```
 
+use super::controlword::Controlword;
 use super::statusword::Statusword;
 
 /// A direction of travel.
@@ -400,6 +401,86 @@ impl HomingStatus {
     }
 }
 
+/// The homing parameters latched when homing starts (6098h, 6099h:01/02, TLC5xx `p_outHome`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HomingParams {
+    /// 6098h.
+    pub method: HomingMethod,
+    /// 6099h:01 speed during search for the switch.
+    pub search_speed: u32,
+    /// 6099h:02 speed during search for zero (leaving the switch, index search).
+    pub creep_speed: u32,
+    /// Maximum travel after the switch was found (TLC5xx 20F3h; `None` = off).
+    pub max_run_out: Option<u32>,
+}
+
+/// Device side of homing mode: controlword bit 4 rising starts a run, bit 4 falling or halt
+/// (bit 8) interrupts it (CiA 402), and the statusword bits follow [`HomingStatus`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HomingDevice {
+    last_start: bool,
+    run: Option<HomingRun>,
+    status: HomingStatus,
+}
+
+impl Default for HomingDevice {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl HomingDevice {
+    /// Not started yet (bits 13/12/10 = 0/0/1).
+    pub const fn new() -> Self {
+        HomingDevice {
+            last_start: false,
+            run: None,
+            status: HomingStatus::Interrupted,
+        }
+    }
+    /// A controlword while homing mode is active in Operation enabled; `true` if a run started.
+    pub fn handle_controlword(&mut self, cw: Controlword, params: &HomingParams) -> bool {
+        let start = cw.has(Controlword::HOMING_START);
+        let rising = start && !self.last_start;
+        self.last_start = start;
+        if (!start || cw.halt()) && self.run.is_some() {
+            self.run = None;
+            self.status = HomingStatus::Interrupted;
+        }
+        if rising && !cw.halt() {
+            self.run = Some(HomingRun::new(
+                params.method.plan(),
+                params.search_speed,
+                params.creep_speed,
+                params.max_run_out,
+            ));
+            self.status = HomingStatus::InProgress;
+            return true;
+        }
+        false
+    }
+    /// One tick of the running homing; `None` when none runs (the axis holds still).
+    pub fn step(&mut self, inputs: &HomingInputs) -> Option<HomingStep> {
+        let step = self.run.as_mut()?.step(inputs);
+        match step {
+            HomingStep::Run(_) => {}
+            HomingStep::Done(_) => {
+                self.run = None;
+                self.status = HomingStatus::Completed;
+            }
+            HomingStep::Failed(_) => {
+                self.run = None;
+                self.status = HomingStatus::ErrorStopped;
+            }
+        }
+        Some(step)
+    }
+    /// The homing state for statusword bits 10, 12, 13.
+    pub const fn status(&self) -> HomingStatus {
+        self.status
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -537,5 +618,37 @@ mod tests {
         assert_eq!(HomingStatus::from_statusword(Statusword(0x3000)), None);
         assert_eq!(rebased_position(-999, -999, 10), 10);
         assert_eq!(rebased_position(i32::MIN, 1, 0), i32::MAX);
+    }
+
+    #[test]
+    fn homing_device_starts_on_bit4_and_interrupts_on_its_fall_or_halt() {
+        let params = HomingParams {
+            method: HomingMethod::HomeSwitchNegative,
+            search_speed: 10,
+            creep_speed: 1,
+            max_run_out: None,
+        };
+        let mut dev = HomingDevice::new();
+        assert_eq!(dev.status(), HomingStatus::Interrupted);
+        assert!(dev.handle_controlword(Controlword(0x001F), &params));
+        assert!(!dev.handle_controlword(Controlword(0x001F), &params)); // level, no new edge
+        let mut i = HomingInputs {
+            position: 500,
+            ..HomingInputs::default()
+        };
+        assert_eq!(dev.step(&i), Some(HomingStep::Run(-10)));
+        assert_eq!(dev.status().bits(), Statusword(0));
+        dev.handle_controlword(Controlword(0x011F), &params); // halt
+        assert_eq!(dev.status(), HomingStatus::Interrupted);
+        assert_eq!(dev.step(&i), None);
+        dev.handle_controlword(Controlword(0x000F), &params);
+        assert!(dev.handle_controlword(Controlword(0x001F), &params));
+        i.home_switch = true;
+        assert_eq!(dev.step(&i), Some(HomingStep::Run(1)));
+        i.home_switch = false;
+        i.position = 301;
+        assert_eq!(dev.step(&i), Some(HomingStep::Done(301)));
+        assert_eq!(dev.status().bits(), Statusword(0x1400));
+        assert!(Statusword(0x1427).homing_attained());
     }
 }

@@ -187,6 +187,52 @@ pub mod tlc {
     pub const P_DIS_HOME: Object = Object::new(0x20F4, 0, "p_disHome", U32);
     /// 20F6h `startSetp` dimension setting (method 35) to this position (I32).
     pub const START_SETP: Object = Object::new(0x20F6, 0, "startSetp", I32);
+
+    /// The bits of a SIG mode's state object (`StatePTP` 2091h, `StateVEL` 2096h, `stateHome`
+    /// 20F1h, …; digest §4.1) and of `driveStat` 2041h bits 13..15.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+    pub struct SigState(pub u16);
+
+    impl SigState {
+        /// Bit 0: LIMP active.
+        pub const LIMP: u16 = 1 << 0;
+        /// Bit 1: LIMN active.
+        pub const LIMN: u16 = 1 << 1;
+        /// Bit 2: REF active.
+        pub const REF: u16 = 1 << 2;
+        /// Bit 3: STOP active.
+        pub const STOP: u16 = 1 << 3;
+        /// Bit 5: positive software limit.
+        pub const SW_LIMP: u16 = 1 << 5;
+        /// Bit 6: negative software limit.
+        pub const SW_LIMN: u16 = 1 << 6;
+        /// Bit 7: software stop.
+        pub const SW_STOP: u16 = 1 << 7;
+        /// Bit 13 `x_add_info`: mode specific (PTP: set-point reached; speed: set speed reached).
+        pub const X_ADD_INFO: u16 = 1 << 13;
+        /// Bit 14 `x_end`: 0 while the operation runs, 1 when done.
+        pub const X_END: u16 = 1 << 14;
+        /// Bit 15 `x_err`: the operation ended with an error.
+        pub const X_ERR: u16 = 1 << 15;
+
+        /// Whether every bit of `mask` is set.
+        pub const fn has(self, mask: u16) -> bool {
+            self.0 & mask == mask
+        }
+        /// The same value with the bits of `mask` set to `on`.
+        #[must_use]
+        pub const fn with(self, mask: u16, on: bool) -> SigState {
+            SigState(if on { self.0 | mask } else { self.0 & !mask })
+        }
+        /// Bit 14 `x_end`.
+        pub const fn x_end(self) -> bool {
+            self.has(Self::X_END)
+        }
+        /// Bit 15 `x_err`.
+        pub const fn x_err(self) -> bool {
+            self.has(Self::X_ERR)
+        }
+    }
 }
 
 /// MTR-DCI manufacturer objects of its CiA 402 PDO mapping.
@@ -296,6 +342,13 @@ mod tests {
         ] {
             assert!(m.iter().map(|e| u32::from(e.bits)).sum::<u32>() <= 64);
         }
+    }
+
+    #[test]
+    fn sig_state_bits() {
+        let st = tlc::SigState(0).with(tlc::SigState::X_END, true);
+        assert!(st.x_end() && !st.x_err());
+        assert_eq!(st.with(tlc::SigState::X_ERR, true).0, 0xC000);
     }
 
     #[test]
