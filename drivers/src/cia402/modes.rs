@@ -753,4 +753,63 @@ mod tests {
         );
         assert!(pv.update(i32::MIN, i32::MAX, t(13)).max_slippage());
     }
+
+    proptest::proptest! {
+        /// Master and device driven together, with moves finishing at random ticks: every
+        /// set-point the master sends is taken exactly once, the device never refuses one, and
+        /// the last target is reported reached.
+        #[test]
+        fn master_and_device_handshake_never_loses_a_set_point(
+            requests in proptest::collection::vec((-1000i32..1000, proptest::bool::ANY, proptest::bool::ANY), 1..12),
+            finish in proptest::collection::vec(proptest::bool::ANY, 64),
+            tlc in proptest::bool::ANY,
+        ) {
+            let profile = if tlc { TLC5XX } else { MTR_DCI };
+            let mut drive = PpDevice::new(&profile, 0);
+            let mut master = PpMaster::new(profile.abs_rel);
+            let mut pending = requests.iter();
+            let mut taken = 0usize;
+            let mut reached = false;
+            let mut expected_last = 0i32;
+            let mut sent_all = false;
+            for tick in 0..2000usize {
+                if master.state() == PpMasterState::Idle {
+                    match pending.next() {
+                        Some(&(target, relative, immediate)) => {
+                            master.request(SetPointRequest { target, relative, immediate }).unwrap();
+                            reached = false;
+                        }
+                        None => sent_all = true,
+                    }
+                }
+                let objects = PpObjects { target: master.target().unwrap_or(0), ..OBJ };
+                match drive.handle_controlword(master.controlword(Controlword(0x000F)), &objects) {
+                    Some(PpAction::Start(m)) | Some(PpAction::Queued(m)) => {
+                        taken += 1;
+                        expected_last = m.target;
+                    }
+                    Some(PpAction::Refused) => proptest::prop_assert!(false, "refused at {tick}"),
+                    None => {}
+                }
+                if finish[tick % finish.len()] || sent_all {
+                    drive.move_finished();
+                }
+                for e in master.handle_statusword(Statusword(0x0027 | drive.status_bits().0)) {
+                    reached |= e == PpEvent::TargetReached;
+                }
+                if sent_all && reached {
+                    break;
+                }
+            }
+            proptest::prop_assert_eq!(taken, requests.len());
+            proptest::prop_assert!(reached);
+            proptest::prop_assert_eq!(drive.active(), None);
+            // Relative targets resolve against the last target, so the final one is known.
+            let mut last = 0i32;
+            for &(t, rel, _) in &requests {
+                last = if rel { last.wrapping_add(t) } else { t };
+            }
+            proptest::prop_assert_eq!(expected_last, last);
+        }
+    }
 }
