@@ -20,4 +20,5 @@
 
 pub mod can;
 pub mod canopen;
+pub mod cia402;
 pub mod time;
