@@ -104,7 +104,7 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
     }
 }
 
-/// Something a [`Simulation`] can step: a [`Station`] with its types erased.
+/// Something [`run_until`] and [`settle`] can step: a [`Station`] with its types erased.
 pub trait Steppable {
     /// See [`Station::step`].
     fn step(&mut self) -> usize;
