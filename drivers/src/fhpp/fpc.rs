@@ -1,0 +1,8 @@
+//! placeholder
+/// x
+pub enum Channel {
+    /// x
+    Classic,
+    /// x
+    Enhanced,
+}
