@@ -222,9 +222,9 @@ pub enum OutputPayload {
 ///
 /// | COM | `value1` (byte 4) | `value2` (bytes 5..8) |
 /// |---|---|---|
-/// | position | speed, % of PNU 502 (MTR-DCI) / PNU 540 | target position [inc / SINC] |
+/// | position | speed, % of PNU 502 (MTR-DCI) / PNU 540 | target position \[inc / SINC\] |
 /// | force | MTR-DCI: not used (speed limit is PNU 554); EMCA/CMMO-ST: speed limit % of PNU 540 | force: % of rated current (MTR-DCI) / ‰ of PNU 555 (EMCA, CMMO-ST) |
-/// | speed | acceleration, % of PNU 560 | target speed [SINC/s], signed |
+/// | speed | acceleration, % of PNU 560 | target speed \[SINC/s\], signed |
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub struct DirectSetpoint {
     /// CDIR, byte 3.
@@ -273,7 +273,7 @@ impl DirectSetpoint {
             value2: force,
         }
     }
-    /// A speed task: `speed` [SINC/s] (signed) with ramp `ramp_percent` of PNU 560.
+    /// A speed task: `speed` \[SINC/s\] (signed) with ramp `ramp_percent` of PNU 560.
     pub const fn speed(
         speed: i32,
         ramp_percent: u8,

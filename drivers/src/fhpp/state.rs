@@ -1147,6 +1147,44 @@ mod tests {
     }
 
     #[test]
+    fn cmmo_st_homing_and_record_sequence_tab_5_5_to_5_10() {
+        let v = Variant::CmmoSt;
+        let mut m = enabled(v, 0x23);
+        assert_eq!(status(&m, v, false, false), (0x13, 0x05));
+        let running = Conditions {
+            motion_complete: false,
+            ..Conditions::healthy()
+        };
+        // 4.1 HOM P (CPOS 0x05): ACK = 1, MC = 0; 4.2 running: SPOS 0x13.
+        m = m.step(v, ctl(0x23, 0x05), &running).0;
+        assert_eq!(status(&m, v, false, true).1, 0x13);
+        // 4.3 homing done while HOM is still held: 0x87; HOM released: 0x85.
+        let homed = Conditions {
+            referenced: true,
+            ..Conditions::healthy()
+        };
+        m = m.step(v, ctl(0x23, 0x05), &homed).0;
+        assert_eq!(status(&m, v, true, false).1, 0x87);
+        m = m.step(v, ctl(0x23, 0x01), &homed).0;
+        assert_eq!(status(&m, v, true, false).1, 0x85);
+        // 5.2 START P (CPOS 0x03): ACK = 1, MC = 0 → 0x83.
+        let (n, a) = m.step(v, ctl(0x23, 0x03), &homed);
+        assert_eq!(a.command, Some(Command::StartTask));
+        m = n;
+        assert_eq!(status(&m, v, true, false).1, 0x83);
+        // 5.3 running, START back to 0: MOV = 1, ACK = 0.
+        let moving = Conditions {
+            motion_complete: false,
+            ..homed
+        };
+        m = m.step(v, ctl(0x23, 0x01), &moving).0;
+        assert_eq!(status(&m, v, true, true).1, 0x91);
+        // 5.4 done: 0x85.
+        m = m.step(v, ctl(0x23, 0x01), &homed).0;
+        assert_eq!(status(&m, v, true, false), (0x13, 0x85));
+    }
+
+    #[test]
     fn start_refusals() {
         let m = enabled(MTR, 0x03);
         let (n, a) = m.step(MTR, ctl(0x03, 0x03), &Conditions::healthy());

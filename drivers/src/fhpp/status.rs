@@ -279,7 +279,7 @@ pub enum InputPayload {
         record: u8,
         /// Byte 4.
         rsb: Rsb,
-        /// Bytes 5..8: actual position [inc / SINC].
+        /// Bytes 5..8: actual position \[inc / SINC\].
         position: i32,
     },
     /// Direct mode.
@@ -290,7 +290,7 @@ pub enum InputPayload {
         /// EMCA/CMMO-ST per PNU 523:7); 0 (speed mode).
         value1: u8,
         /// Bytes 5..8, actual value 2: actual position (position mode; force mode per PNU
-        /// 523:8); |speed| [SINC/s] (speed mode).
+        /// 523:8); |speed| \[SINC/s\] (speed mode).
         value2: i32,
     },
 }

@@ -2,15 +2,15 @@
 //!
 //! - MTR-DCI (digest 000 §2.4, §A.4): everything on the bus is in encoder increments (inc,
 //!   inc/s, inc/s²), relative to the project zero point. Conversion factor
-//!   UF [inc/µm] = encoder increments per motor revolution × gear / feed [µm per output
-//!   revolution]; rotary: inc per output revolution = encoder × gear.
+//!   UF \[inc/µm\] = encoder increments per motor revolution × gear / feed \[µm per output
+//!   revolution\]; rotary: inc per output revolution = encoder × gear.
 //! - EMCA, CMMO-ST (digest 001 §2.5, 002 §6): interface increments SINC, 1 SINC =
 //!   10^PNU600 × unit(PNU 601); speed SINC/s, acceleration SINC/s², jerk parameters in units of
 //!   10 SINC/s³ with 0 = no limit.
 //! - Direct-mode byte 4: a percentage (0..100, larger values limited to 100) of a base: max
 //!   speed PNU 502 (MTR-DCI), base speed PNU 540 or base acceleration PNU 560 (EMCA, CMMO-ST).
 //! - Force: MTR-DCI direct mode in % of rated current (CiA 402 6071h in ‰); EMCA/CMMO-ST in ‰
-//!   of the basic value PNU 555 [mA] (their manuals also write "%"; the digests' decision is ‰).
+//!   of the basic value PNU 555 \[mA\] (their manuals also write "%"; the digests' decision is ‰).
 
 use super::Variant;
 
@@ -86,7 +86,7 @@ impl MtrSize {
             _ => 2000,
         }
     }
-    /// Rated (= default max, PNU 502) speed [inc/s].
+    /// Rated (= default max, PNU 502) speed \[inc/s\].
     pub const fn rated_speed(self) -> u32 {
         match self {
             MtrSize::S32 => 66_000,
@@ -94,14 +94,14 @@ impl MtrSize {
             MtrSize::S62 => 113_400,
         }
     }
-    /// Max acceleration (PNU 503 default, upper limit of PNU 407/532/541) [inc/s²].
+    /// Max acceleration (PNU 503 default, upper limit of PNU 407/532/541) \[inc/s²\].
     pub const fn max_acceleration(self) -> u32 {
         match self {
             MtrSize::S32 | MtrSize::S42 => 480_000,
             MtrSize::S52 | MtrSize::S62 => 240_000,
         }
     }
-    /// Default record (PNU 407) and direct-mode (PNU 541) acceleration [inc/s²].
+    /// Default record (PNU 407) and direct-mode (PNU 541) acceleration \[inc/s²\].
     pub const fn default_acceleration(self) -> u32 {
         match self {
             MtrSize::S32 | MtrSize::S42 => 480_000,
@@ -109,11 +109,11 @@ impl MtrSize {
             MtrSize::S62 => 160_000,
         }
     }
-    /// Default jog phase-2 speed, PNU 531: 10 % of the max speed [inc/s].
+    /// Default jog phase-2 speed, PNU 531: 10 % of the max speed \[inc/s\].
     pub const fn default_jog_speed(self) -> u32 {
         self.rated_speed() / 10
     }
-    /// Default homing speed, PNU 1012 [inc/s].
+    /// Default homing speed, PNU 1012 \[inc/s\].
     pub const fn default_homing_speed(self) -> u32 {
         match self {
             MtrSize::S32 => 27_000,
@@ -121,7 +121,7 @@ impl MtrSize {
             MtrSize::S52 | MtrSize::S62 => 16_800,
         }
     }
-    /// Highest homing speed, PNU 1012 [inc/s].
+    /// Highest homing speed, PNU 1012 \[inc/s\].
     pub const fn max_homing_speed(self) -> u32 {
         match self {
             MtrSize::S32 => 33_000,
@@ -129,7 +129,7 @@ impl MtrSize {
             MtrSize::S62 => 56_700,
         }
     }
-    /// Rated motor current, PNU 1035 [mA].
+    /// Rated motor current, PNU 1035 \[mA\].
     pub const fn rated_current_ma(self) -> u32 {
         match self {
             MtrSize::S32 => 730,
@@ -172,7 +172,7 @@ pub struct Mechanics {
     pub increments_per_rev: u32,
     /// Gear, motor revolutions per output revolution.
     pub gear: Ratio,
-    /// Feed per output revolution [µm] (PNU 1003; DMES-18/25/40/63: 1500/2500/4000/6000).
+    /// Feed per output revolution \[µm\] (PNU 1003; DMES-18/25/40/63: 1500/2500/4000/6000).
     pub feed_um: u32,
 }
 
@@ -200,14 +200,14 @@ impl Mechanics {
             den: self.gear.den,
         }
     }
-    /// A length [µm] in increments, rounded to nearest.
+    /// A length \[µm\] in increments, rounded to nearest.
     pub const fn um_to_inc(&self, um: i64) -> Option<i64> {
         div_round(
             um as i128 * self.increments_per_rev as i128 * self.gear.num as i128,
             self.gear.den as i128 * self.feed_um as i128,
         )
     }
-    /// Increments as a length [µm], rounded to nearest.
+    /// Increments as a length \[µm\], rounded to nearest.
     pub const fn inc_to_um(&self, inc: i64) -> Option<i64> {
         div_round(
             inc as i128 * self.gear.den as i128 * self.feed_um as i128,
@@ -321,7 +321,7 @@ pub const fn percent_from(value: u32, base: u32) -> u8 {
     if p > 255 { 255 } else { p as u8 }
 }
 
-/// The force setpoint of direct mode bytes 5..8 as a current [mA]: MTR-DCI: % of the rated
+/// The force setpoint of direct mode bytes 5..8 as a current \[mA\]: MTR-DCI: % of the rated
 /// current `base_ma` (PNU 1035); EMCA/CMMO-ST: ‰ of the basic value `base_ma` (PNU 555).
 pub const fn force_to_milliamps(variant: Variant, value: i32, base_ma: u32) -> i64 {
     let per = force_resolution(variant) as i64;
@@ -330,7 +330,7 @@ pub const fn force_to_milliamps(variant: Variant, value: i32, base_ma: u32) -> i
     n / per
 }
 
-/// A current [mA] as the direct-mode force setpoint of `variant`, rounded to nearest; `None`
+/// A current \[mA\] as the direct-mode force setpoint of `variant`, rounded to nearest; `None`
 /// if `base_ma` is 0 or the result does not fit an i32.
 pub const fn milliamps_to_force(variant: Variant, ma: i64, base_ma: u32) -> Option<i32> {
     match div_round(
@@ -355,7 +355,7 @@ pub const fn jerk_from_parameter(p: u32) -> Option<u64> {
     if p == 0 { None } else { Some(p as u64 * 10) }
 }
 
-/// A jerk [SINC/s³] as the parameter value: rounded to nearest, at least 1 (0 would mean no
+/// A jerk \[SINC/s³\] as the parameter value: rounded to nearest, at least 1 (0 would mean no
 /// limit), saturating at `u32::MAX`.
 pub const fn jerk_to_parameter(sinc_per_s3: u64) -> u32 {
     let p = (sinc_per_s3 + 5) / 10;
