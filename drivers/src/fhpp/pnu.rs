@@ -10,8 +10,8 @@
 //! record n is IND n + 1; on the EFPC devices a simple variable has sub-index 1 (0 is accepted
 //! too) and record n is sub-index n (see [`record_subindex`]).
 
-use super::Variant;
 use super::fpc::{Channel, ErrorKind, Param, Value};
+use super::{ControlMode, Variant};
 use crate::canopen::Address;
 
 /// The data type of a parameter.
@@ -251,6 +251,14 @@ impl Table {
         }
     }
 
+    /// How many values the table holds (sum of the entries' sub-index counts): the least `N`
+    /// of a [`ParamStore`].
+    pub fn value_count(&self) -> usize {
+        self.entries()
+            .map(|d| usize::from(d.last_sub - d.first_sub) + 1)
+            .sum()
+    }
+
     /// Every entry (specific ones first; a common entry shadowed by a specific one for the same
     /// PNU is still listed).
     pub fn entries(&self) -> impl Iterator<Item = &'static ParamDef> + use<> {
@@ -327,6 +335,128 @@ impl Table {
     }
 }
 
+/// [`ParamStore::new`] was given too little room for the table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("parameter store holds {capacity} values, the table needs {needed}")]
+pub struct CapacityError {
+    /// Values the table needs.
+    pub needed: usize,
+    /// The store's capacity `N`.
+    pub capacity: usize,
+}
+
+/// A device's parameter values: one `i64` per (PNU, sub-index) of its [`Table`], starting at
+/// the defaults; [`fpc::Parameters`](super::fpc::Parameters) for the FPC [`Server`](super::fpc::Server) with the access, type,
+/// range, rw2 and device-control checks. `N` must be at least [`Table::value_count`].
+#[derive(Debug, Clone)]
+pub struct ParamStore<const N: usize> {
+    table: Table,
+    values: heapless::Vec<i64, N>,
+    /// The output stage is on: rw2 writes are refused.
+    pub stage_on: bool,
+    /// The fieldbus holds device control: without it writes are refused ("no control").
+    pub fieldbus_control: bool,
+}
+
+impl<const N: usize> ParamStore<N> {
+    /// A store with every value at its default.
+    pub fn new(variant: Variant) -> Result<ParamStore<N>, CapacityError> {
+        let table = Table::of(variant);
+        let mut values = heapless::Vec::new();
+        for d in table.entries() {
+            for _ in d.first_sub..=d.last_sub {
+                values.push(d.default).map_err(|_| CapacityError {
+                    needed: table.value_count(),
+                    capacity: N,
+                })?;
+            }
+        }
+        Ok(ParamStore {
+            table,
+            values,
+            stage_on: false,
+            fieldbus_control: true,
+        })
+    }
+
+    /// The table.
+    pub const fn table(&self) -> &Table {
+        &self.table
+    }
+
+    fn index(&self, param: Param) -> Result<(&'static ParamDef, usize), ParamError> {
+        let d = self.table.lookup(param)?;
+        let mut offset = 0usize;
+        for e in self.table.entries() {
+            if core::ptr::eq(e, d) {
+                let sub = if param.sub < d.first_sub {
+                    d.first_sub
+                } else {
+                    param.sub
+                };
+                return Ok((d, offset + usize::from(sub - d.first_sub)));
+            }
+            offset += usize::from(e.last_sub - e.first_sub) + 1;
+        }
+        Err(ParamError::NoSuchPnu { pnu: param.pnu })
+    }
+
+    /// The value of `param`, whatever its access (the device's own view).
+    pub fn get(&self, param: Param) -> Result<i64, ParamError> {
+        let (_, i) = self.index(param)?;
+        self.values
+            .get(i)
+            .copied()
+            .ok_or(ParamError::NoSuchPnu { pnu: param.pnu })
+    }
+
+    /// Sets `param` from inside the device (live values such as PNU 1041, diagnostics),
+    /// bypassing access and range checks; the value is limited to the type's range.
+    pub fn set(&mut self, param: Param, value: i64) -> Result<(), ParamError> {
+        let (d, i) = self.index(param)?;
+        let v = value.clamp(d.dtype.min(), d.dtype.max());
+        match self.values.get_mut(i) {
+            Some(slot) => {
+                *slot = v;
+                Ok(())
+            }
+            None => Err(ParamError::NoSuchPnu { pnu: param.pnu }),
+        }
+    }
+
+    /// Sets every value back to its default.
+    pub fn reset_defaults(&mut self) {
+        let mut i = 0;
+        for d in self.table.entries() {
+            for _ in d.first_sub..=d.last_sub {
+                if let Some(slot) = self.values.get_mut(i) {
+                    *slot = d.default;
+                }
+                i += 1;
+            }
+        }
+    }
+}
+
+impl<const N: usize> super::fpc::Parameters for ParamStore<N> {
+    fn read(&mut self, param: Param) -> Result<Value, ErrorKind> {
+        let d = self.table.check_read(param).map_err(|e| e.kind())?;
+        let v = self.get(param).map_err(|e| e.kind())?;
+        Ok(d.dtype.encode(v, self.table.variant.parameter_channel()))
+    }
+
+    fn write(&mut self, param: Param, value: Value) -> Result<(), ErrorKind> {
+        if !self.fieldbus_control {
+            return Err(ErrorKind::NoControl);
+        }
+        let (_, v) = self
+            .table
+            .check_write(param, value, self.stage_on)
+            .map_err(|e| e.kind())?;
+        self.set(param, v).map_err(|e| e.kind())
+    }
+}
+
 /// The sub-index of record `record` in the record-table PNUs (401..), or `None` past the
 /// device's records: MTR-DCI record n → IND n + 1 (record 0, homing, is IND 1); EMCA/CMMO-ST
 /// record n → sub-index n (1..=64; homing has no record row).
@@ -335,6 +465,157 @@ pub const fn record_subindex(variant: Variant, record: u8) -> Option<u8> {
         Variant::MtrDci if record <= 31 => Some(record + 1),
         Variant::Emca | Variant::CmmoSt if record >= 1 && record <= 64 => Some(record),
         _ => None,
+    }
+}
+
+/// RCB1, record control byte 1 (PNU 401). MTR-DCI: only bit 0 (ABS); bits 1..7 reserved.
+/// EMCA/CMMO-ST: B0 ABS, B1..B2 COM (11 = invalid record), B4 REL, B5 XLIM.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct Rcb1 {
+    /// B0: 1 = relative setpoint.
+    pub relative: bool,
+    /// B1..B2 COM: the record's control mode ([`ControlMode::Reserved`] = invalid record).
+    pub com: ControlMode,
+    /// B4 REL: a relative setpoint refers to 0 = the last setpoint, 1 = the actual position.
+    pub rel_to_actual: bool,
+    /// B5 XLIM: 1 = stroke monitoring off (speed/force records).
+    pub xlim_off: bool,
+}
+
+impl Rcb1 {
+    /// Decodes PNU 401 with `variant`'s layout (MTR-DCI: bit 0 only).
+    pub const fn from_byte(b: u8, variant: Variant) -> Rcb1 {
+        match variant {
+            Variant::MtrDci => Rcb1 {
+                relative: b & 1 != 0,
+                com: ControlMode::Position,
+                rel_to_actual: false,
+                xlim_off: false,
+            },
+            Variant::Emca | Variant::CmmoSt => Rcb1 {
+                relative: b & 1 != 0,
+                com: ControlMode::from_bits(b >> 1),
+                rel_to_actual: b & 0x10 != 0,
+                xlim_off: b & 0x20 != 0,
+            },
+        }
+    }
+    /// Encodes PNU 401 with `variant`'s layout.
+    pub const fn to_byte(self, variant: Variant) -> u8 {
+        let abs = self.relative as u8;
+        match variant {
+            Variant::MtrDci => abs,
+            Variant::Emca | Variant::CmmoSt => {
+                abs | (self.com.bits() << 1)
+                    | ((self.rel_to_actual as u8) << 4)
+                    | ((self.xlim_off as u8) << 5)
+            }
+        }
+    }
+}
+
+/// The step-enabling condition of a record chain (RCB2 bits 0..6, PNU 402).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum StepCondition {
+    /// 0: end of the chain.
+    #[default]
+    Inactive,
+    /// 1: motion complete (then PNU 426 of the record is a delay, CMMO-ST reading).
+    Mc,
+    /// 20: the position comparator (430/431/432) is active.
+    Position,
+    /// 21: the velocity comparator (433/434/435) is active.
+    Velocity,
+    /// 22: the force comparator (436/437/438) is active.
+    Force,
+    /// 23: the time comparator (439/440) is active.
+    Time,
+    /// Any other code: an invalid record (CMMO-ST digest decision: 3Fh).
+    Invalid(u8),
+}
+
+/// RCB2 (PNU 402): record chaining. EMCA only: B7 "activate record sequencing"; chaining is
+/// active iff B7 = 1 and the condition is not `Inactive` (EMCA digest §3.2). CMMO-ST: B7 is
+/// reserved 0 and any non-zero condition chains.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct Rcb2 {
+    /// Bits 0..6.
+    pub condition: StepCondition,
+    /// B7 (EMCA).
+    pub activate: bool,
+}
+
+impl Rcb2 {
+    /// Decodes PNU 402.
+    pub const fn from_byte(b: u8) -> Rcb2 {
+        let condition = match b & 0x7F {
+            0 => StepCondition::Inactive,
+            1 => StepCondition::Mc,
+            20 => StepCondition::Position,
+            21 => StepCondition::Velocity,
+            22 => StepCondition::Force,
+            23 => StepCondition::Time,
+            c => StepCondition::Invalid(c),
+        };
+        Rcb2 {
+            condition,
+            activate: b & 0x80 != 0,
+        }
+    }
+    /// Encodes PNU 402.
+    pub const fn to_byte(self) -> u8 {
+        let c = match self.condition {
+            StepCondition::Inactive => 0,
+            StepCondition::Mc => 1,
+            StepCondition::Position => 20,
+            StepCondition::Velocity => 21,
+            StepCondition::Force => 22,
+            StepCondition::Time => 23,
+            StepCondition::Invalid(c) => c & 0x7F,
+        };
+        c | ((self.activate as u8) << 7)
+    }
+    /// Whether the record chains to PNU 416 on `variant` (never on the MTR-DCI).
+    pub const fn chains(self, variant: Variant) -> bool {
+        let has = !matches!(self.condition, StepCondition::Inactive);
+        match variant {
+            Variant::MtrDci => false,
+            Variant::Emca => has && self.activate,
+            Variant::CmmoSt => has,
+        }
+    }
+}
+
+/// PNU 312, comparator status: a bit is 1 while the value is inside its window after the
+/// damping time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct ComparatorStatus {
+    /// Bit 0: position.
+    pub position: bool,
+    /// Bit 1: speed.
+    pub speed: bool,
+    /// Bit 2: force.
+    pub force: bool,
+    /// Bit 3: time.
+    pub time: bool,
+}
+
+impl ComparatorStatus {
+    /// Decodes PNU 312 (bits 4..7 reserved).
+    pub const fn from_byte(b: u8) -> ComparatorStatus {
+        ComparatorStatus {
+            position: b & 1 != 0,
+            speed: b & 2 != 0,
+            force: b & 4 != 0,
+            time: b & 8 != 0,
+        }
+    }
+    /// Encodes PNU 312.
+    pub const fn to_byte(self) -> u8 {
+        self.position as u8
+            | (self.speed as u8) << 1
+            | (self.force as u8) << 2
+            | (self.time as u8) << 3
     }
 }
 
@@ -1951,6 +2232,102 @@ mod tests {
             mtr.lookup(Param::new(1023, 0)).unwrap().sdo_address(0),
             Address::new(0x23FF, 0)
         );
+    }
+
+    #[test]
+    fn record_control_bytes() {
+        // EMCA/CMMO-ST: relative, force, relative to actual, stroke monitoring off.
+        let r = Rcb1 {
+            relative: true,
+            com: ControlMode::Force,
+            rel_to_actual: true,
+            xlim_off: true,
+        };
+        assert_eq!(r.to_byte(Variant::Emca), 0b0011_0011);
+        assert_eq!(Rcb1::from_byte(0b0011_0011, Variant::CmmoSt), r);
+        assert_eq!(
+            Rcb1::from_byte(0b0000_0110, Variant::Emca).com,
+            ControlMode::Reserved
+        );
+        // MTR-DCI: bit 0 only.
+        assert_eq!(
+            Rcb1::from_byte(0xFF, Variant::MtrDci),
+            Rcb1 {
+                relative: true,
+                ..Rcb1::default()
+            }
+        );
+        assert_eq!(r.to_byte(Variant::MtrDci), 1);
+        for b in 0..=255u8 {
+            assert_eq!(Rcb2::from_byte(b).to_byte(), b);
+            assert_eq!(ComparatorStatus::from_byte(b).to_byte(), b & 0x0F);
+        }
+        let mc = Rcb2::from_byte(1);
+        assert_eq!(mc.condition, StepCondition::Mc);
+        assert!(
+            mc.chains(Variant::CmmoSt) && !mc.chains(Variant::Emca) && !mc.chains(Variant::MtrDci)
+        );
+        let emca = Rcb2::from_byte(0x80 | 20);
+        assert_eq!(emca.condition, StepCondition::Position);
+        assert!(emca.chains(Variant::Emca));
+        assert!(!Rcb2::from_byte(0x80).chains(Variant::Emca));
+        assert_eq!(Rcb2::from_byte(5).condition, StepCondition::Invalid(5));
+    }
+
+    #[test]
+    fn store_behind_the_fpc_server() {
+        use crate::fhpp::ByteOrder;
+        use crate::fhpp::fpc::{Codec, Request, Response, Server};
+        assert!(ParamStore::<16>::new(Variant::MtrDci).is_err());
+        let needed = Table::of(Variant::MtrDci).value_count();
+        let mut mtr = ParamStore::<512>::new(Variant::MtrDci).unwrap();
+        assert!(needed <= 512);
+        assert_eq!(mtr.get(Param::new(1022, 0)), Ok(750));
+        assert_eq!(mtr.get(Param::new(407, 32)), Ok(480_000));
+        let codec = Codec::new(Channel::Classic, ByteOrder::Little);
+        let mut server = Server::new(codec);
+        let sub = record_subindex(Variant::MtrDci, 5).unwrap();
+        let w = codec.encode_request(Request::Write(Param::new(406, sub), Value::Dword(200_000)));
+        let r = codec.decode_response(&server.handle(&w, &mut mtr));
+        assert_eq!(r, Ok(Response::Error(Param::new(406, sub), 22)));
+        let w = codec.encode_request(Request::Write(Param::new(406, sub), Value::Dword(40_000)));
+        let r = codec.decode_response(&server.handle(&w, &mut mtr));
+        assert_eq!(
+            r,
+            Ok(Response::Value(Param::new(406, sub), Value::Dword(40_000)))
+        );
+        assert_eq!(mtr.get(Param::new(406, sub)), Ok(40_000));
+        assert_eq!(mtr.get(Param::new(406, sub + 1)), Ok(0));
+        let rd = codec.encode_request(Request::Read(Param::new(1011, 0)));
+        let r = codec.decode_response(&server.handle(&rd, &mut mtr));
+        assert_eq!(r, Ok(Response::Value(Param::new(1011, 0), Value::Byte(27))));
+        // No device control: classic error 11.
+        mtr.fieldbus_control = false;
+        let w = codec.encode_request(Request::Write(Param::new(1022, 0), Value::Dword(100)));
+        let r = codec.decode_response(&server.handle(&w, &mut mtr));
+        assert_eq!(r, Ok(Response::Error(Param::new(1022, 0), 11)));
+
+        assert!(Table::of(Variant::Emca).value_count() <= 4096);
+        let mut cmmo = ParamStore::<4096>::new(Variant::CmmoSt).unwrap();
+        cmmo.stage_on = true;
+        let codec = Codec::new(Channel::Enhanced, ByteOrder::Big);
+        let mut server = Server::new(codec);
+        let w = codec.encode_request(Request::Write(Param::new(1022, 1), Value::Dword(500)));
+        let r = codec.decode_response(&server.handle(&w, &mut cmmo));
+        assert_eq!(r, Ok(Response::Error(Param::new(1022, 1), 0x11)));
+        cmmo.set(Param::new(1041, 1), -1234).unwrap();
+        let rd = codec.encode_request(Request::Read(Param::new(1041, 1)));
+        let r = codec.decode_response(&server.handle(&rd, &mut cmmo));
+        assert_eq!(
+            r,
+            Ok(Response::Value(
+                Param::new(1041, 1),
+                Value::Dword(-1234i32 as u32)
+            ))
+        );
+        assert_eq!(cmmo.get(Param::new(1001, 1)), Ok(2000));
+        cmmo.reset_defaults();
+        assert_eq!(cmmo.get(Param::new(1041, 1)), Ok(0));
     }
 
     #[test]
