@@ -534,4 +534,27 @@ mod tests {
             Err(ImageError::ReservedOpm { opm: 3 })
         );
     }
+
+    proptest::proptest! {
+        /// Decoding any bytes never panics, and a decoded image re-encodes to the same bytes
+        /// except reserved bits (CCON B4, CPOS B7, record-select output bytes 4..8, RSB bits the
+        /// variant lacks).
+        #[test]
+        fn images_decode_any_bytes(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..10)) {
+            use crate::fhpp::control::OutputImage;
+            for v in [Variant::MtrDci, Variant::Emca, Variant::CmmoSt] {
+                for order in [ByteOrder::Little, ByteOrder::Big] {
+                    if let Ok(img) = InputImage::from_bytes(&bytes, v, order) {
+                        let again = InputImage::from_bytes(&img.to_bytes(v, order), v, order);
+                        proptest::prop_assert_eq!(again, Ok(img));
+                    }
+                    if let Ok(img) = OutputImage::from_bytes(&bytes, order) {
+                        let b = img.to_bytes(order);
+                        proptest::prop_assert_eq!(b[0], bytes[0] & !0x10);
+                        proptest::prop_assert_eq!(OutputImage::from_bytes(&b, order), Ok(img));
+                    }
+                }
+            }
+        }
+    }
 }
