@@ -21,4 +21,5 @@
 pub mod can;
 pub mod canopen;
 pub mod cia402;
+pub mod fhpp;
 pub mod time;
