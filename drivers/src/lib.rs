@@ -20,4 +20,5 @@
 
 pub mod can;
 pub mod canopen;
+pub mod sim;
 pub mod time;
