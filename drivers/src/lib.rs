@@ -5,6 +5,10 @@
 //!   across processes over shared memory, fault injection, candump and pcap capture.
 //! - [`canopen`]: a sans-I/O CiA 301 stack (object dictionary, NMT, SDO, PDO, SYNC, EMCY,
 //!   heartbeat, node guarding): state machines fed frames and time that return frames to send.
+//! - [`fhpp`]: the Festo Handling and Positioning Profile: control/status bytes, the FHPP state
+//!   machine, the FPC parameter channel, PNU tables, units (MTR-DCI, EMCA, CMMO-ST).
+//! - [`cia402`]: CiA 402 controlword/statusword, the device state machine, modes, homing methods.
+//! - [`sim`]: the simulated physical axis and the device simulators built on it.
 //! - [`time`]: the timestamps every sans-I/O state machine is fed.
 //!
 //! Without default features the crate is `no_std` and allocation-free: the codecs and state
@@ -22,4 +26,5 @@ pub mod can;
 pub mod canopen;
 pub mod cia402;
 pub mod fhpp;
+pub mod sim;
 pub mod time;
