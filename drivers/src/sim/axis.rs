@@ -1544,4 +1544,38 @@ mod tests {
         }
         assert_eq!(scenario(), scenario());
     }
+
+    mod props {
+        use super::*;
+        use proptest::prelude::*;
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(48))]
+            /// Random moves with random limits: the actual position ends exactly on the
+            /// target and the actual velocity never exceeds the profile velocity.
+            #[test]
+            fn random_moves_land_exactly(
+                start in -50_000i64..50_000,
+                target in -50_000i64..50_000,
+                velocity in 1_000u32..100_000,
+                acceleration in 50_000u32..480_000,
+                deceleration in 50_000u32..480_000,
+            ) {
+                let mut a = axis_at(start);
+                a.move_to(target, Profile { velocity, acceleration, deceleration }).unwrap();
+                let mut steps = 0;
+                loop {
+                    let s = *a.step();
+                    prop_assert!(s.velocity.abs() <= velocity as i64);
+                    prop_assert!(s.setpoint_velocity.abs() <= velocity as i64);
+                    if settled(&s) {
+                        prop_assert_eq!(s.position, target);
+                        break;
+                    }
+                    steps += 1;
+                    prop_assert!(steps < 1_000_000);
+                }
+            }
+        }
+    }
 }
