@@ -15,6 +15,12 @@ use crate::time::Instant;
 /// that the sub-increment representation allows so sums never overflow.
 pub const MAX_POSITION: i64 = 1 << 30;
 
+/// A raw position in whole increments to sub-increments, clamped to the modelled range
+/// (configuration values beyond it cannot overflow the arithmetic).
+fn sub(inc: i64) -> i64 {
+    inc.clamp(-MAX_POSITION, MAX_POSITION) * ONE
+}
+
 /// A direction of motion.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Direction {
@@ -784,7 +790,7 @@ impl Axis {
     /// positions move with it.
     pub fn set_actual_position(&mut self, value: i64) {
         let old = self.origin;
-        self.origin = value - (self.x >> FRAC_BITS);
+        self.origin = value.saturating_sub(self.x >> FRAC_BITS);
         if let Some(l) = self.index_latch.as_mut() {
             *l += self.origin - old;
         }
@@ -794,7 +800,7 @@ impl Axis {
     /// Sets the reference so that raw position `raw` reads `value`.
     pub fn set_reference(&mut self, raw: i64, value: i64) {
         let old = self.origin;
-        self.origin = value - raw;
+        self.origin = value.saturating_sub(raw);
         if let Some(l) = self.index_latch.as_mut() {
             *l += self.origin - old;
         }
@@ -882,14 +888,14 @@ impl Axis {
         let env = &self.cfg.environment;
         let (mut lo, mut hi) = (-MAX_POSITION * ONE, MAX_POSITION * ONE);
         if let Some((a, b)) = env.travel {
-            lo = lo.max(a * ONE);
-            hi = hi.min(b * ONE);
+            lo = lo.max(sub(a));
+            hi = hi.min(sub(b));
         }
         match env.load {
             Load::None => {}
             Load::FixedStop { position, side } => match side {
-                Direction::Positive => hi = hi.min(position * ONE),
-                Direction::Negative => lo = lo.max(position * ONE),
+                Direction::Positive => hi = hi.min(sub(position)),
+                Direction::Negative => lo = lo.max(sub(position)),
             },
             Load::Spring {
                 contact,
@@ -899,8 +905,8 @@ impl Axis {
                 let give = (((limit_ma as i128) << FRAC_BITS) / stiffness_ma_per_inc.max(1) as i128)
                     as i64;
                 match side {
-                    Direction::Positive => hi = hi.min(contact * ONE + give),
-                    Direction::Negative => lo = lo.max(contact * ONE - give),
+                    Direction::Positive => hi = hi.min(sub(contact).saturating_add(give)),
+                    Direction::Negative => lo = lo.max(sub(contact).saturating_sub(give)),
                 }
             }
         }
@@ -919,7 +925,7 @@ impl Axis {
             stiffness_ma_per_inc,
         } = self.cfg.environment.load
         {
-            let c = contact * ONE;
+            let c = sub(contact);
             let k = stiffness_ma_per_inc as i128;
             match side {
                 Direction::Positive if x > c => return (((x - c) as i128 * k) >> FRAC_BITS) as i64,
@@ -948,7 +954,7 @@ impl Axis {
         if n == 0 || old == new {
             return None;
         }
-        let phase = self.cfg.environment.index_phase;
+        let phase = self.cfg.environment.index_phase.rem_euclid(n);
         if new > old {
             let p = old + 1 + (phase - (old + 1)).rem_euclid(n);
             (p <= new).then_some(p)
@@ -960,21 +966,23 @@ impl Axis {
 
     /// Advances the axis by one step and returns its outputs.
     pub fn step(&mut self) -> &Status {
-        self.now += self.cfg.step;
+        // The scale's step (at least 1 ns) rather than the configured one, so a zero step
+        // cannot stall `run_until`.
+        self.now += Duration::from_nanos(self.scale.dt_ns() as u64);
         let (x_old, v_old) = (self.x, self.v);
         let limit = self.current_limit();
         let (lo, hi) = self.bounds(if self.enabled { limit } else { 0 });
 
         let x_des = if self.enabled {
             self.generator.step();
-            let e = self.generator.pos - self.x;
+            let e = self.generator.pos.saturating_sub(self.x);
             let mut corr = ((e as i128 * self.alpha as i128) >> FRAC_BITS) as i64;
             if corr == 0 || (e > 0 && corr > e) || (e < 0 && corr < e) {
                 // Below one sub-unit of correction the loop has settled: snap, so the
                 // following error really vanishes at standstill.
                 corr = e;
             }
-            self.x + corr
+            self.x.saturating_add(corr)
         } else {
             let dec = self.scale.acceleration(self.cfg.coast_deceleration);
             self.x + ramp_velocity(self.v, 0, dec, dec)
@@ -1543,5 +1551,39 @@ mod tests {
             h
         }
         assert_eq!(scenario(), scenario());
+    }
+
+    mod props {
+        use super::*;
+        use proptest::prelude::*;
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(48))]
+            /// Random moves with random limits: the actual position ends exactly on the
+            /// target and the actual velocity never exceeds the profile velocity.
+            #[test]
+            fn random_moves_land_exactly(
+                start in -50_000i64..50_000,
+                target in -50_000i64..50_000,
+                velocity in 1_000u32..100_000,
+                acceleration in 50_000u32..480_000,
+                deceleration in 50_000u32..480_000,
+            ) {
+                let mut a = axis_at(start);
+                a.move_to(target, Profile { velocity, acceleration, deceleration }).unwrap();
+                let mut steps = 0;
+                loop {
+                    let s = *a.step();
+                    prop_assert!(s.velocity.abs() <= velocity as i64);
+                    prop_assert!(s.setpoint_velocity.abs() <= velocity as i64);
+                    if settled(&s) {
+                        prop_assert_eq!(s.position, target);
+                        break;
+                    }
+                    steps += 1;
+                    prop_assert!(steps < 1_000_000);
+                }
+            }
+        }
     }
 }

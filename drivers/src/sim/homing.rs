@@ -422,14 +422,14 @@ impl Homing {
             }
             Phase::Stopping { reference } => {
                 if st.generator_done {
-                    let az = reference + p.offset;
+                    let az = reference.saturating_add(p.offset);
                     let to_az = p.travel_to_offset
                         || matches!(self.method.reference, Reference::FixedStop(_));
                     if to_az {
                         let v = p.travel_velocity;
                         let a = p.acceleration;
                         axis.move_to(
-                            az + axis.origin(),
+                            az.saturating_add(axis.origin()),
                             super::axis::Profile {
                                 velocity: v,
                                 acceleration: a,
@@ -450,7 +450,7 @@ impl Homing {
             }
             Phase::Travel { reference } => {
                 if st.generator_done && st.following_error == 0 {
-                    axis.set_reference(reference + p.offset, p.home_position);
+                    axis.set_reference(reference.saturating_add(p.offset), p.home_position);
                     return Ok(self.finish(
                         axis,
                         HomingState::Done {
@@ -561,7 +561,7 @@ mod tests {
                 "method {method}"
             );
             // AZ = REF + offset reads the home position.
-            let az = reference + p.offset;
+            let az = reference.saturating_add(p.offset);
             assert_eq!(axis.origin(), 7 - az, "method {method}");
             let s = axis.status();
             assert!(!s.faults.any(), "method {method}: {:?}", s.faults);
