@@ -82,6 +82,12 @@ impl core::fmt::Display for Instant {
     }
 }
 
+/// The earliest of some optional deadlines (`None` when there is none): how a composition of
+/// state machines answers `poll_timeout`.
+pub fn earliest(deadlines: impl IntoIterator<Item = Option<Instant>>) -> Option<Instant> {
+    deadlines.into_iter().flatten().min()
+}
+
 /// A source of time. The virtual bus has a virtual clock; real buses use the monotonic clock.
 pub trait Clock {
     /// The current time on this clock.

@@ -20,7 +20,7 @@ use super::sdo::{SdoServer, SdoServerConfig, ServerEvent};
 use super::sync::{SyncCobId, SyncConsumer, SyncEvent};
 use super::{AbortCode, Address, FunctionCode, NodeId};
 use crate::can::Frame;
-use crate::time::Instant;
+use crate::time::{Instant, earliest};
 
 /// Depth of the pre-defined error field (1003h) the device keeps.
 pub const EMCY_HISTORY: usize = 8;
@@ -842,22 +842,23 @@ impl<const N: usize, const B: usize, const SDO: usize, H: DeviceHooks> Endpoint
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
-        let mut t: Option<Instant> = None;
-        let mut take = |x: Option<Instant>| {
-            if let Some(x) = x {
-                t = Some(t.map_or(x, |t| t.min(x)));
-            }
-        };
-        take(self.sdo.poll_timeout());
-        take(self.heartbeat.poll_timeout());
-        take(self.guarding.poll_timeout());
-        take(self.emcy.poll_timeout());
-        if self.nmt.state() == NmtState::Operational {
-            for p in self.tpdo.iter().flatten() {
-                take(p.poll_timeout());
-            }
-        }
-        t
+        let operational = self.nmt.state() == NmtState::Operational;
+        let tpdos = self
+            .tpdo
+            .iter()
+            .flatten()
+            .filter(|_| operational)
+            .map(|p| p.poll_timeout());
+        earliest(
+            [
+                self.sdo.poll_timeout(),
+                self.heartbeat.poll_timeout(),
+                self.guarding.poll_timeout(),
+                self.emcy.poll_timeout(),
+            ]
+            .into_iter()
+            .chain(tpdos),
+        )
     }
 
     fn handle_timeout(&mut self, now: Instant) {

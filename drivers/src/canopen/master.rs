@@ -17,7 +17,7 @@ use super::nmt::{NmtCommand, NmtMaster, NmtMasterError, NmtMasterEvent, NmtState
 use super::sdo::{SdoClient, SdoClientConfig, SdoEvent};
 use super::sync::{SyncCobId, SyncError, SyncProducer};
 use crate::can::Frame;
-use crate::time::Instant;
+use crate::time::{Instant, earliest};
 
 /// How the master supervises a node.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -270,19 +270,15 @@ impl<const N: usize, const Q: usize, const BUF: usize> Endpoint for Master<N, Q,
     }
 
     fn poll_timeout(&self) -> Option<Instant> {
-        let mut t: Option<Instant> = None;
-        let mut take = |x: Option<Instant>| {
-            if let Some(x) = x {
-                t = Some(t.map_or(x, |t| t.min(x)));
-            }
-        };
-        take(self.sync.as_ref().and_then(|s| s.poll_timeout()));
-        take(self.heartbeat.poll_timeout());
-        take(self.guarding.poll_timeout());
-        for c in &self.sdo {
-            take(c.poll_timeout());
-        }
-        t
+        earliest(
+            [
+                self.sync.as_ref().and_then(|s| s.poll_timeout()),
+                self.heartbeat.poll_timeout(),
+                self.guarding.poll_timeout(),
+            ]
+            .into_iter()
+            .chain(self.sdo.iter().map(|c| c.poll_timeout())),
+        )
     }
 
     fn handle_timeout(&mut self, now: Instant) {
