@@ -813,3 +813,93 @@ fn same_calls_same_bytes() {
         assert!(a.iter().any(|s| s[4..] != a[0][4..]), "{v:?}");
     }
 }
+
+#[test]
+fn mtr_homing_on_the_negative_stop_minus_17() {
+    let mut b = Bench::of(Variant::MtrDci);
+    // Method -17 (fixed stop, negative) with AZ 2000 inc (> 0.25 mm) from the stop.
+    b.d.write_pnu(1011, 0, -17).unwrap();
+    b.d.write_pnu(1010, 0, 2_000).unwrap();
+    b.send(rec(0x03, 0x01, 0));
+    b.send(rec(0x03, 0x01, 0));
+    b.send(rec(0x03, 0x05, 0));
+    b.send(rec(0x03, 0x01, 0));
+    let s = b.until(20_000, "homed", |s| s[1] & MC != 0);
+    assert_eq!(s[1], 0x85);
+    assert_eq!(Bench::pos(&s), 0);
+    // The mechanical stop is at raw -2000: AZ = stop + 2000.
+    assert_eq!(b.d.axis().raw_position(), 0);
+    // Changing the method drops the reference and resets the AZ offset (§3.4).
+    b.d.write_pnu(1011, 0, 27).unwrap();
+    assert!(!b.d.is_referenced());
+    assert_eq!(b.d.read_pnu(1010, 0), Ok(0));
+    assert_eq!(b.send(b.out)[1] & REF, 0);
+}
+
+#[test]
+fn mtr_standstill_warning_36_when_pushed_out_of_the_window() {
+    let mut b = mtr_homed();
+    b.idle(300);
+    let raw = b.d.axis().raw_position();
+    // A spring on the negative side pushes the axis 1500 inc up (stiffness 1 mA/inc, limit
+    // 3450 mA): outside the standstill window (PNU 1042 = 750).
+    b.d.environment_mut().load = Load::Spring {
+        contact: raw + 3_450 + 1_500,
+        side: Direction::Negative,
+        stiffness_ma_per_inc: 1,
+    };
+    let s = b.idle(150);
+    assert_eq!(s[1] & 0x40, 0, "not before PNU 1043 = 200 ms");
+    let s = b.until(100, "STILL", |s| s[1] & 0x40 != 0);
+    assert_eq!(s[0] & 0x0C, 0x04, "warning, no fault");
+    assert_eq!(b.d.read_pnu(205, 0), Ok(0x4000));
+    assert_eq!(s[1] & MC, MC, "motion stays complete");
+    b.d.environment_mut().load = Load::None;
+    let s = b.until(100, "back in the window", |s| s[1] & 0x40 == 0);
+    assert_eq!(s[0] & 0x04, 0);
+}
+
+#[test]
+fn mtr_record_32_is_an_illegal_record() {
+    let mut b = mtr_homed();
+    b.send(rec(0x03, 0x01, 32));
+    let s = b.send(rec(0x03, 0x03, 32));
+    assert_eq!(s[0] & 0x0C, 0x04);
+    assert_eq!(s[1] & ACK, 0, "not started");
+    assert_eq!(b.d.active()[0].info.number, 3);
+}
+
+#[test]
+fn emca_start_condition_wait_appends_after_mc_and_delay_applies() {
+    let mut b = emca_homed();
+    b.d.write_pnu(583, 1, 2).unwrap();
+    b.d.write_pnu(582, 1, 50).unwrap();
+    // Direct position: 20000 at 50 % of PNU 540, then (while moving) 0, queued.
+    let t0 = b.t;
+    b.send(direct(0x63, 0x03, 0x00, 50, 20_000));
+    b.send(direct(0x63, 0x01, 0x00, 50, 20_000));
+    // The start delay PNU 582 = 50 ms: nothing moves before it expires.
+    b.idle(40);
+    assert_eq!(b.d.axis().status().velocity, 0);
+    b.until(100, "moving", |s| s[1] & 0x10 != 0);
+    assert!(b.t - t0 >= Duration::from_millis(50));
+    b.idle(100);
+    let s = b.send(direct(0x63, 0x03, 0x00, 50, 0));
+    assert_eq!(s[1] & ACK, ACK, "the queued task is acknowledged");
+    b.send(direct(0x63, 0x01, 0x00, 50, 0));
+    // The first task finishes at 20000 first.
+    let mut top = 0;
+    let s = loop {
+        let s = b.send(b.out);
+        top = top.max(Bench::pos(&s));
+        if s[1] & MC != 0 {
+            break s;
+        }
+        assert!(b.t < Instant::from_millis(30_000));
+    };
+    assert!(
+        (top - 20_000).abs() <= 500,
+        "went to 20000 first (max {top})"
+    );
+    assert!(Bench::pos(&s).abs() <= 500, "then back to 0");
+}
