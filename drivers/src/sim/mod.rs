@@ -26,8 +26,11 @@
 //! ```
 
 pub mod axis;
+pub mod comparator;
+pub mod fhpp_drive;
 pub mod homing;
 pub mod profile;
+pub mod records;
 
 pub use axis::{Axis, Config, Direction, Environment, Load, Profile, Status, SwitchZone};
 pub use homing::{Homing, HomingMethod, HomingParams, HomingState, Reference};
