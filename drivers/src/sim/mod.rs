@@ -26,6 +26,8 @@
 //! ```
 
 pub mod axis;
+#[cfg(feature = "std")]
+pub mod cmmo_st;
 pub mod homing;
 pub mod profile;
 
