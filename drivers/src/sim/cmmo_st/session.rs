@@ -675,6 +675,66 @@ mod tests {
         );
     }
 
+    proptest::proptest! {
+        /// Any byte stream, cut anywhere, through the deframer and the session: no panic, and
+        /// every answer echoes its request's transaction id and is a well-formed ADU.
+        #[test]
+        fn any_bytes_never_panic_and_answers_are_well_formed(
+            bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..600),
+            cut in 0usize..600,
+            fpc in proptest::bool::ANY,
+        ) {
+            let profile = if fpc { Profile::FhppFpc } else { Profile::Fhpp };
+            let mut s = Session::new(Config { profile, ..Config::default() }).unwrap();
+            let mut d = Double::new();
+            let mut deframer = mbap::Deframer::new();
+            let mut adu = [0; MAX_ADU];
+            let mut out = [0; MAX_ADU];
+            let cut = cut.min(bytes.len());
+            'stream: for part in [&bytes[..cut], &bytes[cut..]] {
+                let mut rest = part;
+                while !rest.is_empty() {
+                    let n = deframer.push(rest);
+                    rest = &rest[n..];
+                    loop {
+                        match deframer.next_frame(&mut adu) {
+                            Ok(Some(len)) => {
+                                if let Some(m) = s.handle_frame(&adu[..len], &mut d, ms(0), &mut out).unwrap() {
+                                    proptest::prop_assert_eq!(&out[..2], &adu[..2]);
+                                    let h = MbapHeader::from_bytes(&out[..m]).unwrap();
+                                    proptest::prop_assert_eq!(usize::from(h.length) + 6, m);
+                                }
+                            }
+                            Ok(None) => break,
+                            Err(_) => break 'stream,
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    proptest::proptest! {
+        /// Well-framed requests with random function codes and bodies: every one is answered,
+        /// either normally (same function code) or with that function code's exception.
+        #[test]
+        fn framed_requests_are_always_answered(
+            tid in proptest::num::u16::ANY,
+            fc in proptest::sample::select(vec![0x01u8, 0x03, 0x07, 0x10, 0x17, 0x2B, 0x80, 0xFF]),
+            body in proptest::collection::vec(proptest::num::u8::ANY, 0..40),
+        ) {
+            let mut s = Session::new(Config::default()).unwrap();
+            let mut d = Double::new();
+            let mut adu = vec![(tid >> 8) as u8, tid as u8, 0, 0, 0, (body.len() + 2) as u8, 0, fc];
+            adu.extend_from_slice(&body);
+            let mut out = [0; MAX_ADU];
+            let m = s.handle_frame(&adu, &mut d, ms(0), &mut out).unwrap().unwrap();
+            proptest::prop_assert_eq!(&out[..2], &tid.to_be_bytes());
+            proptest::prop_assert!(out[7] == fc || (out[7] == fc | 0x80 && m == 9));
+            proptest::prop_assert_eq!(s.stats().responses + s.stats().exceptions, 1);
+        }
+    }
+
     #[test]
     fn malformed_header_is_an_error_not_a_panic() {
         let mut s = Session::new(Config::default()).unwrap();
