@@ -26,6 +26,8 @@
 //! ```
 
 pub mod axis;
+#[cfg(feature = "std")]
+pub mod cmmo_st;
 pub mod comparator;
 pub mod fhpp_drive;
 pub mod homing;
