@@ -28,6 +28,7 @@
 pub mod axis;
 pub mod homing;
 pub mod profile;
+pub mod tlc5xx;
 
 pub use axis::{Axis, Config, Direction, Environment, Load, Profile, Status, SwitchZone};
 pub use homing::{Homing, HomingMethod, HomingParams, HomingState, Reference};
