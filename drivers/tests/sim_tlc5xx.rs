@@ -834,3 +834,85 @@ fn ten_seconds_are_deterministic() {
         "{syncs} SYNC, {tpdo2} T_PDO2"
     );
 }
+
+#[test]
+fn limit_switch_stops_and_faults_and_software_limits_refuse_targets() {
+    let mut cfg = TlcConfig::new(node(1));
+    cfg.environment.limit_positive = Some(SwitchZone::above(20_000));
+    let mut rig = Rig::new(cfg);
+    rig.run_for(MS);
+    rig.ok(0x6085, 0, &60_000u32.to_le_bytes());
+    rig.ok(0x6083, 0, &6_000u32.to_le_bytes());
+    rig.ok(0x6084, 0, &6_000u32.to_le_bytes());
+    rig.enable();
+    rig.ok(0x6060, 0, &[3]);
+    let from = rig.log.len();
+    rig.ok(0x60FF, 0, &600i32.to_le_bytes());
+    assert!(rig.run_until(2000 * MS, |r| r.tlc().drive_state() == State::Fault));
+    let emcy = rig.frames(0x081, from);
+    assert_eq!(&emcy[0].data()[..2], &[0x01, 0xFF]);
+    assert_eq!(rig.tlc().faults(), &[TlcFault::LimitPositive]);
+    let od = |r: &mut Rig, i| r.tlc().od().get_u32(Address::new(i, 0)).unwrap();
+    assert_eq!(rig.sw() & 0x0800, 0x0800, "internal limit active");
+    assert_eq!(
+        od(&mut rig, 0x2041) & 0x4F,
+        0x49,
+        "driveStat: Fault, external"
+    );
+    assert_eq!(od(&mut rig, 0x60FD) & 0x2, 0x2, "LIMP input");
+    assert!(rig.tlc().axis().status().position >= 20_000);
+    // Reset on the switch, re-enable and drive off it: no new fault.
+    rig.send(&["201#0000", "201#8000", "201#0600", "201#0F00"], 3 * MS);
+    assert_eq!(rig.tlc().drive_state(), State::OperationEnabled);
+    rig.ok(0x60FF, 0, &(-600i32).to_le_bytes());
+    assert!(rig.run_until(2000 * MS, |r| r.tlc().axis().status().position < 15_000));
+    assert!(rig.tlc().faults().is_empty());
+    assert_eq!(rig.sw() & 0x0800, 0);
+    rig.ok(0x60FF, 0, &0i32.to_le_bytes());
+    rig.run_for(200 * MS);
+    // Software limits (SW_Enabl bit 5, SW_LimP = 607Dh:02): no motion, EMCY FF22h then 0000h.
+    rig.ok(0x6060, 0, &[1]);
+    assert_eq!(rig.tlc().mode(), Mode::ProfilePosition);
+    rig.ok(0x2054, 0, &0x20u16.to_le_bytes());
+    rig.ok(0x607D, 2, &10_000i32.to_le_bytes());
+    assert_eq!(rig.tlc().od().get_i32(Address::new(0x2052, 0)), Ok(10_000));
+    let pos = rig.tlc().actual_usr();
+    rig.ok(0x607A, 0, &12_000i32.to_le_bytes());
+    let from = rig.log.len();
+    rig.send(&["201#5F00", "201#4F00"], 100 * MS);
+    assert_eq!(
+        rig.frames(0x081, from),
+        vec![f("081#22FF810000000000"), f("081#0000000000000000")]
+    );
+    assert_eq!(rig.tlc().actual_usr(), pos);
+    assert_eq!(rig.tlc().od().get_u16(Address::new(0x603F, 0)), Ok(0xFF22));
+}
+
+#[test]
+fn bit6_polarity_and_fault_coding_are_settings() {
+    use drivers::cia402::controlword::AbsRel;
+    use drivers::cia402::state::FaultCoding;
+    let mut cfg = TlcConfig::new(node(1));
+    cfg.abs_rel = AbsRel::ZeroIsAbsolute;
+    cfg.fault_coding = FaultCoding::AsPrinted;
+    let mut rig = Rig::new(cfg);
+    rig.run_for(MS);
+    rig.ok(0x6081, 0, &600u32.to_le_bytes());
+    pdo2_async(&mut rig);
+    rig.enable();
+    // DSP402 polarity: bit 6 = 0 is absolute, so 001Fh twice to 5000 ends at 5000.
+    for _ in 0..2 {
+        rig.send(&["301#1F0088130000", "301#0F0088130000"], 5 * MS);
+        wait_reached(&mut rig, 3000);
+    }
+    assert_eq!(rig.tlc().actual_usr(), 5000);
+    // Bit 6 = 1 is relative here: +1000.
+    rig.send(&["301#5F00E8030000", "301#4F00E8030000"], 5 * MS);
+    wait_reached(&mut rig, 3000);
+    assert_eq!(rig.tlc().actual_usr(), 6000);
+    // Fault "as printed" (erratum A2): 000Fh in the state bits.
+    rig.tlc().raise_fault(TlcFault::OverTemperature);
+    rig.run_for(50 * MS);
+    assert_eq!(rig.tlc().drive_state(), State::Fault);
+    assert_eq!(rig.sw() & 0x6F, 0x0F);
+}
