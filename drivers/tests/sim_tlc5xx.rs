@@ -916,3 +916,54 @@ fn bit6_polarity_and_fault_coding_are_settings() {
     assert_eq!(rig.tlc().drive_state(), State::Fault);
     assert_eq!(rig.sw() & 0x6F, 0x0F);
 }
+
+#[test]
+fn arbitrary_frames_never_panic() {
+    // A deterministic pseudo-random stream of frames aimed at node 1's COB-IDs, including SDO
+    // writes of random bytes to every object the simulator acts on.
+    let mut cfg = TlcConfig::new(node(1));
+    cfg.environment = homing_env();
+    let mut tlc = Box::new(Tlc5xx::new(cfg, Instant::ZERO).unwrap());
+    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut next = || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let targets: [u16; 16] = [
+        0x6040, 0x6060, 0x607A, 0x60FF, 0x6081, 0x6098, 0x2040, 0x2090, 0x2092, 0x20B4, 0x20B8,
+        0x6093, 0x6094, 0x1401, 0x1007, 0x2201,
+    ];
+    let ids: [u16; 10] = [
+        0x000, 0x080, 0x201, 0x301, 0x401, 0x501, 0x601, 0x701, 0x181, 0x7E5,
+    ];
+    let mut now = Instant::ZERO;
+    tlc.handle_frame(&f("000#0100"), now);
+    for i in 0..20_000u32 {
+        let r = next();
+        let id = ids[(r % ids.len() as u64) as usize];
+        let mut data = (next()).to_le_bytes();
+        let len = (r >> 8) as usize % 9;
+        if id == 0x601 && i % 2 == 0 {
+            let t = targets[(r >> 16) as usize % targets.len()];
+            data[0] = [0x23, 0x2B, 0x2F, 0x27, 0x40][(r >> 24) as usize % 5];
+            data[1..3].copy_from_slice(&t.to_le_bytes());
+            data[3] = (r >> 32) as u8 % 4;
+        }
+        let fr = if id == 0x701 && r & 1 == 0 {
+            Frame::new_std_remote(id, 1).unwrap()
+        } else {
+            Frame::new_std(id, &data[..len]).unwrap()
+        };
+        now += Duration::from_micros(r % 3000);
+        if tlc.poll_timeout().is_some_and(|t| t <= now) {
+            tlc.handle_timeout(now);
+        }
+        tlc.handle_frame(&fr, now);
+        while tlc.poll_transmit(now).is_some() {}
+        if i % 1000 == 0 {
+            tlc.set_supply_ok(i % 3000 != 0);
+        }
+    }
+}
