@@ -967,3 +967,26 @@ fn arbitrary_frames_never_panic() {
         }
     }
 }
+
+#[test]
+fn following_error_of_class_1_only_warns() {
+    let mut rig = Rig::node1();
+    rig.run_for(MS);
+    rig.ok(0x204F, 0, &1u16.to_le_bytes()); // Flt_pDiff = 1
+    rig.ok(0x6081, 0, &600u32.to_le_bytes());
+    pdo2_async(&mut rig);
+    rig.enable();
+    rig.tlc().inject_block(true);
+    rig.send(&["301#5F00A0860100", "301#4F00A0860100"], 800 * MS);
+    assert_eq!(rig.tlc().drive_state(), State::OperationEnabled);
+    assert_eq!(rig.tlc().faults(), &[TlcFault::FollowingError]);
+    // Warning (bit 7) and following error (bit 13); the move was dropped.
+    assert_eq!(rig.sw() & 0x20A7, 0x20A7);
+    assert!(rig.tlc().axis().status().standstill);
+    // A fault-reset edge clears the warning without leaving Operation enable.
+    rig.tlc().inject_block(false);
+    rig.send(&["201#8F00", "201#0F00"], 3 * MS);
+    assert!(rig.tlc().faults().is_empty());
+    assert_eq!(rig.tlc().drive_state(), State::OperationEnabled);
+    assert_eq!(rig.sw() & 0x20A7, 0x0027);
+}

@@ -18,6 +18,13 @@
 //!   and 2400h, cleared by a fault-reset edge once the cause is gone (§6).
 //! - SDO vetoes with the manual's codes ([`TlcHooks`]).
 //!
+//! Not simulated (yet): the SIG sub-modes other than PTP (speed 2095h, jog, electronic gear,
+//! homing via 20F0h), record processing, teach-in, fast capture, the EEPROM image
+//! (eeprSave/default are accepted and ignored), SignEnabl/SignLevel/SignQstop (limit switches
+//! always stop, with the 6085h ramp), p_outHome, the heartbeat consumer 1016h (stored, not
+//! monitored). T_PDO4 (type 254) is sent on any change of its data, not only of StatePTP, and
+//! 1003h keeps the generic device's 8 entries where the manual has 1.
+//!
 //! ```
 //! use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
 //! use drivers::canopen::{endpoint::Endpoint, NodeId};
@@ -567,7 +574,10 @@ impl Tlc5xx {
         self.dev.raise_emcy(f.emcy_code(), [class, 0, 0, 0, 0]);
         self.record_error(f.emcy_code());
         match class {
-            1 => self.stop_motion(true),
+            1 => {
+                self.stop_motion(true);
+                self.drop_commands();
+            }
             _ => {
                 self.fsa.set_fault(true);
                 if class >= 3 {
