@@ -786,9 +786,9 @@ impl<const N: usize, const B: usize, const SDO: usize, H: DeviceHooks> Endpoint
             }
         }
         if operational {
-            // A late synchronous RPDO (outside the 1007h window) waits for the SYNC after next:
-            // CiA 301 lets the device discard it; the TLC5xx manual says it is evaluated one
-            // SYNC later, which is what latching it now and applying at the next SYNC gives.
+            // The synchronous window (1007h) is not enforced here: a synchronous RPDO is latched
+            // whenever it arrives and applied at the next SYNC. Devices whose manuals say
+            // otherwise (the TLC5xx defers a late PDO to the SYNC after next) do it themselves.
             for r in self.rpdo.iter_mut().flatten() {
                 if r.handle_frame(frame, now) {
                     break;

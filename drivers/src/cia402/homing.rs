@@ -1,6 +1,9 @@
 //! Homing (mode 6): the methods of 6098h as data ([`HomingPlan`]: which signal, which way to
-//! search, which edge, whether the index pulse follows), a small executor a simulated axis can
-//! run ([`HomingRun`]), and the homing status bits of the statusword ([`HomingStatus`]).
+//! search, which edge, whether the index pulse follows), the device side of the bit-4 start
+//! ([`HomingDevice`]) and the homing status bits of the statusword ([`HomingStatus`]).
+//!
+//! This is the one table of method numbers in the crate: the simulators' executor
+//! (`sim::homing`) derives its method descriptions from [`HomingMethod::plan`].
 //!
 //! Home is where the axis leaves the signal's active zone at the chosen edge (and, with an index
 //! pulse, the first index pulse beyond that edge). After homing, the position at home equals the
@@ -57,6 +60,8 @@ pub enum HomeSignal {
     HardStop,
     /// No signal: the current position is home (method 35, TLC5xx "dimension setting").
     CurrentPosition,
+    /// The first index pulse in the search direction (CiA 402 33, 34).
+    IndexPulse,
 }
 
 /// A homing method of 6098h (INTEGER8).
@@ -78,15 +83,23 @@ pub enum HomingMethod {
     HomeSwitchPositive,
     /// 27: home switch searched in negative direction, no index (MTR-DCI default).
     HomeSwitchNegative,
+    /// 33: the first index pulse in negative direction.
+    IndexNegative,
+    /// 34: the first index pulse in positive direction.
+    IndexPositive,
     /// 35: the current position is home.
     CurrentPosition,
+    /// 37: the current position is home (CiA 402 from 2016 on; same as 35).
+    CurrentPosition37,
+    /// −35 (Festo FHPP): the current position is home.
+    FestoCurrentPosition,
     /// −17 (MTR-DCI): hard stop in negative direction.
     FestoHardStopNegative,
     /// −18 (MTR-DCI): hard stop in positive direction.
     FestoHardStopPositive,
 }
 
-/// How a method homes: what [`HomingRun`] executes.
+/// How a method homes: what an executor (`sim::homing::Homing`) runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct HomingPlan {
     /// The signal referenced.
@@ -106,17 +119,6 @@ pub enum HomingError {
     /// 6098h holds a code no method has.
     #[error("homing method {0} is not defined")]
     UnknownMethod(i8),
-    /// The signal was not found: both travel ends reached, or the wrong limit switch hit.
-    #[error("homing signal not found (stopped at position {0})")]
-    SignalNotFound(i32),
-    /// Leaving the switch took longer than allowed (TLC5xx `p_outHome` 20F3h).
-    #[error("left the switch over {travelled} > {limit} without finding home")]
-    RunOutExceeded {
-        /// Distance travelled since the switch was found.
-        travelled: u32,
-        /// The allowed distance.
-        limit: u32,
-    },
 }
 
 impl HomingMethod {
@@ -131,7 +133,11 @@ impl HomingMethod {
             HomingMethod::PositiveLimit => 18,
             HomingMethod::HomeSwitchPositive => 23,
             HomingMethod::HomeSwitchNegative => 27,
+            HomingMethod::IndexNegative => 33,
+            HomingMethod::IndexPositive => 34,
             HomingMethod::CurrentPosition => 35,
+            HomingMethod::CurrentPosition37 => 37,
+            HomingMethod::FestoCurrentPosition => -35,
             HomingMethod::FestoHardStopNegative => -17,
             HomingMethod::FestoHardStopPositive => -18,
         }
@@ -147,7 +153,11 @@ impl HomingMethod {
             18 => HomingMethod::PositiveLimit,
             23 => HomingMethod::HomeSwitchPositive,
             27 => HomingMethod::HomeSwitchNegative,
+            33 => HomingMethod::IndexNegative,
+            34 => HomingMethod::IndexPositive,
             35 => HomingMethod::CurrentPosition,
+            37 => HomingMethod::CurrentPosition37,
+            -35 => HomingMethod::FestoCurrentPosition,
             -17 => HomingMethod::FestoHardStopNegative,
             -18 => HomingMethod::FestoHardStopPositive,
             other => return Err(HomingError::UnknownMethod(other)),
@@ -165,7 +175,11 @@ impl HomingMethod {
             HomingMethod::PositiveLimit => (HomeSignal::PositiveLimit, P, N, false),
             HomingMethod::HomeSwitchPositive => (HomeSignal::HomeSwitch, P, N, false),
             HomingMethod::HomeSwitchNegative => (HomeSignal::HomeSwitch, N, P, false),
-            HomingMethod::CurrentPosition => (HomeSignal::CurrentPosition, P, P, false),
+            HomingMethod::IndexNegative => (HomeSignal::IndexPulse, N, N, true),
+            HomingMethod::IndexPositive => (HomeSignal::IndexPulse, P, P, true),
+            HomingMethod::CurrentPosition
+            | HomingMethod::CurrentPosition37
+            | HomingMethod::FestoCurrentPosition => (HomeSignal::CurrentPosition, P, P, false),
             HomingMethod::FestoHardStopNegative => (HomeSignal::HardStop, N, P, false),
             HomingMethod::FestoHardStopPositive => (HomeSignal::HardStop, P, N, false),
         };
@@ -174,177 +188,6 @@ impl HomingMethod {
             search,
             leave,
             index_pulse,
-        }
-    }
-}
-
-/// What the axis senses at one tick of a homing run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct HomingInputs {
-    /// Actual position.
-    pub position: i32,
-    /// LIMN active.
-    pub negative_limit: bool,
-    /// LIMP active.
-    pub positive_limit: bool,
-    /// REF active.
-    pub home_switch: bool,
-    /// An index pulse passed since the previous tick.
-    pub index_pulse: bool,
-    /// The axis is blocked (standstill at the current limit).
-    pub stalled: bool,
-}
-
-/// What the axis does next.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum HomingStep {
-    /// Run at this velocity (signed, search or creep speed).
-    Run(i32),
-    /// Home found at this actual position; stop (see [`rebased_position`]).
-    Done(i32),
-    /// Homing failed; stop.
-    Failed(HomingError),
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Phase {
-    Search {
-        direction: Direction,
-        reversed: bool,
-    },
-    Leave {
-        from: i32,
-    },
-    Index {
-        from: i32,
-    },
-    Finished(HomingStep),
-}
-
-/// A speed object (U32) as a signed velocity, saturated at `i32::MAX`.
-const fn saturate(v: u32) -> i32 {
-    if v > i32::MAX as u32 {
-        i32::MAX
-    } else {
-        v as i32
-    }
-}
-
-/// Executes a [`HomingPlan`] against an axis model, one tick at a time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct HomingRun {
-    plan: HomingPlan,
-    search_speed: i32,
-    creep_speed: i32,
-    max_run_out: Option<u32>,
-    phase: Phase,
-}
-
-impl HomingRun {
-    /// A run of `plan` at the search speed 6099h:01 and creep speed 6099h:02 (saturated to
-    /// `i32::MAX`), with an optional limit on the distance travelled after the switch was found.
-    pub const fn new(
-        plan: HomingPlan,
-        search_speed: u32,
-        creep_speed: u32,
-        max_run_out: Option<u32>,
-    ) -> Self {
-        HomingRun {
-            plan,
-            search_speed: saturate(search_speed),
-            creep_speed: saturate(creep_speed),
-            max_run_out,
-            phase: Phase::Search {
-                direction: plan.search,
-                reversed: false,
-            },
-        }
-    }
-
-    /// Whether the run has ended (done or failed).
-    pub const fn finished(&self) -> bool {
-        matches!(self.phase, Phase::Finished(_))
-    }
-
-    fn signal_active(&self, i: &HomingInputs) -> bool {
-        match self.plan.signal {
-            HomeSignal::NegativeLimit => i.negative_limit,
-            HomeSignal::PositiveLimit => i.positive_limit,
-            HomeSignal::HomeSwitch => i.home_switch,
-            HomeSignal::HardStop => i.stalled,
-            HomeSignal::CurrentPosition => true,
-        }
-    }
-
-    fn finish(&mut self, step: HomingStep) -> HomingStep {
-        self.phase = Phase::Finished(step);
-        step
-    }
-
-    /// One tick: the inputs sensed now, the command for the axis.
-    pub fn step(&mut self, i: &HomingInputs) -> HomingStep {
-        let leave = self.creep_speed.saturating_mul(self.plan.leave.sign());
-        match self.phase {
-            Phase::Finished(step) => step,
-            Phase::Search { .. } if matches!(self.plan.signal, HomeSignal::CurrentPosition) => {
-                self.finish(HomingStep::Done(i.position))
-            }
-            Phase::Search { .. }
-                if matches!(self.plan.signal, HomeSignal::HardStop) && i.stalled =>
-            {
-                self.finish(HomingStep::Done(i.position))
-            }
-            // Found (or started on it): leave it at the creep speed toward the wanted edge.
-            Phase::Search { .. } if self.signal_active(i) => {
-                self.phase = Phase::Leave { from: i.position };
-                HomingStep::Run(leave)
-            }
-            Phase::Search {
-                direction,
-                reversed,
-            } => {
-                let limit_ahead = match direction {
-                    Direction::Positive => i.positive_limit,
-                    Direction::Negative => i.negative_limit,
-                };
-                // Only a home-switch search cares about a limit switch ahead: a limit method
-                // has just found its signal, a hard-stop method runs until blocked.
-                let limit_ahead = limit_ahead && matches!(self.plan.signal, HomeSignal::HomeSwitch);
-                if limit_ahead && !reversed {
-                    // The home switch lies behind us: reverse at the limit (CiA 402 methods 7..14).
-                    let direction = direction.reverse();
-                    self.phase = Phase::Search {
-                        direction,
-                        reversed: true,
-                    };
-                    HomingStep::Run(self.search_speed.saturating_mul(direction.sign()))
-                } else if limit_ahead {
-                    self.finish(HomingStep::Failed(HomingError::SignalNotFound(i.position)))
-                } else {
-                    HomingStep::Run(self.search_speed.saturating_mul(direction.sign()))
-                }
-            }
-            Phase::Leave { from } | Phase::Index { from } => {
-                let travelled = (i64::from(i.position) - i64::from(from)).unsigned_abs();
-                if let Some(limit) = self.max_run_out
-                    && travelled > u64::from(limit)
-                {
-                    let travelled = u32::try_from(travelled).unwrap_or(u32::MAX);
-                    return self.finish(HomingStep::Failed(HomingError::RunOutExceeded {
-                        travelled,
-                        limit,
-                    }));
-                }
-                match self.phase {
-                    Phase::Leave { .. } if self.signal_active(i) => HomingStep::Run(leave),
-                    Phase::Leave { .. } if self.plan.index_pulse => {
-                        self.phase = Phase::Index { from };
-                        HomingStep::Run(leave)
-                    }
-                    Phase::Index { .. } if !i.index_pulse => HomingStep::Run(leave),
-                    _ => self.finish(HomingStep::Done(i.position)),
-                }
-            }
         }
     }
 }
@@ -401,25 +244,23 @@ impl HomingStatus {
     }
 }
 
-/// The homing parameters latched when homing starts (6098h, 6099h:01/02, TLC5xx `p_outHome`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct HomingParams {
-    /// 6098h.
-    pub method: HomingMethod,
-    /// 6099h:01 speed during search for the switch.
-    pub search_speed: u32,
-    /// 6099h:02 speed during search for zero (leaving the switch, index search).
-    pub creep_speed: u32,
-    /// Maximum travel after the switch was found (TLC5xx 20F3h; `None` = off).
-    pub max_run_out: Option<u32>,
+/// What a controlword means for homing (see [`HomingDevice::handle_controlword`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum HomingCommand {
+    /// Bit 4 rose (without halt): start the method of 6098h now.
+    Start,
+    /// Bit 4 fell or halt was set while a run was going on: stop the axis, homing is interrupted.
+    Interrupt,
 }
 
 /// Device side of homing mode: controlword bit 4 rising starts a run, bit 4 falling or halt
-/// (bit 8) interrupts it (CiA 402), and the statusword bits follow [`HomingStatus`].
+/// (bit 8) interrupts it (CiA 402), and the statusword bits follow [`HomingStatus`]. The run
+/// itself is executed by the simulator on its axis (`sim::homing::Homing`), which reports the
+/// end with [`HomingDevice::finished`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct HomingDevice {
     last_start: bool,
-    run: Option<HomingRun>,
+    running: bool,
     status: HomingStatus,
 }
 
@@ -434,46 +275,44 @@ impl HomingDevice {
     pub const fn new() -> Self {
         HomingDevice {
             last_start: false,
-            run: None,
+            running: false,
             status: HomingStatus::Interrupted,
         }
     }
-    /// A controlword while homing mode is active in Operation enabled; `true` if a run started.
-    pub fn handle_controlword(&mut self, cw: Controlword, params: &HomingParams) -> bool {
+    /// A controlword while homing mode is active in Operation enabled: what to do with the run.
+    pub fn handle_controlword(&mut self, cw: Controlword) -> Option<HomingCommand> {
         let start = cw.has(Controlword::HOMING_START);
         let rising = start && !self.last_start;
         self.last_start = start;
-        if (!start || cw.halt()) && self.run.is_some() {
-            self.run = None;
-            self.status = HomingStatus::Interrupted;
-        }
         if rising && !cw.halt() {
-            self.run = Some(HomingRun::new(
-                params.method.plan(),
-                params.search_speed,
-                params.creep_speed,
-                params.max_run_out,
-            ));
+            self.running = true;
             self.status = HomingStatus::InProgress;
-            return true;
+            return Some(HomingCommand::Start);
         }
-        false
+        if (!start || cw.halt()) && self.running {
+            self.running = false;
+            self.status = HomingStatus::Interrupted;
+            return Some(HomingCommand::Interrupt);
+        }
+        None
     }
-    /// One tick of the running homing; `None` when none runs (the axis holds still).
-    pub fn step(&mut self, inputs: &HomingInputs) -> Option<HomingStep> {
-        let step = self.run.as_mut()?.step(inputs);
-        match step {
-            HomingStep::Run(_) => {}
-            HomingStep::Done(_) => {
-                self.run = None;
-                self.status = HomingStatus::Completed;
-            }
-            HomingStep::Failed(_) => {
-                self.run = None;
-                self.status = HomingStatus::ErrorStopped;
-            }
-        }
-        Some(step)
+    /// The run ended: referenced (`true`) or failed (`false`).
+    pub fn finished(&mut self, referenced: bool) {
+        self.running = false;
+        self.status = if referenced {
+            HomingStatus::Completed
+        } else {
+            HomingStatus::ErrorStopped
+        };
+    }
+    /// Whether a run is going on.
+    pub const fn running(&self) -> bool {
+        self.running
+    }
+    /// Forgets a run (mode change, leaving Operation enabled): bits show "interrupted".
+    pub fn reset(&mut self) {
+        self.running = false;
+        self.status = HomingStatus::Interrupted;
     }
     /// The homing state for statusword bits 10, 12, 13.
     pub const fn status(&self) -> HomingStatus {
@@ -486,113 +325,49 @@ mod tests {
     use super::*;
     use crate::cia402::{MTR_DCI, TLC5XX};
 
-    /// A one-dimensional axis with LIMN below `limn`, LIMP above `limp`, REF on `ref_lo..=ref_hi`,
-    /// index pulses every `index_every` increments, moved by the run's velocity each tick.
-    struct Axis {
-        pos: i32,
-        limn: i32,
-        limp: i32,
-        ref_lo: i32,
-        ref_hi: i32,
-        index_every: i32,
-    }
-
-    impl Axis {
-        fn run(&mut self, method: HomingMethod) -> HomingStep {
-            let mut run = HomingRun::new(method.plan(), 10, 1, Some(500));
-            let mut prev = self.pos;
-            for _ in 0..10_000 {
-                let crossed_index =
-                    prev.div_euclid(self.index_every) != self.pos.div_euclid(self.index_every);
-                let i = HomingInputs {
-                    position: self.pos,
-                    negative_limit: self.pos <= self.limn,
-                    positive_limit: self.pos >= self.limp,
-                    home_switch: (self.ref_lo..=self.ref_hi).contains(&self.pos),
-                    index_pulse: crossed_index,
-                    stalled: self.pos <= self.limn - 5 || self.pos >= self.limp + 5,
-                };
-                prev = self.pos;
-                match run.step(&i) {
-                    HomingStep::Run(v) => {
-                        self.pos = (self.pos + v).clamp(self.limn - 5, self.limp + 5)
-                    }
-                    done => return done,
-                }
-            }
-            panic!("homing did not end");
-        }
-    }
-
-    fn axis(pos: i32) -> Axis {
-        Axis {
-            pos,
-            limn: -1000,
-            limp: 1000,
-            ref_lo: 200,
-            ref_hi: 300,
-            index_every: 64,
-        }
-    }
-
     #[test]
-    fn every_tlc_method_finds_the_documented_point() {
-        // (method, start, expected home)
+    fn tlc_methods_are_the_documented_plans() {
+        use Direction::{Negative as N, Positive as P};
+        // (code, signal, first move, leaving direction, index pulse): digest §3.8.
         let cases = [
-            (17, 0, -999),  // LIMN released moving positive
-            (18, 0, 999),   // LIMP released moving negative
-            (1, 0, -960),   // first index above -999 (the pulse between -961 and -960)
-            (2, 0, 959),    // first index below 999 (the pulse between 960 and 959)
-            (23, 0, 199),   // REF lower edge, approached from above
-            (27, 500, 301), // REF upper edge, approached from below
-            (23, 500, 199), // starts beyond REF: reverses at LIMP, finds REF from above
-            (27, 250, 301), // starts on REF: leaves it in the leave direction
-            (7, 0, 191),    // lower edge then the index below it (crossing 192 → 191)
-            (11, 500, 320), // upper edge then the index above it
-            (35, 42, 42),
+            (1, HomeSignal::NegativeLimit, N, P, true),
+            (2, HomeSignal::PositiveLimit, P, N, true),
+            (7, HomeSignal::HomeSwitch, P, N, true),
+            (11, HomeSignal::HomeSwitch, N, P, true),
+            (17, HomeSignal::NegativeLimit, N, P, false),
+            (18, HomeSignal::PositiveLimit, P, N, false),
+            (23, HomeSignal::HomeSwitch, P, N, false),
+            (27, HomeSignal::HomeSwitch, N, P, false),
+            (35, HomeSignal::CurrentPosition, P, P, false),
         ];
-        for (code, start, home) in cases {
+        for (code, signal, search, leave, index_pulse) in cases {
             let m = HomingMethod::from_code(code).unwrap();
             assert!(TLC5XX.supports_homing(m), "{code}");
-            assert_eq!(
-                axis(start).run(m),
-                HomingStep::Done(home),
-                "method {code} from {start}"
-            );
+            let want = HomingPlan {
+                signal,
+                search,
+                leave,
+                index_pulse,
+            };
+            assert_eq!(m.plan(), want, "method {code}");
         }
-    }
-
-    #[test]
-    fn mtr_hard_stop_methods_home_at_the_stop() {
-        for (m, home) in [
-            (HomingMethod::FestoHardStopNegative, -1005),
-            (HomingMethod::FestoHardStopPositive, 1005),
-        ] {
-            assert!(MTR_DCI.supports_homing(m));
-            assert_eq!(axis(0).run(m), HomingStep::Done(home));
-        }
-        assert!(!MTR_DCI.supports_homing(HomingMethod::NegativeLimit));
-    }
-
-    #[test]
-    fn failures_are_reported() {
-        let mut no_ref = axis(0);
-        no_ref.ref_lo = 5000;
-        no_ref.ref_hi = 5000;
-        assert_eq!(
-            no_ref.run(HomingMethod::HomeSwitchPositive),
-            HomingStep::Failed(HomingError::SignalNotFound(-1000))
-        );
-        let mut wide = axis(0);
-        wide.ref_hi = 2000; // REF never releases upward: run-out exceeded
-        assert!(matches!(
-            wide.run(HomingMethod::HomeSwitchNegative),
-            HomingStep::Failed(HomingError::RunOutExceeded { limit: 500, .. })
-        ));
         assert_eq!(
             HomingMethod::from_code(3),
             Err(HomingError::UnknownMethod(3))
         );
+    }
+
+    #[test]
+    fn mtr_methods() {
+        for m in [
+            HomingMethod::FestoHardStopNegative,
+            HomingMethod::FestoHardStopPositive,
+        ] {
+            assert!(MTR_DCI.supports_homing(m));
+            assert_eq!(m.plan().signal, HomeSignal::HardStop);
+        }
+        assert!(!MTR_DCI.supports_homing(HomingMethod::NegativeLimit));
+        assert!(!TLC5XX.supports_homing(HomingMethod::IndexNegative));
     }
 
     #[test]
@@ -622,33 +397,32 @@ mod tests {
 
     #[test]
     fn homing_device_starts_on_bit4_and_interrupts_on_its_fall_or_halt() {
-        let params = HomingParams {
-            method: HomingMethod::HomeSwitchNegative,
-            search_speed: 10,
-            creep_speed: 1,
-            max_run_out: None,
-        };
         let mut dev = HomingDevice::new();
         assert_eq!(dev.status(), HomingStatus::Interrupted);
-        assert!(dev.handle_controlword(Controlword(0x001F), &params));
-        assert!(!dev.handle_controlword(Controlword(0x001F), &params)); // level, no new edge
-        let mut i = HomingInputs {
-            position: 500,
-            ..HomingInputs::default()
-        };
-        assert_eq!(dev.step(&i), Some(HomingStep::Run(-10)));
+        assert_eq!(
+            dev.handle_controlword(Controlword(0x001F)),
+            Some(HomingCommand::Start)
+        );
+        assert_eq!(dev.handle_controlword(Controlword(0x001F)), None); // level, no new edge
         assert_eq!(dev.status().bits(), Statusword(0));
-        dev.handle_controlword(Controlword(0x011F), &params); // halt
+        assert_eq!(
+            dev.handle_controlword(Controlword(0x011F)), // halt
+            Some(HomingCommand::Interrupt)
+        );
         assert_eq!(dev.status(), HomingStatus::Interrupted);
-        assert_eq!(dev.step(&i), None);
-        dev.handle_controlword(Controlword(0x000F), &params);
-        assert!(dev.handle_controlword(Controlword(0x001F), &params));
-        i.home_switch = true;
-        assert_eq!(dev.step(&i), Some(HomingStep::Run(1)));
-        i.home_switch = false;
-        i.position = 301;
-        assert_eq!(dev.step(&i), Some(HomingStep::Done(301)));
+        assert!(!dev.running());
+        assert_eq!(dev.handle_controlword(Controlword(0x000F)), None);
+        assert_eq!(
+            dev.handle_controlword(Controlword(0x001F)),
+            Some(HomingCommand::Start)
+        );
+        dev.finished(true);
         assert_eq!(dev.status().bits(), Statusword(0x1400));
         assert!(Statusword(0x1427).homing_attained());
+        assert_eq!(dev.handle_controlword(Controlword(0x000F)), None);
+        assert_eq!(dev.status(), HomingStatus::Completed);
+        dev.handle_controlword(Controlword(0x001F));
+        dev.finished(false);
+        assert_eq!(dev.status(), HomingStatus::ErrorStopped);
     }
 }

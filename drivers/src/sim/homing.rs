@@ -42,27 +42,46 @@ pub struct HomingMethod {
 
 impl HomingMethod {
     /// The description of a CiA 402 (6098h) or Festo (PNU 1011) method number, `None` for a
-    /// number this simulator does not run. 23/27 follow CiA 402 (23 = positive); the CMMO-ST
-    /// manual's table contradicts itself there.
+    /// number this simulator does not run. The numbers are those of
+    /// [`cia402::homing::HomingMethod`](crate::cia402::homing::HomingMethod), the crate's one
+    /// table of them (23/27 follow CiA 402, 23 = positive; the CMMO-ST manual's table
+    /// contradicts itself there).
     pub const fn from_number(method: i8) -> Option<Self> {
-        use Direction::{Negative as N, Positive as P};
-        let (reference, index) = match method {
-            1 => (Reference::LimitSwitch(N), true),
-            2 => (Reference::LimitSwitch(P), true),
-            7 => (Reference::ReferenceSwitch(P), true),
-            11 => (Reference::ReferenceSwitch(N), true),
-            17 => (Reference::LimitSwitch(N), false),
-            18 => (Reference::LimitSwitch(P), false),
-            23 => (Reference::ReferenceSwitch(P), false),
-            27 => (Reference::ReferenceSwitch(N), false),
-            33 => (Reference::IndexPulse(N), false),
-            34 => (Reference::IndexPulse(P), false),
-            35 | 37 | -35 => (Reference::CurrentPosition, false),
-            -17 => (Reference::FixedStop(N), false),
-            -18 => (Reference::FixedStop(P), false),
-            _ => return None,
+        match crate::cia402::homing::HomingMethod::from_code(method) {
+            Ok(m) => Some(Self::from_plan(m.plan())),
+            Err(_) => None,
+        }
+    }
+
+    /// The description of a method given as data (which signal, which way, index or not).
+    pub const fn from_plan(plan: crate::cia402::homing::HomingPlan) -> Self {
+        use crate::cia402::homing::{Direction as D, HomeSignal as S};
+        let search = match plan.search {
+            D::Positive => Direction::Positive,
+            D::Negative => Direction::Negative,
         };
-        Some(HomingMethod { reference, index })
+        let (reference, index) = match plan.signal {
+            S::CurrentPosition => (Reference::CurrentPosition, false),
+            S::HardStop => (Reference::FixedStop(search), false),
+            // The pulse itself is the reference: no switch edge precedes it.
+            S::IndexPulse => (Reference::IndexPulse(search), false),
+            S::NegativeLimit => (
+                Reference::LimitSwitch(Direction::Negative),
+                plan.index_pulse,
+            ),
+            S::PositiveLimit => (
+                Reference::LimitSwitch(Direction::Positive),
+                plan.index_pulse,
+            ),
+            S::HomeSwitch => (Reference::ReferenceSwitch(search), plan.index_pulse),
+        };
+        HomingMethod { reference, index }
+    }
+}
+
+impl From<crate::cia402::homing::HomingMethod> for HomingMethod {
+    fn from(m: crate::cia402::homing::HomingMethod) -> Self {
+        Self::from_plan(m.plan())
     }
 }
 

@@ -33,6 +33,7 @@ pub mod fhpp_drive;
 pub mod homing;
 pub mod profile;
 pub mod records;
+pub mod tlc5xx;
 
 pub use axis::{Axis, Config, Direction, Environment, Load, Profile, Status, SwitchZone};
 pub use homing::{Homing, HomingMethod, HomingParams, HomingState, Reference};
