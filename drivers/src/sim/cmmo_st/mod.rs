@@ -39,6 +39,7 @@
 //! assert_eq!(&out[..n], &[0, 1, 0, 0, 0, 11, 0, 0x03, 8, 0x10, 0x04, 0, 0, 0, 0, 0, 0]);
 //! ```
 
+pub mod drive;
 pub mod mbap;
 pub mod session;
 pub mod tcp;

@@ -12,6 +12,12 @@
 pub enum FaultKind {
     /// START without a valid reference (MTR-DCI 1, EMCA/CMMO-ST 28h).
     NotReferenced,
+    /// The CMMO-ST's Modbus node guard expired: 47h (Modbus held master control; a fault by
+    /// default) or 48h (it did not; a warning that clears on reconnection).
+    FieldbusLost {
+        /// Whether the fieldbus held master control.
+        master_control: bool,
+    },
     /// The target lies beyond a software end position (MTR-DCI 2; 29h negative, 2Ah positive).
     TargetOutOfLimit {
         /// Beyond the upper limit.
@@ -158,6 +164,20 @@ impl FaultKind {
             }
             // EMCA / CMMO-ST.
             (_, K::NotReferenced) => fault(0x28, false, None, PROF),
+            // 47h: "F", acknowledgeable at once; 48h: "W/I", clears on reconnection.
+            (
+                CmmoSt,
+                K::FieldbusLost {
+                    master_control: true,
+                },
+            ) => fault(0x47, false, None, 0x10),
+            (
+                CmmoSt,
+                K::FieldbusLost {
+                    master_control: false,
+                },
+            ) => warning(0x48),
+            (_, K::FieldbusLost { .. }) => return None,
             (_, K::TargetOutOfLimit { positive }) => {
                 fault(if positive { 0x2A } else { 0x29 }, false, None, PROF)
             }

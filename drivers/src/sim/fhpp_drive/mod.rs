@@ -650,6 +650,30 @@ impl FhppDrive {
         }
     }
 
+    /// Whether FCT/HMI holds device control (then the fieldbus does not: PNU 125).
+    pub const fn fct_control(&self) -> bool {
+        self.fct_control
+    }
+
+    /// The fieldbus connection was lost (the CMMO-ST's Modbus node guard expired): raises
+    /// 47h or 48h at `now`; a fault stops the axis through the state machine.
+    pub fn fieldbus_lost(&mut self, master_control: bool, now: Instant) {
+        self.step_to(now);
+        self.raise(FaultKind::FieldbusLost { master_control }, now);
+    }
+
+    /// A fieldbus client connected again: the 48h warning clears itself (the 47h fault waits
+    /// for an acknowledge).
+    pub fn fieldbus_restored(&mut self, now: Instant) {
+        self.step_to(now);
+        self.clear_kind(
+            FaultKind::FieldbusLost {
+                master_control: false,
+            },
+            now,
+        );
+    }
+
     /// FCT/HMI asks for device control (`true`) or gives it back. Refused while the master
     /// holds CCON.LOCK = 1; returns whether FCT holds control afterwards.
     pub fn set_fct_control(&mut self, on: bool) -> bool {

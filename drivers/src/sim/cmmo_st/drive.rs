@@ -1,0 +1,54 @@
+//! The CMMO-ST simulator proper: the FHPP drive model (`FhppDrive`, variant CMMO-ST) behind
+//! the Modbus TCP interface.
+
+use super::{ConnectionLost, FhppDevice, Identification};
+use crate::fhpp::Variant;
+use crate::sim::fhpp_drive::{DriveConfig, DriveError, FhppDrive};
+use crate::time::Instant;
+
+/// A CMMO-ST with the factory configuration of the FHPP drive model.
+pub fn new_drive() -> Result<FhppDrive, DriveError> {
+    FhppDrive::new(DriveConfig::new(Variant::CmmoSt))
+}
+
+/// One status line for a running simulator: state, position, fault.
+pub fn status_line(d: &FhppDrive) -> String {
+    let i = d.input();
+    let fault = d
+        .fault_number()
+        .map_or_else(|| "none".into(), |n| format!("{n:02X}h"));
+    format!(
+        "SCON {:02X}h SPOS {:02X}h pos {} inc referenced {} fault {fault}",
+        i[0],
+        i[1],
+        d.axis().status().position,
+        d.is_referenced()
+    )
+}
+
+impl FhppDevice for FhppDrive {
+    fn exchange(&mut self, output: &[u8; 8], now: Instant) -> [u8; 8] {
+        FhppDrive::exchange(self, output, now)
+    }
+    fn parameter(&mut self, request: &[u8; 8], now: Instant) -> [u8; 8] {
+        FhppDrive::parameter(self, request, now)
+    }
+    fn step_to(&mut self, now: Instant) {
+        FhppDrive::step_to(self, now)
+    }
+    fn fault_number(&self) -> u16 {
+        FhppDrive::fault_number(self).unwrap_or(0)
+    }
+    fn identification(&self) -> Identification<'_> {
+        Identification::default()
+    }
+    fn master_control(&self) -> bool {
+        !self.fct_control()
+    }
+    fn connection_lost(&mut self, lost: ConnectionLost, now: Instant) {
+        self.fieldbus_lost(lost == ConnectionLost::WithMasterControl, now);
+    }
+    fn connection_established(&mut self, now: Instant) {
+        self.fieldbus_restored(now);
+    }
+}
