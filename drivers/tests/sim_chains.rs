@@ -629,3 +629,41 @@ fn emca_direct_mode_comparators_585_to_595() {
 fn cmmo_st_direct_mode_comparators_585_to_595() {
     direct_comparators(Variant::CmmoSt);
 }
+
+/// A step condition that fires with no next record (PNU 416 = 0, outside 1..64) is a jump to an
+/// invalid record (CMMO-ST digest §4.2 rule 8): the drive reports the record-number fault and
+/// stops; it must not report MC while the axis is still on its way.
+fn chain_into_record_0(v: Variant) {
+    let mut b = homed(v);
+    b.record(1, COM_POSITION, 50_000, 40_000, COND_POS, 0);
+    b.window(430, 1, 10_000, 20_000, Some(0));
+    b.send(rec(0x01, 1));
+    let start = b.rows.len();
+    b.send(rec(0x03, 1));
+    b.send(rec(0x01, 1));
+    let fault = b.until(2_000, "record-number fault", |r| r.status[0] & 0x08 != 0);
+    let expected = if v == Variant::Emca { 0x2C } else { 0x3F };
+    assert_eq!(b.d.fault_number(), Some(expected), "{v:?}");
+    assert!(
+        (10_000..=20_000).contains(&fault.position),
+        "{v:?}: fault where the comparator fired, at {}",
+        fault.position
+    );
+    for r in &b.rows[start..] {
+        assert!(!r.mc(), "{v:?}: MC while moving {r:?}");
+    }
+    b.idle_for(500);
+    let last = *b.rows.last().unwrap();
+    assert!(last.position < 30_000, "{v:?}: the move was stopped");
+    assert_eq!(last.velocity, 0);
+}
+
+#[test]
+fn emca_chain_into_record_0_is_fault_2ch() {
+    chain_into_record_0(Variant::Emca);
+}
+
+#[test]
+fn cmmo_st_chain_into_record_0_is_fault_3fh() {
+    chain_into_record_0(Variant::CmmoSt);
+}
