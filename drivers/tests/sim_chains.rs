@@ -566,6 +566,32 @@ fn aborted_chains(v: Variant) {
         assert_eq!(last.rsb() & (RC1 | RCC), 0, "{v:?} window {min}..{max}");
         assert!(last.position.abs_diff(50_000) <= 500);
     }
+
+    // (d) A force record pressing a spring with 700 ‰ never reaches a [900, 1000] window: it
+    // ends at its own MC (force reached) with RCC = 0; the EMCA echoes COM = force in RSB.
+    let mut b = homed(v);
+    b.record(1, COM_FORCE, 0, 5_000, COND_FORCE, 2);
+    b.write(442, 1, 700);
+    b.window(436, 1, 900, 1_000, Some(0));
+    b.record(2, COM_POSITION, 0, 40_000, 0, 0);
+    let contact = 2_000 + b.raw_offset();
+    b.d.environment_mut().load = Load::Spring {
+        contact,
+        side: Direction::Positive,
+        stiffness_ma_per_inc: 1,
+    };
+    let start = run(&mut b, 20_000);
+    check_chain(&mut b, start, &[(1, Step::End)]);
+    let last = *b.rows.last().unwrap();
+    assert!(
+        (650..=750).contains(&last.force),
+        "{v:?}: pressing, {last:?}"
+    );
+    assert!(last.position > 2_000);
+    let com_force = if v == Variant::Emca { 0x04 } else { 0 };
+    // (VLIM may still be set: force MC comes from the current window, possibly while the
+    // spring is still being compressed at the speed limit.)
+    assert_eq!((last.record(), last.rsb() & 0x0F), (1, com_force), "{v:?}");
 }
 
 #[test]
@@ -666,4 +692,40 @@ fn emca_chain_into_record_0_is_fault_2ch() {
 #[test]
 fn cmmo_st_chain_into_record_0_is_fault_3fh() {
     chain_into_record_0(Variant::CmmoSt);
+}
+
+/// The damping time restarts when the value leaves the window: the velocity window is crossed
+/// too fast while accelerating (no step) and fires only while braking, held long enough.
+fn window_left_before_damping(v: Variant) {
+    let mut b = homed(v);
+    b.record(1, COM_POSITION, 60_000, 40_000, COND_VEL, 2);
+    b.write(407, 1, 400_000);
+    b.write(408, 1, 100_000);
+    b.window(433, 1, 20_000, 30_000, Some(50));
+    b.record(2, COM_POSITION, 0, 40_000, 0, 0);
+    let start = run(&mut b, 20_000);
+    let sw = check_chain(&mut b, start, &[(1, Step::Cmp(1)), (2, Step::End)]);
+    let rows = &b.rows;
+    let inside = |c: &usize| (20_000..=30_000).contains(&rows[*c].velocity);
+    let first = (start + 1..sw[1]).find(inside).unwrap();
+    let left = (first..sw[1]).find(|c| !inside(c)).unwrap();
+    assert!(
+        rows[left].velocity > 30_000,
+        "{v:?}: left the window accelerating"
+    );
+    assert!(rows[left].t - rows[first].t < Duration::from_millis(50));
+    assert!(rows[sw[1]].position > 52_000, "{v:?}: fired while braking");
+    let last = *rows.last().unwrap();
+    assert_eq!((last.record(), last.rsb()), (2, RC1 | RCC));
+    assert!(last.position.abs() <= 500);
+}
+
+#[test]
+fn emca_window_left_before_the_damping_time_does_not_fire() {
+    window_left_before_damping(Variant::Emca);
+}
+
+#[test]
+fn cmmo_st_window_left_before_the_damping_time_does_not_fire() {
+    window_left_before_damping(Variant::CmmoSt);
 }
