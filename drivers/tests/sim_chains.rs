@@ -451,6 +451,7 @@ fn full_chain(v: Variant) {
     b.window(433, 2, 39_000, 41_000, Some(10));
     b.window(439, 3, 50, 60, None);
     b.window(430, 6, 35_000, 45_000, Some(40));
+    b.window(439, 6, 500, 2_000, None);
     // A spring beyond 75000: 1 mA more per increment of compression.
     let contact = 75_000 + b.raw_offset();
     b.d.environment_mut().load = Load::Spring {
@@ -504,6 +505,25 @@ fn full_chain(v: Variant) {
     assert_eq!(last.record(), 6);
     assert_eq!(last.rsb(), RC1 | RCC);
     assert!(last.position.abs_diff(40_000) <= 500);
+    // After the end PNU 312 keeps following record 6's comparators (the time window closes
+    // 2 s after its start), as it does in direct mode.
+    b.idle_for(1_500);
+    let s6 = sw[5];
+    let w = Windows::read(&mut b, 430, 6);
+    let rows = &b.rows;
+    let exp = expected_312(rows, s6, rows.len(), &w);
+    for (c, e) in (s6 + 1..rows.len()).zip(&exp) {
+        assert_eq!(
+            rows[c].cmp, *e,
+            "{v:?} PNU 312 after the end: {:?}",
+            rows[c]
+        );
+    }
+    assert_eq!(
+        exp.last().map(|e| e & 0x09),
+        Some(0x01),
+        "{v:?} time window closed"
+    );
 }
 
 #[test]

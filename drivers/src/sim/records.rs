@@ -17,7 +17,7 @@
 //! - loops are allowed; a jump to an invalid record (PNU 416 = 0 included) is an error the
 //!   drive reports.
 
-use crate::fhpp::pnu::{ParamStore, Rcb1, Rcb2, StepCondition, record_subindex};
+use crate::fhpp::pnu::{ComparatorStatus, ParamStore, Rcb1, Rcb2, StepCondition, record_subindex};
 use crate::fhpp::state::StartCondition;
 use crate::fhpp::{ControlMode, Variant, fpc::Param};
 use crate::time::Instant;
@@ -236,6 +236,18 @@ impl Chain {
         &self.comparators
     }
 
+    /// Updates the comparators only (PNU 312), without stepping: the cycles in which the
+    /// record does not run (halted, after the chain ended), so the status keeps following the
+    /// values as it does in direct mode. `sample.elapsed_ms` is filled in here.
+    pub fn observe(&mut self, sample: Sample, now: Instant) -> ComparatorStatus {
+        let elapsed = now.saturating_duration_since(self.started).as_millis() as i64;
+        let s = Sample {
+            elapsed_ms: elapsed,
+            ..sample
+        };
+        self.comparators.update(&s, now)
+    }
+
     /// Evaluates one drive cycle: the comparators with `sample` (its `elapsed_ms` is filled in
     /// here), then the step-enabling condition. `mc` is the record's own motion-complete
     /// condition (window held for the settling time).
@@ -246,12 +258,7 @@ impl Chain {
         sample: Sample,
         now: Instant,
     ) -> Verdict {
-        let elapsed = now.saturating_duration_since(self.started).as_millis() as i64;
-        let s = Sample {
-            elapsed_ms: elapsed,
-            ..sample
-        };
-        let st = self.comparators.update(&s, now);
+        let st = self.observe(sample, now);
         if !self.record.chains(variant) {
             if mc {
                 self.rcc = true;
