@@ -148,6 +148,14 @@ impl Bench {
         );
     }
 
+    /// Repeats the current output for `ms`.
+    fn idle_for(&mut self, ms: u64) {
+        let end = self.t + Duration::from_millis(ms);
+        while self.t < end {
+            self.send(self.out);
+        }
+    }
+
     /// PNU 402 for `cond`: the EMCA needs B7 to chain, on the CMMO-ST B7 is reserved (0).
     fn rcb2(&self, cond: u8) -> i64 {
         match (self.v, cond) {
@@ -157,7 +165,6 @@ impl Bench {
     }
 
     /// A record with its motion, step condition and next record.
-    #[allow(clippy::too_many_arguments)]
     fn record(&mut self, n: u8, com: i64, target: i64, speed: i64, cond: u8, next: u8) {
         let rcb2 = self.rcb2(cond);
         self.write(401, n, com);
@@ -655,15 +662,6 @@ fn direct_comparators(v: Variant) {
     let any = exp.iter().fold(0, |a, e| a | e);
     assert_eq!(any, 0x0F, "{v:?}");
     assert!(rows.last().unwrap().position.abs_diff(60_000) <= 500);
-}
-
-impl Bench {
-    fn idle_for(&mut self, ms: u64) {
-        let end = self.t + Duration::from_millis(ms);
-        while self.t < end {
-            self.send(self.out);
-        }
-    }
 }
 
 #[test]
