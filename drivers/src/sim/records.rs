@@ -14,9 +14,10 @@
 //! - a record without a chaining condition ends the chain at its MC with RSB.RCC = 1;
 //! - a record whose comparator/time condition was never met when it reaches MC aborts the chain:
 //!   MC = 1, RCC = 0;
-//! - loops are allowed; a jump to an invalid record is an error the drive reports.
+//! - loops are allowed; a jump to an invalid record (PNU 416 = 0 included) is an error the
+//!   drive reports.
 
-use crate::fhpp::pnu::{ParamStore, Rcb1, Rcb2, StepCondition, record_subindex};
+use crate::fhpp::pnu::{ComparatorStatus, ParamStore, Rcb1, Rcb2, StepCondition, record_subindex};
 use crate::fhpp::state::StartCondition;
 use crate::fhpp::{ControlMode, Variant, fpc::Param};
 use crate::time::Instant;
@@ -170,7 +171,8 @@ impl Record {
 pub enum Verdict {
     /// The record keeps running.
     Running,
-    /// The step-enabling condition was met: continue with this record (on the fly).
+    /// The step-enabling condition was met: continue with this record (on the fly). It is PNU
+    /// 416 as stored, so it can be 0 or out of range: the drive reports that as its fault.
     Next(u8),
     /// The record reached MC and the chain ends; `complete` is RSB.RCC.
     End {
@@ -234,6 +236,18 @@ impl Chain {
         &self.comparators
     }
 
+    /// Updates the comparators only (PNU 312), without stepping: the cycles in which the
+    /// record does not run (halted, after the chain ended), so the status keeps following the
+    /// values as it does in direct mode. `sample.elapsed_ms` is filled in here.
+    pub fn observe(&mut self, sample: Sample, now: Instant) -> ComparatorStatus {
+        let elapsed = now.saturating_duration_since(self.started).as_millis() as i64;
+        let s = Sample {
+            elapsed_ms: elapsed,
+            ..sample
+        };
+        self.comparators.update(&s, now)
+    }
+
     /// Evaluates one drive cycle: the comparators with `sample` (its `elapsed_ms` is filled in
     /// here), then the step-enabling condition. `mc` is the record's own motion-complete
     /// condition (window held for the settling time).
@@ -244,12 +258,7 @@ impl Chain {
         sample: Sample,
         now: Instant,
     ) -> Verdict {
-        let elapsed = now.saturating_duration_since(self.started).as_millis() as i64;
-        let s = Sample {
-            elapsed_ms: elapsed,
-            ..sample
-        };
-        let st = self.comparators.update(&s, now);
+        let st = self.observe(sample, now);
         if !self.record.chains(variant) {
             if mc {
                 self.rcc = true;
@@ -267,10 +276,8 @@ impl Chain {
         };
         if met {
             self.rc1 = true;
-            if self.record.next == 0 {
-                self.rcc = true;
-                return Verdict::End { complete: true };
-            }
+            // Even PNU 416 = 0: a jump outside 1..=64 is the drive's invalid-record fault, not
+            // the end of the chain (which would report MC with the axis still moving).
             return Verdict::Next(self.record.next);
         }
         if mc {
@@ -385,6 +392,26 @@ mod tests {
             c.evaluate(Variant::Emca, true, smp, Instant::from_millis(200)),
             Verdict::End { complete: false }
         );
+        assert!(!c.rcc());
+    }
+
+    #[test]
+    fn a_met_condition_without_next_record_is_a_jump_to_record_0() {
+        let mut s = Store::new(Variant::CmmoSt).unwrap();
+        set(&mut s, 406, 1, 1000);
+        set(&mut s, 402, 1, 23);
+        set(&mut s, 439, 1, 10);
+        set(&mut s, 440, 1, 20);
+        let r1 = Record::load(&s, Variant::CmmoSt, 1).unwrap();
+        let mut c = Chain::start(r1, Instant::ZERO);
+        let smp = Sample::default();
+        // Not "end of chain": the caller must see the invalid target (and MC must not come
+        // while the record is still moving).
+        assert_eq!(
+            c.evaluate(Variant::CmmoSt, false, smp, Instant::from_millis(10)),
+            Verdict::Next(0)
+        );
+        assert!(c.rc1());
         assert!(!c.rcc());
     }
 }

@@ -1278,6 +1278,9 @@ impl FhppDrive {
                 }
                 Verdict::End { .. } => motion_complete = true,
             }
+        } else if let Some(chain) = self.chain.as_mut() {
+            // Halted or after the end: PNU 312 keeps following the values.
+            chain.observe(sample, t);
         } else {
             self.direct_cmp.update(&sample, t);
         }
