@@ -347,6 +347,8 @@ pub struct Device<'a, const N: usize, const B: usize, const SDO: usize, H: Devic
     events: heapless::Deque<DeviceEvent, EVENTS>,
     lost_events: u32,
     config_errors: u32,
+    /// The dictionary generation the TPDOs were last packed from.
+    packed: Option<u32>,
 }
 
 impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
@@ -376,6 +378,7 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
             events: heapless::Deque::new(),
             lost_events: 0,
             config_errors: 0,
+            packed: None,
         };
         d.load_communication(Instant::ZERO);
         d
@@ -503,6 +506,8 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
     /// (Re)builds the engine of the PDO whose communication (14xxh/18xxh) or mapping
     /// (16xxh/1Axxh) index is `index`.
     fn load_pdo(&mut self, index: u16, _now: Instant) {
+        // A rebuilt TPDO starts with zeros: pack it again whatever the dictionary did.
+        self.packed = None;
         let (comm, map, transmit, k) = match index {
             0x1400..=0x1403 => (index, index + 0x200, false, index - 0x1400),
             0x1600..=0x1603 => (index - 0x200, index, false, index - 0x1600),
@@ -643,8 +648,14 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
         self.push_event(DeviceEvent::Reset(kind));
     }
 
-    /// Packs every TPDO's data from the dictionary (before a SYNC samples it or an event fires).
+    /// Packs every TPDO's data from the dictionary (before a SYNC samples it or an event fires),
+    /// unless no value changed since the last time.
     fn refresh_tpdos(&mut self) {
+        let generation = self.od.generation();
+        if self.packed == Some(generation) {
+            return;
+        }
+        self.packed = Some(generation);
         for t in self.tpdo.iter_mut().flatten() {
             let mut buf = [0u8; 8];
             if let Ok(n) = t.mapping().pack_from_od(&self.od, &mut buf) {

@@ -385,6 +385,11 @@ fn int_bits(dt: DataType) -> u32 {
     }
 }
 
+/// The search key of an address: sorts as `Address` does.
+const fn key(a: Address) -> u32 {
+    (a.index as u32) << 8 | a.sub as u32
+}
+
 /// The two's-complement raw form of an integer value, checked against the type's range.
 fn int_to_raw(dt: DataType, v: &Value<'_>) -> Result<u64, AbortCode> {
     let bits = int_bits(dt);
@@ -561,6 +566,10 @@ struct Slot<'a> {
 #[derive(Debug, Clone)]
 pub struct ObjectDictionary<'a, const N: usize, const BYTES: usize> {
     slots: heapless::Vec<Slot<'a>, N>,
+    /// `index << 8 | sub` of each slot, in the same order: a compact array to search.
+    keys: heapless::Vec<u32, N>,
+    /// Bumped by every change of a stored value.
+    generation: u32,
     arena: [u8; BYTES],
     used: usize,
 }
@@ -576,6 +585,8 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     pub const fn new() -> Self {
         ObjectDictionary {
             slots: heapless::Vec::new(),
+            keys: heapless::Vec::new(),
+            generation: 0,
             arena: [0; BYTES],
             used: 0,
         }
@@ -616,6 +627,8 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             capacity: N,
             addr: def.addr,
         })?;
+        // Same capacity as `slots`, which just took the entry.
+        let _ = self.keys.insert(pos, key(def.addr));
         self.used += size;
         Ok(())
     }
@@ -633,6 +646,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// Restores the default values of the entries with `first <= index <= last` (a reset
     /// communication reloads 1000h..1FFFh only).
     pub fn reset_range(&mut self, first: u16, last: u16) {
+        self.generation = self.generation.wrapping_add(1);
         for s in self.slots.iter_mut() {
             if s.def.addr.index < first || s.def.addr.index > last {
                 continue;
@@ -665,7 +679,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     }
 
     fn find(&self, addr: Address) -> Result<usize, AbortCode> {
-        match self.slots.binary_search_by(|s| s.def.addr.cmp(&addr)) {
+        match self.keys.binary_search(&key(addr)) {
             Ok(i) => Ok(i),
             Err(p) => {
                 // A neighbour with the same index means the object exists but not the sub.
@@ -723,8 +737,19 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     fn store(&mut self, i: usize, data: &[u8]) {
         let s = &mut self.slots[i];
-        self.arena[s.offset..s.offset + data.len()].copy_from_slice(data);
+        let dst = &mut self.arena[s.offset..s.offset + data.len()];
+        if s.len == data.len() && *dst == *data {
+            return;
+        }
+        dst.copy_from_slice(data);
         s.len = data.len();
+        self.generation = self.generation.wrapping_add(1);
+    }
+
+    /// A counter that changes whenever a stored value changes: a reader that packs values
+    /// (TPDOs) can skip the work while it is unchanged.
+    pub fn generation(&self) -> u32 {
+        self.generation
     }
 
     /// A write as [`ObjectAccess::write`] does it, with `veto` asked last, before the value is
@@ -776,29 +801,47 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     fn get_signed(&self, addr: Address, max_bits: u32) -> Result<i64, AbortCode> {
         let s = &self.slots[self.find(addr)?];
-        if s.def.data_type.class() != TypeClass::Signed || int_bits(s.def.data_type) > max_bits {
+        let bits = int_bits(s.def.data_type);
+        if s.def.data_type.class() != TypeClass::Signed || bits > max_bits {
             return Err(AbortCode::TypeMismatch);
         }
-        match decode_value(s.def.data_type, &self.arena[s.offset..s.offset + s.len]) {
-            Value::Signed(v) => Ok(v),
-            _ => Err(AbortCode::TypeMismatch),
+        // Sign-extend the stored little-endian bytes (device code reads actual values every
+        // cycle: no general decode on this path).
+        let raw = le_u64(&self.arena[s.offset..s.offset + s.len]);
+        let shift = 64 - bits.clamp(1, 64);
+        Ok(((raw << shift) as i64) >> shift)
+    }
+
+    /// One lookup, the type rule, the encoding, limits only where the entry has them: device
+    /// code publishes its actual values through here every cycle.
+    fn set_integer(
+        &mut self,
+        addr: Address,
+        v: Value<'_>,
+        class: TypeClass,
+        max_bits: u32,
+    ) -> Result<(), AbortCode> {
+        let i = self.find(addr)?;
+        let def = &self.slots[i].def;
+        let dt = def.data_type;
+        if dt.class() != class || int_bits(dt) > max_bits {
+            return Err(AbortCode::TypeMismatch);
         }
+        let mut buf = [0u8; 8];
+        let n = encode_value(dt, &v, &mut buf)?;
+        if def.low.is_some() || def.high.is_some() || dt == DataType::Boolean {
+            self.check_write(i, &buf[..n])?;
+        }
+        self.store(i, &buf[..n]);
+        Ok(())
     }
 
     fn set_unsigned(&mut self, addr: Address, v: u64, max_bits: u32) -> Result<(), AbortCode> {
-        let dt = self.entry(addr)?.data_type;
-        if dt.class() != TypeClass::Unsigned || int_bits(dt) > max_bits {
-            return Err(AbortCode::TypeMismatch);
-        }
-        self.set_value(addr, Value::Unsigned(v))
+        self.set_integer(addr, Value::Unsigned(v), TypeClass::Unsigned, max_bits)
     }
 
     fn set_signed(&mut self, addr: Address, v: i64, max_bits: u32) -> Result<(), AbortCode> {
-        let dt = self.entry(addr)?.data_type;
-        if dt.class() != TypeClass::Signed || int_bits(dt) > max_bits {
-            return Err(AbortCode::TypeMismatch);
-        }
-        self.set_value(addr, Value::Signed(v))
+        self.set_integer(addr, Value::Signed(v), TypeClass::Signed, max_bits)
     }
 
     /// A REAL32.

@@ -1141,7 +1141,11 @@ impl Tlc5xx {
     }
 
     fn drain(&mut self) {
+        // Frames that change nothing (other nodes' traffic, a SYNC) need no new publish: the
+        // dictionary already holds the values of the last tick.
+        let mut changed = false;
         while let Some(e) = self.dev.poll_event() {
+            changed |= !matches!(e, DeviceEvent::Sync { .. });
             match e {
                 DeviceEvent::SdoWritten { addr } => self.written(&[addr]),
                 DeviceEvent::RpdoApplied { pdo } => {
@@ -1175,8 +1179,11 @@ impl Tlc5xx {
             let p = self.actual_usr();
             self.pp.reset(p);
             self.axis.hold();
+            changed = true;
         }
-        self.publish();
+        if changed {
+            self.publish();
+        }
     }
 
     // ---- time ----------------------------------------------------------------------------
