@@ -27,8 +27,10 @@
 
 pub mod axis;
 pub mod comparator;
+pub mod emca;
 pub mod fhpp_drive;
 pub mod homing;
+pub mod mtr_dci;
 pub mod profile;
 pub mod records;
 
