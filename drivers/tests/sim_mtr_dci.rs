@@ -399,6 +399,37 @@ fn cia402_profile_enables_homes_and_moves() {
     });
 }
 
+#[test]
+fn synchronous_tpdo1_after_switching_the_transmission_type() {
+    let mut r = mtr(Profile::Fhpp);
+    r.run_for(MS);
+    // 1800h sub 02 = 1: TPDO1 after every SYNC (the mapping stays static).
+    r.sdo_write(Address::new(0x1800, 2), &[1]).unwrap();
+    r.nmt(NmtCommand::Start);
+    let now = r.now();
+    r.ctl.endpoint.master.start_sync(4_000, 0, now).unwrap();
+    r.rpdo(1, rec(0x03, 0x01, 0));
+    let from = r.log.len();
+    r.run_for(40 * MS);
+    let syncs: Vec<_> = r
+        .frames(0x080, from)
+        .iter()
+        .map(|f| f.timestamp())
+        .collect();
+    let tpdos: Vec<_> = r
+        .frames(0x183, from)
+        .iter()
+        .map(|f| f.timestamp())
+        .collect();
+    assert_eq!(syncs.len(), 10);
+    // One TPDO1 per SYNC, each right after its SYNC, even with the image unchanged.
+    assert_eq!(tpdos.len(), syncs.len());
+    for (s, t) in syncs.iter().zip(&tpdos) {
+        assert!(*t > *s && *t - *s < Duration::from_micros(500));
+    }
+    assert_eq!(r.last(0x183).unwrap()[..2], [0x13, 0x05]);
+}
+
 /// One scenario: boot, start, enable, homing, a direct move, with a SYNC producer running.
 fn scenario() -> Vec<(u16, Vec<u8>, u64)> {
     let mut r = mtr(Profile::Fhpp);
