@@ -14,7 +14,10 @@ use drivers::canopen::sdo::{AbortedBy, SdoError};
 use drivers::canopen::{AbortCode, Address};
 use drivers::cia402::state::State;
 use drivers::fhpp::ByteOrder;
+use drivers::fhpp::Variant;
 use drivers::fhpp::fpc::{Channel, Codec, Param, Request, Response, Value};
+use drivers::sim::axis::{Direction, Load};
+use drivers::sim::fhpp_drive::DriveConfig;
 use drivers::sim::mtr_dci::{MtrDci, Profile};
 use rig::*;
 
@@ -428,6 +431,59 @@ fn synchronous_tpdo1_after_switching_the_transmission_type() {
         assert!(*t > *s && *t - *s < Duration::from_micros(500));
     }
     assert_eq!(r.last(0x183).unwrap()[..2], [0x13, 0x05]);
+}
+
+#[test]
+fn cia402_profile_torque_against_a_stop() {
+    let mut cfg = DriveConfig::new(Variant::MtrDci);
+    cfg.axis.environment.load = Load::FixedStop {
+        position: 65_400,
+        side: Direction::Positive,
+    };
+    let mut r = Rig::new(3, |n, now| {
+        MtrDci::with_config(n, Profile::Cia402, cfg, now).unwrap()
+    });
+    r.run_for(MS);
+    r.nmt(NmtCommand::Start);
+    let cia = |cw: u16, mode: i8, value: i32| {
+        let c = cw.to_le_bytes();
+        let t = value.to_le_bytes();
+        [c[0], c[1], 0, mode as u8, t[0], t[1], t[2], t[3]]
+    };
+    let sw = |s: &[u8; 8]| u16::from_le_bytes([s[0], s[1]]);
+    r.pdo1_until(cia(0x06, 6, 0), 20, "ready", |s| sw(s) & 0x6F == 0x21);
+    r.pdo1_until(cia(0x0F, 6, 0), 20, "enabled", |s| sw(s) & 0x6F == 0x27);
+    r.pdo1_until(cia(0x1F, 6, 0), 30_000, "homed", |s| {
+        sw(s) & 0x9000 == 0x9000
+    });
+    // The force-mode speed limit (PNU 554, 2000h + 554) at 10 % of the rated speed, so the
+    // acceleration current stays out of the force window.
+    r.pnu_write(554, 0, &10_000u32.to_le_bytes()).unwrap();
+    // Mode 4: bytes 5..8 are 6071h = 500 ‰; bit 6 set as the manual asks, bit 5 = 0 (no stroke
+    // limitation), bit 4 starts.
+    r.pdo1_until(cia(0x4F, 4, 500), 20, "PT", |s| s[3] == 4);
+    let s = r.pdo1_until(cia(0x5F, 4, 500), 50, "running", |s| sw(s) & 0x1000 != 0);
+    assert_eq!(sw(&s) & 0x0400, 0);
+    let s = r.pdo1_until(cia(0x4F, 4, 500), 20_000, "torque reached", |s| {
+        sw(s) & 0x0400 != 0
+    });
+    assert_eq!(sw(&s) & 0x3000, 0x1000, "running, no stroke limit");
+    assert_eq!(r.dev.endpoint.drive().axis().raw_position(), 65_400);
+    assert_eq!(r.dev.endpoint.drive().axis().status().current_ma, 1150);
+}
+
+#[test]
+fn reset_node_boots_again_unreferenced() {
+    let mut r = homed();
+    let from = r.log.len();
+    r.nmt(NmtCommand::ResetNode);
+    r.run_for(5 * MS);
+    assert_eq!(r.frames(0x703, from)[0].data(), &[0x00]);
+    assert_eq!(r.dev.endpoint.device().state(), NmtState::PreOperational);
+    assert!(!r.dev.endpoint.drive().is_referenced());
+    r.nmt(NmtCommand::Start);
+    let s = r.last(0x183).unwrap();
+    assert_eq!(&s[..2], &[0x10, 0x04], "power-on image again");
 }
 
 /// One scenario: boot, start, enable, homing, a direct move, with a SYNC producer running.

@@ -39,7 +39,7 @@ use crate::canopen::device::{
     CommProfile, Device, DeviceEvent, DeviceHooks, PdoDefault, insert_communication_objects,
 };
 use crate::canopen::endpoint::Endpoint;
-use crate::canopen::nmt::{BootUpStyle, NmtState};
+use crate::canopen::nmt::{BootUpStyle, NmtState, ResetKind};
 use crate::canopen::od::{AccessType, DataType, EntryDef, ObjectDictionary, OdError, Value};
 use crate::canopen::{AbortCode, Address, NodeId};
 use crate::cia402::controlword::Controlword;
@@ -246,6 +246,8 @@ pub const MODE_DISPLAY: Address = Address::new(0x6061, 0);
 pub const POSITION_ACTUAL: Address = Address::new(0x6064, 0);
 /// 607Ah target position.
 pub const TARGET_POSITION: Address = Address::new(0x607A, 0);
+/// 6071h target torque (‰ of the rated current).
+pub const TARGET_TORQUE: Address = Address::new(0x6071, 0);
 /// 6081h profile velocity.
 pub const PROFILE_VELOCITY: Address = Address::new(0x6081, 0);
 /// 6083h profile acceleration.
@@ -559,7 +561,11 @@ impl FestoNode {
             let od = self.dev.od_mut();
             let _ = od.set_u16(STATUSWORD, sw.0);
             let _ = od.set_i8(MODE_DISPLAY, mode);
-            let _ = od.set_i32(POSITION_ACTUAL, pos);
+            // TPDO1 is re-sent only when the position moved by more than 1 inc (§7.4).
+            let sent = od.get_i32(POSITION_ACTUAL).unwrap_or(pos);
+            if (i64::from(pos) - i64::from(sent)).abs() > 1 {
+                let _ = od.set_i32(POSITION_ACTUAL, pos);
+            }
             let _ = od.set_i32(Address::new(0x6063, 0), pos);
             let _ = od.set_u8(RECORD_NUMBER, record);
             return;
@@ -597,14 +603,15 @@ impl FestoNode {
     fn drain_device_events(&mut self, now: Instant) {
         while let Some(e) = self.dev.poll_event() {
             match e {
-                DeviceEvent::RpdoApplied { pdo: 1 } => self.rpdo1(now),
+                DeviceEvent::RpdoApplied { pdo: 1 } => self.rpdo1(now, true),
                 DeviceEvent::RpdoApplied { pdo: 2 } => self.rpdo2(now),
                 DeviceEvent::SdoWritten { addr }
                     if addr.index >= 0x6000 && self.dev.hooks().cia.is_some() =>
                 {
                     // An SDO write of a CiA 402 object acts like its RPDO.
-                    self.rpdo1(now)
+                    self.rpdo1(now, false)
                 }
+                DeviceEvent::Reset(kind) => self.after_reset(kind, now),
                 DeviceEvent::LifeGuardingLost => {
                     self.dev
                         .hooks_mut()
@@ -624,6 +631,28 @@ impl FestoNode {
         }
     }
 
+    /// After an NMT reset the dictionary holds its defaults again: the images are re-mirrored.
+    /// Reset node also restarts the application (E8): the drive powers on again, unreferenced.
+    fn after_reset(&mut self, kind: ResetKind, now: Instant) {
+        if kind == ResetKind::Node {
+            let app = self.dev.hooks_mut();
+            let cfg = *app.drive.config();
+            if let Ok(d) = FhppDrive::new(cfg) {
+                app.drive = d;
+                // The new drive's clock starts at the reset.
+                app.drive.step_to(now);
+            }
+            let pos = app.drive.axis().status().position as i32;
+            if app.cia.is_some() {
+                app.cia = Some(Cia402Face::new(pos));
+            }
+            self.emcy_active.clear();
+        }
+        self.input_mirror = None;
+        self.reply_mirror = None;
+        self.mirror();
+    }
+
     /// PNU 206/1 (2FF2h/01): high nibble the NMT state, low nibble 2 = guarding error.
     fn set_can_diagnosis(&mut self, guarding_error: bool) {
         let nmt = match self.dev.state() {
@@ -635,13 +664,22 @@ impl FestoNode {
         let _ = self.dev.hooks_mut().drive.set_pnu(206, 1, v);
     }
 
-    fn rpdo1(&mut self, now: Instant) {
+    /// RPDO1 applied (`from_pdo`) or a CiA 402 object written by SDO.
+    fn rpdo1(&mut self, now: Instant, from_pdo: bool) {
+        let cia = self.dev.hooks().cia.is_some();
+        if cia && from_pdo && self.dev.od().get_i8(MODE) == Ok(Mode::ProfileTorque.code()) {
+            // In PT mode bytes 5..8 of RPDO1 are 6071h target torque (§7.4).
+            let raw = self.dev.od().get_i32(TARGET_POSITION).unwrap_or(0);
+            let t = raw.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16;
+            let _ = self.dev.od_mut().set_i16(TARGET_TORQUE, t);
+        }
         let od = self.dev.od();
-        if self.dev.hooks().cia.is_some() {
+        if cia {
             let cw = Controlword(od.get_u16(CONTROLWORD).unwrap_or(0));
             let mode = od.get_i8(MODE).unwrap_or(1);
             let record = od.get_u8(RECORD_NUMBER).unwrap_or(0);
             let homing = od.get_i8(HOMING_METHOD).unwrap_or(27);
+            let torque = od.get_i16(TARGET_TORQUE).unwrap_or(0);
             let objects = PpObjects {
                 target: od.get_i32(TARGET_POSITION).unwrap_or(0),
                 velocity: od.get_u32(PROFILE_VELOCITY).unwrap_or(0),
@@ -656,6 +694,7 @@ impl FestoNode {
                     record,
                     homing,
                     objects,
+                    torque,
                 };
                 cia.handle(&input, &mut app.drive, now);
             }
@@ -746,6 +785,8 @@ struct CiaInput {
     record: u8,
     homing: i8,
     objects: PpObjects,
+    /// 6071h target torque, ‰ of the rated current.
+    torque: i16,
 }
 
 /// What the face asked the drive core to run.
@@ -759,6 +800,9 @@ enum Job {
     },
     /// Homing (HOM edge).
     Homing,
+    /// Profile torque: FHPP direct force in % of the rated current; `stroke` = controlword
+    /// bit 5 (stroke limitation on, E10).
+    Force { percent: i32, stroke: bool },
 }
 
 /// Where a job stands in the FHPP START/ACK handshake.
@@ -770,6 +814,8 @@ enum Phase {
     Started,
     /// START/HOM dropped; waiting for MC.
     Running,
+    /// MC came. The job's image stays (a force is held, the direct mode stays selected).
+    Done,
 }
 
 const SCON_ENABLED: u8 = 0x01;
@@ -779,9 +825,11 @@ const SCON_FAULT: u8 = 0x08;
 const SCON_24VL: u8 = 0x10;
 const SPOS_ACK: u8 = 0x02;
 const SPOS_MC: u8 = 0x04;
+const SPOS_TEACH: u8 = 0x08;
 const SPOS_MOV: u8 = 0x10;
 const SPOS_DEV: u8 = 0x20;
 const SPOS_REF: u8 = 0x80;
+const SDIR_XLIM: u8 = 0x20;
 
 /// The MTR-DCI's CiA 402 face over the FHPP drive core.
 #[derive(Debug, Clone)]
@@ -812,10 +860,19 @@ impl Cia402Face {
         }
     }
 
+    /// Whether a job is under way (not yet at MC).
+    fn busy(&self) -> bool {
+        matches!(self.job, Some((_, p)) if p != Phase::Done)
+    }
+
     fn handle(&mut self, i: &CiaInput, drive: &mut FhppDrive, now: Instant) {
         let _ = self.modes.request(i.mode, &MTR_DCI_402);
-        let idle = self.job.is_none();
-        self.modes.update(idle);
+        let busy = self.busy();
+        if self.modes.update(!busy).is_some() {
+            // A new mode starts from a clean drive image.
+            self.job = None;
+            self.pp.reset(drive.axis().status().position as i32);
+        }
         self.record = i.record;
         let before = self.sm.state();
         let prev = self.sm.controlword();
@@ -830,6 +887,7 @@ impl Cia402Face {
             self.job = None;
             self.pp.reset(drive.axis().status().position as i32);
         }
+        let rising = i.cw.has(Controlword::NEW_SET_POINT) && !prev.has(Controlword::NEW_SET_POINT);
         if enabled {
             match self.modes.active() {
                 Mode::ProfilePosition => {
@@ -837,19 +895,21 @@ impl Cia402Face {
                     if i.record != 0 {
                         o.target = 0;
                     }
-                    match self.pp.handle_controlword(i.cw, &o) {
-                        Some(PpAction::Start(m)) => self.start_move(m.target, m.velocity, drive),
-                        Some(PpAction::Queued(_) | PpAction::Refused) | None => {}
+                    if let Some(PpAction::Start(m)) = self.pp.handle_controlword(i.cw, &o) {
+                        self.start_move(m.target, m.velocity, drive);
                     }
                 }
-                Mode::Homing => {
-                    let rising =
-                        i.cw.has(Controlword::HOMING_START) && !prev.has(Controlword::HOMING_START);
-                    if rising && self.job.is_none() {
-                        let _ = drive.write_pnu(1011, 0, i64::from(i.homing));
-                        self.homing_failed = false;
-                        self.job = Some((Job::Homing, Phase::Pending));
-                    }
+                Mode::Homing if rising && !busy => {
+                    let _ = drive.write_pnu(1011, 0, i64::from(i.homing));
+                    self.homing_failed = false;
+                    self.job = Some((Job::Homing, Phase::Pending));
+                }
+                Mode::ProfileTorque if rising => {
+                    let job = Job::Force {
+                        percent: i32::from(i.torque) / 10,
+                        stroke: i.cw.has(Controlword::CHANGE_SET_IMMEDIATELY),
+                    };
+                    self.job = Some((job, Phase::Pending));
                 }
                 _ => {}
             }
@@ -888,28 +948,45 @@ impl Cia402Face {
         if self.reset_edge {
             ccon |= 0x08;
         }
-        let hold = if self.pp.halted() { 0x00 } else { 0x01 };
-        let mut cpos = hold;
+        let mut cpos = if self.pp.halted() { 0x00 } else { 0x01 };
+        if state == State::OperationEnabled {
+            // Jog (levels) and teach (the drive takes the falling edge), Tab. C/3.
+            let bits = [
+                (Controlword::MTR_JOG_POSITIVE, 0x08),
+                (Controlword::MTR_JOG_NEGATIVE, 0x10),
+                (Controlword::MTR_TEACH, 0x20),
+            ];
+            for (b, c) in bits {
+                if cw.has(b) {
+                    cpos |= c;
+                }
+            }
+        }
         let mut bytes = [0u8; 8];
         let ready = input[0] & (SCON_ENABLED | SCON_OPEN | SCON_FAULT) == SCON_ENABLED | SCON_OPEN;
         if let Some((job, phase)) = self.job.as_mut() {
             let edge = match job {
                 Job::Homing => 0x04,
-                Job::Move { .. } => 0x02,
+                Job::Move { .. } | Job::Force { .. } => 0x02,
             };
-            if let Job::Move {
-                target,
-                percent,
-                record,
-            } = *job
-            {
-                if record == 0 {
+            match *job {
+                Job::Move {
+                    target,
+                    percent,
+                    record: 0,
+                } => {
                     ccon |= 0x40;
                     let t = target.to_le_bytes();
                     bytes = [0, 0, 0, percent, t[0], t[1], t[2], t[3]];
-                } else {
-                    bytes[2] = record;
                 }
+                Job::Move { record, .. } => bytes[2] = record,
+                Job::Force { percent, stroke } => {
+                    ccon |= 0x40;
+                    let f = percent.to_le_bytes();
+                    let cdir = 0x02 | if stroke { 0 } else { 0x20 };
+                    bytes = [0, 0, cdir, 0, f[0], f[1], f[2], f[3]];
+                }
+                Job::Homing => {}
             }
             match phase {
                 Phase::Pending if ready && input[1] & SPOS_ACK == 0 => {
@@ -943,40 +1020,52 @@ impl Cia402Face {
             self.pp.reset(drive.axis().status().position as i32);
         }
         self.fault_seen = fault;
-        let standstill = input[1] & SPOS_MOV == 0;
-        self.pp.set_standstill(standstill);
-        if let Some((_, phase)) = self.job.as_mut() {
+        self.pp.set_standstill(input[1] & SPOS_MOV == 0);
+        let mut next = None;
+        if let Some((job, phase)) = self.job.as_mut() {
             match phase {
                 Phase::Started if input[1] & SPOS_ACK != 0 => *phase = Phase::Running,
                 Phase::Running if input[1] & (SPOS_ACK | SPOS_MC) == SPOS_MC => {
-                    let finished = self.job.take();
-                    if let Some((Job::Move { .. }, _)) = finished
-                        && let Some(m) = self.pp.move_finished()
-                    {
-                        self.start_move(m.target, m.velocity, drive);
+                    *phase = Phase::Done;
+                    if matches!(job, Job::Move { .. }) {
+                        next = self.pp.move_finished();
                     }
                 }
                 _ => {}
             }
+        }
+        if let Some(m) = next {
+            self.start_move(m.target, m.velocity, drive);
         }
         self.command(drive, now);
     }
 
     fn statusword(&self, drive: &FhppDrive) -> Statusword {
         let input = drive.input();
-        let (scon, spos) = (input[0], input[1]);
+        let (scon, spos, sdir) = (input[0], input[1], input[2]);
         let set = |on: bool, bit: u16| if on { bit } else { 0 };
         let mut dynamic = set(scon & SCON_24VL != 0, Statusword::VOLTAGE_ENABLED)
             | set(scon & SCON_WARN != 0, Statusword::WARNING)
             | set(spos & SPOS_MOV != 0, Statusword::MTR_DRIVE_MOVES)
+            | set(spos & SPOS_TEACH != 0, Statusword::MTR_TEACH_ACK)
             | set(spos & SPOS_REF != 0, Statusword::MTR_HOMING_PERFORMED);
         match self.modes.active() {
             Mode::Homing => {
-                let homing = matches!(self.job, Some((Job::Homing, _)));
+                let homing = matches!(self.job, Some((Job::Homing, p)) if p != Phase::Done);
                 dynamic |= set(
                     !homing && spos & SPOS_REF != 0,
                     Statusword::HOMING_ATTAINED | Statusword::TARGET_REACHED,
                 ) | set(self.homing_failed, Statusword::HOMING_ERROR);
+            }
+            Mode::ProfileTorque => {
+                let running = matches!(self.job, Some((Job::Force { .. }, _)));
+                dynamic |= set(running, Statusword::BIT12)
+                    | set(
+                        matches!(self.job, Some((Job::Force { .. }, Phase::Done)))
+                            && spos & SPOS_MC != 0,
+                        Statusword::TARGET_REACHED,
+                    )
+                    | set(running && sdir & SDIR_XLIM != 0, Statusword::BIT13);
             }
             _ => {
                 dynamic |= self.pp.status_bits().0
