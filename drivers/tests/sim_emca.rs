@@ -177,6 +177,17 @@ fn load_voltage_fault_emcy_and_its_acknowledge() {
     let emcy = r.frames(0x084, from);
     assert_eq!(emcy[0].data(), &[0x20, 0x32, 0x05, 0, 0, 0, 0, 0]);
     assert_eq!(r.sdo_read(Address::new(0x1001, 0)).unwrap(), [0x05]);
+    // RESET while the cause is present: refused (T11), and the EMCA says so with its EMCY again.
+    let from = r.log.len();
+    r.rpdo(1, rec(0x20, 0x01, 0));
+    r.run_for(10 * MS);
+    r.rpdo(1, rec(0x28, 0x01, 0));
+    r.run_for(10 * MS);
+    assert_eq!(r.last(0x184).unwrap()[0] & 0x08, 0x08);
+    let emcy = r.frames(0x084, from);
+    assert_eq!(emcy.len(), 1);
+    assert_eq!(emcy[0].data(), &[0x20, 0x32, 0x05, 0, 0, 0, 0, 0]);
+    assert_eq!(r.sdo_read(Address::new(0x1003, 0)).unwrap(), [2]);
     // The cause goes; a serious fault is acknowledged with ENABLE = 0 and a RESET edge (T9
     // `xxx0.Pxx0`, §2.11); the EMCA sends the error-reset EMCY.
     r.dev

@@ -461,6 +461,12 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
             self.mirror_errors();
         }
     }
+    /// Sends the EMCY of an active error again (and logs it in 1003h); raises it if inactive.
+    pub fn repeat_emcy(&mut self, code: u16, manufacturer: [u8; 5]) {
+        if self.emcy.repeat(code, manufacturer).is_ok() {
+            self.mirror_errors();
+        }
+    }
     /// Clears an active EMCY code (the error-reset EMCY goes out when the last one clears).
     pub fn clear_emcy(&mut self, code: u16) {
         if self.emcy.clear(code).is_ok() {

@@ -590,12 +590,13 @@ impl FestoNode {
                 while let Some(code) = self.emcy_active.pop() {
                     self.dev.clear_emcy(code);
                 }
+            } else if self.emcy_active.contains(&e.code) {
+                // Reported again (EMCA: a refused acknowledge).
+                self.dev.repeat_emcy(e.code, [0; 5]);
             } else {
                 self.dev
                     .raise_emcy_with_register(e.code, e.register, [0; 5]);
-                if !self.emcy_active.contains(&e.code) {
-                    let _ = self.emcy_active.push(e.code);
-                }
+                let _ = self.emcy_active.push(e.code);
             }
         }
     }
