@@ -271,6 +271,33 @@ pub trait DeviceHooks {
         let _ = (def, data, state);
         Ok(())
     }
+
+    /// The size of an object the application serves itself (one the dictionary does not hold,
+    /// such as the Festo parameters at 2000h + PNU); `None` = no such object here either.
+    fn app_size(&self, addr: Address) -> Option<Result<usize, AbortCode>> {
+        let _ = addr;
+        None
+    }
+    /// Reads an application-served object (see [`DeviceHooks::app_size`]) from byte `offset`.
+    fn app_read(
+        &mut self,
+        addr: Address,
+        offset: usize,
+        buf: &mut [u8],
+    ) -> Option<Result<usize, AbortCode>> {
+        let _ = (addr, offset, buf);
+        None
+    }
+    /// Writes an application-served object (see [`DeviceHooks::app_size`]).
+    fn app_write(
+        &mut self,
+        addr: Address,
+        data: &[u8],
+        state: NmtState,
+    ) -> Option<Result<(), AbortCode>> {
+        let _ = (addr, data, state);
+        None
+    }
 }
 
 /// Hooks that accept every write the dictionary accepts.
@@ -400,6 +427,10 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
     pub fn od_mut(&mut self) -> &mut ObjectDictionary<'a, N, B> {
         &mut self.od
     }
+    /// The application hooks, read-only (a device's deadline may depend on its application).
+    pub fn hooks(&self) -> &H {
+        &self.hooks
+    }
     /// The application hooks.
     pub fn hooks_mut(&mut self) -> &mut H {
         &mut self.hooks
@@ -419,6 +450,23 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
     /// Raises an EMCY with `code` and manufacturer bytes; updates 1001h and 1003h.
     pub fn raise_emcy(&mut self, code: u16, manufacturer: [u8; 5]) {
         if self.emcy.raise(code, manufacturer).is_ok() {
+            self.mirror_errors();
+        }
+    }
+    /// Raises an EMCY whose 1001h bits are the manual's (`register`) rather than those of the
+    /// code's CiA 301 class.
+    pub fn raise_emcy_with_register(&mut self, code: u16, register: u8, manufacturer: [u8; 5]) {
+        if self
+            .emcy
+            .raise_with_register(code, register, manufacturer)
+            .is_ok()
+        {
+            self.mirror_errors();
+        }
+    }
+    /// Sends the EMCY of an active error again (and logs it in 1003h); raises it if inactive.
+    pub fn repeat_emcy(&mut self, code: u16, manufacturer: [u8; 5]) {
+        if self.emcy.repeat(code, manufacturer).is_ok() {
             self.mirror_errors();
         }
     }
@@ -714,12 +762,28 @@ struct Checked<'d, 'a, const N: usize, const B: usize, H: DeviceHooks> {
 
 impl<const N: usize, const B: usize, H: DeviceHooks> ObjectAccess for Checked<'_, '_, N, B, H> {
     fn size(&self, addr: Address) -> Result<usize, AbortCode> {
+        // The dictionary's own objects first; what it lacks, the application may serve.
+        if self.od.entry(addr).is_err()
+            && let Some(r) = self.hooks.app_size(addr)
+        {
+            return r;
+        }
         self.od.size(addr)
     }
     fn read(&mut self, addr: Address, offset: usize, buf: &mut [u8]) -> Result<usize, AbortCode> {
+        if self.od.entry(addr).is_err()
+            && let Some(r) = self.hooks.app_read(addr, offset, buf)
+        {
+            return r;
+        }
         self.od.read(addr, offset, buf)
     }
     fn write(&mut self, addr: Address, data: &[u8]) -> Result<(), AbortCode> {
+        if self.od.entry(addr).is_err()
+            && let Some(r) = self.hooks.app_write(addr, data, self.state)
+        {
+            return r;
+        }
         if addr.index == 0x1003 && addr.sub == 0 && data != [0] {
             // Only 0 may be written: it clears the history.
             return Err(AbortCode::InvalidValue);

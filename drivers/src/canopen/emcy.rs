@@ -289,7 +289,8 @@ impl EmcyCobId {
 pub struct EmcyProducer<const N: usize> {
     cob: EmcyCobId,
     inhibit: Duration,
-    active: Vec<u16, N>,
+    /// Active codes with the register bits each sets.
+    active: Vec<(u16, u8), N>,
     history: Vec<u32, N>,
     pending: Deque<EmcyMessage, N>,
     last_sent: Option<Instant>,
@@ -321,17 +322,28 @@ impl<const N: usize> EmcyProducer<N> {
     /// The error register 1001h: the generic bit while any error is active, plus each active
     /// error's class bit.
     pub fn register(&self) -> ErrorRegister {
-        ErrorRegister(self.active.iter().fold(0, |r, &c| r | register_bits(c)))
+        ErrorRegister(self.active.iter().fold(0, |r, &(_, b)| r | b))
     }
 
     /// Whether `code` is active.
     pub fn is_active(&self, code: u16) -> bool {
-        self.active.contains(&code)
+        self.active.iter().any(|&(c, _)| c == code)
     }
 
     /// An error occurred: records it in 1001h and 1003h and queues its EMCY. Raising an error
     /// that is already active does nothing (one EMCY per occurrence). On `Err` nothing changed.
     pub fn raise(&mut self, code: u16, manufacturer: [u8; 5]) -> Result<(), EmcyError> {
+        self.raise_with_register(code, register_bits(code), manufacturer)
+    }
+
+    /// As [`EmcyProducer::raise`], with the 1001h bits the device's manual names for this code
+    /// instead of those of its CiA 301 class (the generic bit is always added).
+    pub fn raise_with_register(
+        &mut self,
+        code: u16,
+        register: u8,
+        manufacturer: [u8; 5],
+    ) -> Result<(), EmcyError> {
         if code == 0 {
             return Err(EmcyError::ZeroCode);
         }
@@ -344,7 +356,7 @@ impl<const N: usize> EmcyProducer<N> {
         if self.pending.is_full() {
             return Err(EmcyError::QueueFull(N));
         }
-        let _ = self.active.push(code); // room checked above
+        let _ = self.active.push((code, register | ErrorRegister::GENERIC)); // room checked above
         if N > 0 {
             if self.history.is_full() {
                 // 1003h keeps the newest N: the oldest falls off.
@@ -361,10 +373,35 @@ impl<const N: usize> EmcyProducer<N> {
         Ok(())
     }
 
+    /// An active error is reported again (the EMCA repeats a fault's EMCY when an acknowledge
+    /// is refused): queues its EMCY and records it in 1003h; 1001h is unchanged. An error that
+    /// is not active is raised with its class bits.
+    pub fn repeat(&mut self, code: u16, manufacturer: [u8; 5]) -> Result<(), EmcyError> {
+        if !self.is_active(code) {
+            return self.raise(code, manufacturer);
+        }
+        if self.pending.is_full() {
+            return Err(EmcyError::QueueFull(N));
+        }
+        if N > 0 {
+            if self.history.is_full() {
+                self.history.pop();
+            }
+            let _ = self.history.insert(0, code as u32);
+        }
+        let msg = EmcyMessage {
+            code,
+            register: self.register().0,
+            manufacturer,
+        };
+        let _ = self.pending.push_back(msg); // room checked above
+        Ok(())
+    }
+
     /// An error went away. When it was the last one, queues the error-reset EMCY (code 0000h,
     /// register 00h). Clearing an error that is not active does nothing.
     pub fn clear(&mut self, code: u16) -> Result<(), EmcyError> {
-        let Some(pos) = self.active.iter().position(|&c| c == code) else {
+        let Some(pos) = self.active.iter().position(|&(c, _)| c == code) else {
             return Ok(());
         };
         if self.active.len() == 1 && self.pending.is_full() {
@@ -596,6 +633,25 @@ mod tests {
             EmcyCobId::from_u32(0x2000_0081),
             Err(EmcyError::ExtendedId(0x2000_0081))
         );
+    }
+
+    #[test]
+    fn manual_register_bits_and_repeat() {
+        let mut p: EmcyProducer<4> = EmcyProducer::new(EmcyCobId::for_node(n(1)), 0);
+        // 6310h is "device software" in CiA 301 (generic only); the MTR-DCI sets bit 5.
+        p.raise_with_register(0x6310, 0x20, [0; 5]).unwrap();
+        let t = Instant::from_millis(1);
+        assert_eq!(p.poll_transmit(t), Some(f("081#1063210000000000")));
+        // Repeated while active: sent and logged again, 1001h unchanged.
+        p.repeat(0x6310, [0; 5]).unwrap();
+        assert_eq!(p.poll_transmit(t), Some(f("081#1063210000000000")));
+        assert_eq!(p.history_len(), 2);
+        assert_eq!(p.register(), ErrorRegister(0x21));
+        p.clear(0x6310).unwrap();
+        assert_eq!(p.poll_transmit(t), Some(f("081#0000000000000000")));
+        // Repeating an inactive error raises it with its class bits.
+        p.repeat(0x2310, [0; 5]).unwrap();
+        assert_eq!(p.poll_transmit(t), Some(f("081#1023030000000000")));
     }
 
     #[test]

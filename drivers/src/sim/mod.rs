@@ -29,8 +29,10 @@ pub mod axis;
 #[cfg(feature = "std")]
 pub mod cmmo_st;
 pub mod comparator;
+pub mod emca;
 pub mod fhpp_drive;
 pub mod homing;
+pub mod mtr_dci;
 pub mod profile;
 pub mod records;
 pub mod tlc5xx;

@@ -60,6 +60,10 @@ pub enum FaultKind {
     Standstill,
     /// Teach not possible on this target (EMCA/CMMO-ST warning 40h).
     TeachFailed,
+    /// CANopen life guarding: no guard poll within the life time. MTR-DCI: fault reaction
+    /// 605Eh = 2 (emergency ramp), reported as the CAN-bus fault 51 (device bit 8000h); EMCA:
+    /// diagnostic 1Ch. Both send the CiA 301 EMCY 8130h (communication bit).
+    LifeGuarding,
 }
 
 /// Fault or warning.
@@ -95,6 +99,7 @@ pub struct DiagInfo {
 const CUR: u8 = 0x02;
 const VOLT: u8 = 0x04;
 const TEMP: u8 = 0x08;
+const COMM: u8 = 0x10;
 const PROF: u8 = 0x20;
 const MANU: u8 = 0x80;
 
@@ -159,6 +164,8 @@ impl FaultKind {
             (MtrDci, K::MotorStop) => bit(fault(106, false, Some(0x7122), PROF), 0x0002),
             (MtrDci, K::Hardware) => cause(bit(fault(52, true, Some(0x7600), PROF), 0x0040)),
             (MtrDci, K::Standstill) => bit(warning(36), 0x4000),
+            // E9: CAN faults (51) are serious.
+            (MtrDci, K::LifeGuarding) => bit(fault(51, true, Some(0x8130), COMM), 0x8000),
             (MtrDci, K::SoftwareLimit { .. } | K::Sto | K::TwoEdges | K::TeachFailed) => {
                 return None;
             }
@@ -227,6 +234,8 @@ impl FaultKind {
                 if emca { Some(0xFF26) } else { None },
                 MANU,
             )),
+            (Emca, K::LifeGuarding) => fault(0x1C, true, Some(0x8130), COMM),
+            (_, K::LifeGuarding) => return None,
             (CmmoSt, K::TwoEdges) => fault(0x3C, false, None, PROF),
             (_, K::TwoEdges) => return None,
             (_, K::Standstill) => warning(0x37),

@@ -219,6 +219,8 @@ pub enum Injection {
     Hardware,
     /// STO requested (EMCA/CMMO-ST): no enable, fault 34h.
     Sto,
+    /// CANopen life guarding lost: the master stopped polling (MTR-DCI digest §7.6, EMCA 1Ch).
+    LifeGuarding,
 }
 
 /// A fault or warning the drive holds.
@@ -369,7 +371,7 @@ pub struct FhppDrive {
     new_fault: Option<FaultClass>,
     emcy: Deque<Emcy, EMCY_QUEUE>,
     emcy_overflows: u32,
-    injected: [bool; 7],
+    injected: [bool; 8],
     fct_control: bool,
     sample_level: bool,
     sample_unread: [bool; 2],
@@ -384,6 +386,7 @@ const fn injection_index(i: Injection) -> usize {
         Injection::MotorStop => 4,
         Injection::Hardware => 5,
         Injection::Sto => 6,
+        Injection::LifeGuarding => 7,
     }
 }
 
@@ -444,7 +447,7 @@ impl FhppDrive {
             new_fault: None,
             emcy: Deque::new(),
             emcy_overflows: 0,
-            injected: [false; 7],
+            injected: [false; 8],
             fct_control: false,
             sample_level: false,
             sample_unread: [false; 2],
@@ -529,6 +532,17 @@ impl FhppDrive {
         self.step_to(now);
         self.control = *output;
         self.input
+    }
+
+    /// When the next internal cycle runs: a transport reports it as its deadline so the drive
+    /// advances in virtual time even while no frame arrives.
+    pub const fn next_cycle(&self) -> Instant {
+        self.next_cycle
+    }
+
+    /// The parameter-channel reply as of the last internal cycle, without sending a request.
+    pub const fn fpc_reply(&self) -> [u8; 8] {
+        self.fpc_reply
     }
 
     /// The status image as of the last internal cycle, without sending anything.
@@ -1098,6 +1112,7 @@ impl FhppDrive {
             (4, FaultKind::MotorStop),
             (5, FaultKind::Hardware),
             (6, FaultKind::Sto),
+            (7, FaultKind::LifeGuarding),
         ] {
             if self.injected[i] && !self.is_active(kind) {
                 self.raise(kind, t);
@@ -1825,6 +1840,7 @@ impl FhppDrive {
             FaultKind::MotorStop => i[4],
             FaultKind::Hardware => i[5],
             FaultKind::Sto => i[6],
+            FaultKind::LifeGuarding => i[7],
             _ => false,
         }
     }

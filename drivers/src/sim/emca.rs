@@ -1,0 +1,85 @@
+//! The Festo EMCA integrated drive on CANopen in its FHPP profile (seed 002 §5.1): the same
+//! FHPP-over-CANopen adapter as the MTR-DCI ([`FestoNode`]) with the EMCA's communication
+//! objects and its 5 ms internal cycle, EFPC on PDO2, EMCY on every new fault and on every
+//! acknowledge, node guarding (loss = diagnostic 1Ch, EMCY 8130h).
+//!
+//! ```
+//! use drivers::canopen::{Address, NodeId};
+//! use drivers::sim::emca::Emca;
+//! use drivers::time::Instant;
+//! let d = Emca::new(NodeId::new(4).unwrap(), Instant::ZERO).unwrap();
+//! assert_eq!(d.device().od().get_u32(Address::new(0x1000, 0)), Ok(0x12D));
+//! ```
+
+use core::ops::{Deref, DerefMut};
+
+use crate::can::Frame;
+use crate::canopen::NodeId;
+use crate::canopen::device::{CommProfile, PdoDefault};
+use crate::canopen::endpoint::Endpoint;
+use crate::fhpp::Variant;
+use crate::sim::fhpp_drive::DriveConfig;
+use crate::sim::mtr_dci::{FestoNode, MTR_DCI_FHPP, SimError};
+use crate::time::Instant;
+
+/// The EMCA's communication objects (§5.1): device type 12Dh, vendor 1Dh, PDO1 (FHPP) and PDO2
+/// (EFPC) valid and event-driven; PDO3/4 carry FHPP+ only when configured in FCT, which is not
+/// modelled, so they are absent. Node guarding; the manual mentions no heartbeat, so there is
+/// no 1017h.
+pub const EMCA_FHPP: CommProfile = CommProfile {
+    device_type: 0x0000_012D,
+    identity: [0x1D, 0, 0x0001_0000, 0],
+    rpdo: [
+        MTR_DCI_FHPP.rpdo[0],
+        MTR_DCI_FHPP.rpdo[1],
+        PdoDefault::ABSENT,
+        PdoDefault::ABSENT,
+    ],
+    ..MTR_DCI_FHPP
+};
+
+/// The EMCA on CANopen.
+#[derive(Debug)]
+pub struct Emca(FestoNode);
+
+impl Emca {
+    /// A powered-on EMCA (boot-up queued) with the default axis.
+    pub fn new(node: NodeId, now: Instant) -> Result<Emca, SimError> {
+        Emca::with_config(node, DriveConfig::new(Variant::Emca), now)
+    }
+
+    /// A powered-on EMCA with a drive configuration of its own.
+    pub fn with_config(node: NodeId, cfg: DriveConfig, now: Instant) -> Result<Emca, SimError> {
+        if cfg.variant != Variant::Emca {
+            return Err(SimError::Profile(cfg.variant));
+        }
+        FestoNode::build(node, &EMCA_FHPP, cfg, false, now).map(Emca)
+    }
+}
+
+impl Deref for Emca {
+    type Target = FestoNode;
+    fn deref(&self) -> &FestoNode {
+        &self.0
+    }
+}
+impl DerefMut for Emca {
+    fn deref_mut(&mut self) -> &mut FestoNode {
+        &mut self.0
+    }
+}
+
+impl Endpoint for Emca {
+    fn handle_frame(&mut self, frame: &Frame, now: Instant) {
+        self.0.handle_frame(frame, now)
+    }
+    fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
+        self.0.poll_transmit(now)
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        self.0.poll_timeout()
+    }
+    fn handle_timeout(&mut self, now: Instant) {
+        self.0.handle_timeout(now)
+    }
+}
