@@ -63,19 +63,23 @@ fn sdo(st: &mut Station<ShmBus, M>, node: NodeId) -> Result<Vec<u8>, SdoError> {
     panic!("no SDO answer from node {node} within 5 s");
 }
 
-#[test]
-fn tlc5xx_process_answers_sdo_from_another_process() {
+/// Starts `drive-sim --device DEVICE` as node 5 and reads 1000h from it over the shared-memory
+/// bus; returns the master station for more requests.
+fn read_device_type(device: &str, extra: &[&str]) -> (Reap, Station<ShmBus, M>, Vec<u8>) {
     let bus_name = unique("dsim");
-    let _child = spawn(&[
+    let bus_arg = format!("vbus:{bus_name}");
+    let mut args = vec![
         "--device",
-        "tlc5xx",
+        device,
         "--bus",
-        &format!("vbus:{bus_name}"),
+        bus_arg.as_str(),
         "--node",
         "5",
         "--duration",
         "30",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let child = spawn(&args);
     let node = NodeId::new(5).unwrap();
     let bus = ShmBus::open(&bus_name, 1_000_000).unwrap();
     let mut st = Station::new(bus, M::default());
@@ -83,7 +87,6 @@ fn tlc5xx_process_answers_sdo_from_another_process() {
         .add_node(node, Supervision::None, monotonic_now())
         .unwrap();
     // The simulator may still be starting: the first request can time out (500 ms), so retry.
-    let mut device_type = None;
     for _ in 0..8 {
         st.endpoint
             .sdo(node)
@@ -91,19 +94,20 @@ fn tlc5xx_process_answers_sdo_from_another_process() {
             .upload(Address::new(0x1000, 0))
             .unwrap();
         match sdo(&mut st, node) {
-            Ok(v) => {
-                device_type = Some(v);
-                break;
-            }
+            Ok(v) => return (child, st, v),
             Err(SdoError::Timeout { .. }) => continue,
-            Err(e) => panic!("{e}"),
+            Err(e) => panic!("{device}: {e}"),
         }
     }
+    panic!("{device}: no answer");
+}
+
+#[test]
+fn tlc5xx_process_answers_sdo_from_another_process() {
+    let (_child, mut st, device_type) = read_device_type("tlc5xx", &[]);
+    let node = NodeId::new(5).unwrap();
     // §8.1: 1000h = 0002 0192h.
-    assert_eq!(
-        device_type.expect("the simulator answered"),
-        0x0002_0192u32.to_le_bytes()
-    );
+    assert_eq!(device_type, 0x0002_0192u32.to_le_bytes());
     // Its own abort code for an invalid write, and it keeps serving afterwards.
     st.endpoint
         .sdo(node)
@@ -123,6 +127,47 @@ fn tlc5xx_process_answers_sdo_from_another_process() {
         0x0040u16.to_le_bytes(),
         "switch on disabled"
     );
+}
+
+#[test]
+fn festo_processes_answer_sdo_with_their_own_dictionaries() {
+    use drivers::sim::emca::Emca;
+    use drivers::sim::mtr_dci::{MtrDci, Profile};
+    let n = NodeId::new(5).unwrap();
+    let t = monotonic_now();
+    let expected = |v: u32| v.to_le_bytes().to_vec();
+    let mtr = MtrDci::new(n, Profile::Fhpp, t)
+        .unwrap()
+        .device()
+        .od()
+        .get_u32(Address::new(0x1000, 0))
+        .unwrap();
+    let mtr402 = MtrDci::new(n, Profile::Cia402, t)
+        .unwrap()
+        .device()
+        .od()
+        .get_u32(Address::new(0x1000, 0))
+        .unwrap();
+    let emca = Emca::new(n, t)
+        .unwrap()
+        .device()
+        .od()
+        .get_u32(Address::new(0x1000, 0))
+        .unwrap();
+    assert_eq!(read_device_type("mtr-dci", &[]).2, expected(mtr));
+    assert_eq!(
+        read_device_type("mtr-dci", &["--profile", "cia402"]).2,
+        expected(mtr402)
+    );
+    let (_child, mut st, v) = read_device_type("emca", &[]);
+    assert_eq!(v, expected(emca));
+    // A PNU by SDO at 2000h + PNU, out of range: the device's own abort code, then it goes on.
+    st.endpoint
+        .sdo(n)
+        .unwrap()
+        .upload(Address::new(0x1018, 1))
+        .unwrap();
+    assert!(sdo(&mut st, n).is_ok());
 }
 
 fn free_port() -> u16 {

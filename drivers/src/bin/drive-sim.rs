@@ -25,6 +25,8 @@ use drivers::can::station::Station;
 use drivers::canopen::NodeId;
 use drivers::canopen::endpoint::Endpoint;
 use drivers::sim::cmmo_st::{self, ServerConfig};
+use drivers::sim::emca::Emca;
+use drivers::sim::mtr_dci::{FestoNode, MtrDci, Profile as MtrProfile};
 use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
 use drivers::time::{Instant, monotonic_now};
 
@@ -118,22 +120,65 @@ impl SimDrive for Tlc5xx {
     }
 }
 
+/// The FHPP status line shared by the two Festo CANopen drives.
+fn festo_line(kind: &str, node: &FestoNode) -> String {
+    let d = node.drive();
+    let i = d.input();
+    let state = match node.cia402_state() {
+        Some(s) => format!("CiA 402 {s:?}"),
+        None => format!("SCON {:02X}h SPOS {:02X}h", i[0], i[1]),
+    };
+    let fault = d
+        .fault_number()
+        .map_or_else(|| "-".into(), |n| n.to_string());
+    format!(
+        "node {:3} {kind:7} NMT {:?} {state} pos {} inc fault {fault}",
+        node.device().node().get(),
+        node.device().state(),
+        d.axis().status().position
+    )
+}
+
+impl SimDrive for MtrDci {
+    fn status_line(&self) -> String {
+        festo_line("MTR-DCI", self)
+    }
+}
+
+impl SimDrive for Emca {
+    fn status_line(&self) -> String {
+        festo_line("EMCA", self)
+    }
+}
+
 fn build_can_drive(
     device: Device,
     node: NodeId,
     profile: ProfileArg,
     now: Instant,
 ) -> Result<Box<dyn SimDrive>, String> {
+    if profile == ProfileArg::Cia402 && device != Device::MtrDci {
+        return Err(format!(
+            "--profile cia402 is the MTR-DCI's alternative profile, not the {device:?}'s"
+        ));
+    }
     match device {
         Device::Tlc5xx => Tlc5xx::new(TlcConfig::new(node), now)
             .map(|d| Box::new(d) as Box<dyn SimDrive>)
             .map_err(|e| e.to_string()),
-        Device::MtrDci | Device::Emca => {
-            let _ = profile;
-            Err(format!(
-                "{device:?} on CANopen is not available in this build"
-            ))
+        Device::MtrDci => {
+            let p = if profile == ProfileArg::Cia402 {
+                MtrProfile::Cia402
+            } else {
+                MtrProfile::Fhpp
+            };
+            MtrDci::new(node, p, now)
+                .map(|d| Box::new(d) as Box<dyn SimDrive>)
+                .map_err(|e| e.to_string())
         }
+        Device::Emca => Emca::new(node, now)
+            .map(|d| Box::new(d) as Box<dyn SimDrive>)
+            .map_err(|e| e.to_string()),
         Device::CmmoSt => Err("the CMMO-ST speaks Modbus TCP: use --modbus ADDR".into()),
     }
 }

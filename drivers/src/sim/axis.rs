@@ -558,6 +558,11 @@ impl Axis {
     pub fn now(&self) -> Instant {
         self.now
     }
+    /// Moves the axis' clock to `now` without stepping (at power-on: a drive created on the
+    /// monotonic clock starts there, not at its epoch).
+    pub fn set_clock(&mut self, now: Instant) {
+        self.now = now;
+    }
     /// The outputs of the last step.
     pub fn status(&self) -> &Status {
         &self.status

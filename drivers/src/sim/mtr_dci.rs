@@ -500,7 +500,8 @@ impl FestoNode {
         } else {
             od.insert_all(&FHPP_OBJECTS)?;
         }
-        let drive = FhppDrive::new(drive)?;
+        let mut drive = FhppDrive::new(drive)?;
+        drive.start_at(now);
         let cia = cia402.then(|| Cia402Face::new(drive.axis().status().position as i32));
         let app = FestoApp { drive, cia };
         let mut dev = FestoDevice::new(node, od, comm.boot_up, app);
@@ -641,7 +642,7 @@ impl FestoNode {
             if let Ok(d) = FhppDrive::new(cfg) {
                 app.drive = d;
                 // The new drive's clock starts at the reset.
-                app.drive.step_to(now);
+                app.drive.start_at(now);
             }
             let pos = app.drive.axis().status().position as i32;
             if app.cia.is_some() {

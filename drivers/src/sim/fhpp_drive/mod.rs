@@ -550,6 +550,13 @@ impl FhppDrive {
         self.input
     }
 
+    /// Starts the drive's clock at `now` (power-on at that instant): a drive created on the
+    /// monotonic clock would otherwise simulate every internal cycle since the clock's epoch.
+    pub fn start_at(&mut self, now: Instant) {
+        self.axis.set_clock(now);
+        self.next_cycle = now;
+    }
+
     /// Advances the internal cycle and the axis to `now` (never backwards).
     pub fn step_to(&mut self, now: Instant) {
         while self.next_cycle <= now {
