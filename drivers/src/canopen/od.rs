@@ -507,11 +507,15 @@ fn check_limits(def: &EntryDef<'_>, v: &Value<'_>) -> Result<(), AbortCode> {
     Ok(())
 }
 
+/// What a value access needs of an entry, kept apart from its definition: a compact array
+/// that the per-cycle reads and writes of device code touch, instead of the definitions.
 #[derive(Debug, Clone, Copy)]
-struct Slot<'a> {
-    def: EntryDef<'a>,
+struct Slot {
     offset: usize,
     len: usize,
+    data_type: DataType,
+    /// Limits or a BOOLEAN: a typed write must check the value.
+    checked: bool,
 }
 
 /// A static, allocation-free object dictionary: up to `N` entries (sub-indices), their values in
@@ -565,7 +569,9 @@ struct Slot<'a> {
 /// ```
 #[derive(Debug, Clone)]
 pub struct ObjectDictionary<'a, const N: usize, const BYTES: usize> {
-    slots: heapless::Vec<Slot<'a>, N>,
+    slots: heapless::Vec<Slot, N>,
+    /// The definitions, in the same order as `slots`.
+    defs: heapless::Vec<EntryDef<'a>, N>,
     /// `index << 8 | sub` of each slot, in the same order: a compact array to search.
     keys: heapless::Vec<u32, N>,
     /// Bumped by every change of a stored value.
@@ -585,6 +591,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     pub const fn new() -> Self {
         ObjectDictionary {
             slots: heapless::Vec::new(),
+            defs: heapless::Vec::new(),
             keys: heapless::Vec::new(),
             generation: 0,
             arena: [0; BYTES],
@@ -594,7 +601,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     /// Adds an entry with its default value.
     pub fn insert(&mut self, def: EntryDef<'a>) -> Result<(), OdError> {
-        let pos = match self.slots.binary_search_by(|s| s.def.addr.cmp(&def.addr)) {
+        let pos = match self.keys.binary_search(&key(def.addr)) {
             Ok(_) => return Err(OdError::Duplicate(def.addr)),
             Err(p) => p,
         };
@@ -621,7 +628,13 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
                 code,
             }
         })?;
-        let slot = Slot { def, offset, len };
+        let checked = def.low.is_some() || def.high.is_some() || def.data_type == DataType::Boolean;
+        let slot = Slot {
+            offset,
+            len,
+            data_type: def.data_type,
+            checked,
+        };
         // Capacity checked above, so the insert cannot fail.
         self.slots.insert(pos, slot).map_err(|_| OdError::Full {
             capacity: N,
@@ -629,6 +642,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         })?;
         // Same capacity as `slots`, which just took the entry.
         let _ = self.keys.insert(pos, key(def.addr));
+        let _ = self.defs.insert(pos, def);
         self.used += size;
         Ok(())
     }
@@ -647,14 +661,14 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// communication reloads 1000h..1FFFh only).
     pub fn reset_range(&mut self, first: u16, last: u16) {
         self.generation = self.generation.wrapping_add(1);
-        for s in self.slots.iter_mut() {
-            if s.def.addr.index < first || s.def.addr.index > last {
+        for (s, def) in self.slots.iter_mut().zip(self.defs.iter()) {
+            if def.addr.index < first || def.addr.index > last {
                 continue;
             }
-            let cap = s.def.storage_size();
+            let cap = def.storage_size();
             let region = &mut self.arena[s.offset..s.offset + cap];
             // Defaults were checked at insert.
-            s.len = encode_value(s.def.data_type, &s.def.default, region).unwrap_or(s.len);
+            s.len = encode_value(def.data_type, &def.default, region).unwrap_or(s.len);
         }
     }
 
@@ -675,7 +689,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     /// Every definition, in address order.
     pub fn entries(&self) -> impl Iterator<Item = &EntryDef<'a>> {
-        self.slots.iter().map(|s| &s.def)
+        self.defs.iter()
     }
 
     fn find(&self, addr: Address) -> Result<usize, AbortCode> {
@@ -683,11 +697,8 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             Ok(i) => Ok(i),
             Err(p) => {
                 // A neighbour with the same index means the object exists but not the sub.
-                let same_index = |i: usize| {
-                    self.slots
-                        .get(i)
-                        .is_some_and(|s| s.def.addr.index == addr.index)
-                };
+                let same_index =
+                    |i: usize| self.defs.get(i).is_some_and(|d| d.addr.index == addr.index);
                 if same_index(p) || (p > 0 && same_index(p - 1)) {
                     Err(AbortCode::NoSubIndex)
                 } else {
@@ -699,7 +710,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     /// The definition of an entry: `NoObject` or `NoSubIndex` if it does not exist.
     pub fn entry(&self, addr: Address) -> Result<&EntryDef<'a>, AbortCode> {
-        self.find(addr).map(|i| &self.slots[i].def)
+        self.find(addr).map(|i| &self.defs[i])
     }
 
     /// The current value bytes, without the access check (device code, PDO transmission).
@@ -712,7 +723,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     pub fn value(&self, addr: Address) -> Result<Value<'_>, AbortCode> {
         let s = &self.slots[self.find(addr)?];
         Ok(decode_value(
-            s.def.data_type,
+            s.data_type,
             &self.arena[s.offset..s.offset + s.len],
         ))
     }
@@ -720,7 +731,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// Checks a write of `data` to the entry at slot `i` (length, range, limits); access is the
     /// caller's business.
     fn check_write(&self, i: usize, data: &[u8]) -> Result<(), AbortCode> {
-        let def = &self.slots[i].def;
+        let def = &self.defs[i];
         match def.data_type.size() {
             Some(size) if data.len() > size => return Err(AbortCode::TooLong),
             Some(size) if data.len() < size => return Err(AbortCode::TooShort),
@@ -738,12 +749,22 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     fn store(&mut self, i: usize, data: &[u8]) {
         let s = &mut self.slots[i];
         let dst = &mut self.arena[s.offset..s.offset + data.len()];
-        if s.len == data.len() && *dst == *data {
-            return;
+        let mut changed = s.len != data.len();
+        if data.len() <= 8 {
+            // Values written every cycle are a few bytes: compare and copy in one pass
+            // rather than calling memcmp and memcpy.
+            for (d, &b) in dst.iter_mut().zip(data) {
+                changed |= *d != b;
+                *d = b;
+            }
+        } else if changed || *dst != *data {
+            dst.copy_from_slice(data);
+            changed = true;
         }
-        dst.copy_from_slice(data);
-        s.len = data.len();
-        self.generation = self.generation.wrapping_add(1);
+        if changed {
+            s.len = data.len();
+            self.generation = self.generation.wrapping_add(1);
+        }
     }
 
     /// A counter that changes whenever a stored value changes: a reader that packs values
@@ -761,11 +782,11 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         veto: impl FnOnce(&EntryDef<'a>, &[u8]) -> Result<(), AbortCode>,
     ) -> Result<(), AbortCode> {
         let i = self.find(addr)?;
-        if !self.slots[i].def.access.writable() {
+        if !self.defs[i].access.writable() {
             return Err(AbortCode::ReadOnly);
         }
         self.check_write(i, data)?;
-        veto(&self.slots[i].def, data)?;
+        veto(&self.defs[i], data)?;
         self.store(i, data);
         Ok(())
     }
@@ -782,7 +803,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// Sets a value of any kind (local write, see [`ObjectDictionary::set_raw`]).
     pub fn set_value(&mut self, addr: Address, v: Value<'_>) -> Result<(), AbortCode> {
         let i = self.find(addr)?;
-        let dt = self.slots[i].def.data_type;
+        let dt = self.slots[i].data_type;
         let mut buf = [0u8; 8];
         if let Value::Bytes(b) = v {
             return self.set_raw(addr, b);
@@ -793,7 +814,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     fn get_unsigned(&self, addr: Address, max_bits: u32) -> Result<u64, AbortCode> {
         let s = &self.slots[self.find(addr)?];
-        if s.def.data_type.class() != TypeClass::Unsigned || int_bits(s.def.data_type) > max_bits {
+        if s.data_type.class() != TypeClass::Unsigned || int_bits(s.data_type) > max_bits {
             return Err(AbortCode::TypeMismatch);
         }
         Ok(le_u64(&self.arena[s.offset..s.offset + s.len]))
@@ -801,8 +822,8 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     fn get_signed(&self, addr: Address, max_bits: u32) -> Result<i64, AbortCode> {
         let s = &self.slots[self.find(addr)?];
-        let bits = int_bits(s.def.data_type);
-        if s.def.data_type.class() != TypeClass::Signed || bits > max_bits {
+        let bits = int_bits(s.data_type);
+        if s.data_type.class() != TypeClass::Signed || bits > max_bits {
             return Err(AbortCode::TypeMismatch);
         }
         // Sign-extend the stored little-endian bytes (device code reads actual values every
@@ -822,18 +843,36 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         max_bits: u32,
     ) -> Result<(), AbortCode> {
         let i = self.find(addr)?;
-        let def = &self.slots[i].def;
-        let dt = def.data_type;
+        let dt = self.slots[i].data_type;
         if dt.class() != class || int_bits(dt) > max_bits {
             return Err(AbortCode::TypeMismatch);
         }
-        let mut buf = [0u8; 8];
-        let n = encode_value(dt, &v, &mut buf)?;
-        if def.low.is_some() || def.high.is_some() || dt == DataType::Boolean {
+        self.store_int(i, v)
+    }
+
+    /// Range check, limits where the entry has them, store: an integer value into slot `i`.
+    fn store_int(&mut self, i: usize, v: Value<'_>) -> Result<(), AbortCode> {
+        let slot = self.slots[i];
+        let dt = slot.data_type;
+        let raw = int_to_raw(dt, &v)?;
+        let buf = raw.to_le_bytes();
+        let n = dt.size().unwrap_or(8).min(8);
+        if slot.checked {
             self.check_write(i, &buf[..n])?;
         }
         self.store(i, &buf[..n]);
         Ok(())
+    }
+
+    /// Sets an integer entry of any width and signedness from `v` (local write: the value must
+    /// fit the entry's type and limits, access is not checked). For device code that publishes
+    /// many values of different types.
+    pub fn set_int(&mut self, addr: Address, v: i64) -> Result<(), AbortCode> {
+        let i = self.find(addr)?;
+        match self.slots[i].data_type.class() {
+            TypeClass::Signed | TypeClass::Unsigned => self.store_int(i, Value::Signed(v)),
+            _ => Err(AbortCode::TypeMismatch),
+        }
     }
 
     fn set_unsigned(&mut self, addr: Address, v: u64, max_bits: u32) -> Result<(), AbortCode> {
@@ -911,8 +950,9 @@ impl<const N: usize, const BYTES: usize> ObjectAccess for ObjectDictionary<'_, N
     }
 
     fn read(&mut self, addr: Address, offset: usize, buf: &mut [u8]) -> Result<usize, AbortCode> {
-        let s = &self.slots[self.find(addr)?];
-        if !s.def.access.readable() {
+        let i = self.find(addr)?;
+        let s = &self.slots[i];
+        if !self.defs[i].access.readable() {
             return Err(AbortCode::WriteOnly);
         }
         let value = &self.arena[s.offset..s.offset + s.len];

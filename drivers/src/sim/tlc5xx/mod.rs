@@ -59,6 +59,9 @@ use crate::sim::homing::{Homing, HomingMethod, HomingParams, HomingState};
 use crate::time::Instant;
 use od::{OD_BYTES, OD_ENTRIES, TlcOd};
 
+/// How many dictionary values [`Tlc5xx`] publishes each tick.
+const PUBLISHED: usize = 23;
+
 /// The CiA 301 device under the simulator (SDO downloads up to 64 bytes: strings are 16 at most).
 pub type TlcDevice = Device<'static, OD_ENTRIES, OD_BYTES, 64, TlcHooks>;
 
@@ -396,6 +399,10 @@ pub struct Tlc5xx {
     last_sync: Option<Instant>,
     late: [Option<Frame>; 4],
     next_tick: Instant,
+    /// The values `publish` last wrote, in its order (`None`: write it next time).
+    published: [Option<i64>; PUBLISHED],
+    /// 6093h/6094h/6097h as last read (they change only by SDO or RPDO writes and resets).
+    scaling: Scaling,
 }
 
 impl Tlc5xx {
@@ -468,7 +475,15 @@ impl Tlc5xx {
             last_sync: None,
             late: [None; 4],
             next_tick: now + cfg.tick,
+            published: [None; PUBLISHED],
+            scaling: Scaling {
+                increments_per_rev: 1,
+                position: (1, 1),
+                velocity: (1, 1),
+                acceleration: (1, 1),
+            },
         };
+        t.scaling = t.compute_scaling();
         let p = t.actual_usr();
         t.pp.reset(p);
         t.publish();
@@ -523,6 +538,11 @@ impl Tlc5xx {
     }
     /// The current user-unit scaling.
     pub fn scaling(&self) -> Scaling {
+        self.scaling
+    }
+
+    /// Reads the scaling objects again (after a write to 6093h/6094h/6097h or a reset).
+    fn compute_scaling(&self) -> Scaling {
         let od = self.dev.od();
         let pair = |i| {
             (
@@ -1068,6 +1088,12 @@ impl Tlc5xx {
 
     /// Objects written by SDO or an RPDO: act on them (all of one RPDO at once).
     fn written(&mut self, addrs: &[Address]) {
+        if addrs
+            .iter()
+            .any(|x| matches!(x.index, 0x6093 | 0x6094 | 0x6097))
+        {
+            self.scaling = self.compute_scaling();
+        }
         let has = |i: u16, s: u8| addrs.contains(&a(i, s));
         if has(0x6060, 0) {
             let code = self.dev.od().get_i8(a(0x6060, 0)).unwrap_or(1);
@@ -1159,6 +1185,9 @@ impl Tlc5xx {
                     self.written(&addrs);
                 }
                 DeviceEvent::Reset(kind) => {
+                    // The dictionary holds its defaults again: publish everything anew.
+                    self.published = [None; PUBLISHED];
+                    self.scaling = self.compute_scaling();
                     self.last_sync = None;
                     self.late = [None; 4];
                     if kind == ResetKind::Node {
@@ -1339,33 +1368,44 @@ impl Tlc5xx {
         h.drive = state;
         h.mode = self.modes.active();
         h.fault_number = self.faults.first().map(|f| f.error_number());
+        let values: [(u16, u8, i64); PUBLISHED] = [
+            (0x6041, 0, sw as i64),
+            (0x6061, 0, mode as i64),
+            (0x6063, 0, i32c(st.position) as i64),
+            (0x6064, 0, i32c(position) as i64),
+            (0x2089, 0, i32c(position) as i64),
+            (0x6069, 0, i32c(st.velocity) as i64),
+            (0x606C, 0, i32c(velocity) as i64),
+            (0x208A, 0, i32c(velocity) as i64),
+            (
+                0x20EB,
+                0,
+                velocity.unsigned_abs().min(u16::MAX as u64) as i64,
+            ),
+            (0x60F4, 0, i32c(sc.inc_to_pos(st.following_error)) as i64),
+            (0x2073, 0, i32c(st.following_error) as i64),
+            (0x2013, 0, peak as i64),
+            (0x208C, 0, i32c(remaind) as i64),
+            (0x60FD, 0, inputs as i64),
+            (0x2048, 0, limits as i64),
+            (0x60FE, 1, outputs as i64),
+            (0x2041, 0, drive_stat as i64),
+            (0x2091, 0, state_ptp as i64),
+            (0x20F1, 0, state_home as i64),
+            (0x20B5, 0, state_list as i64),
+            (0x2062, 0, int_sig as i64),
+            (0x2049, 0, flt_sig as i64),
+            (0x603F, 0, error_code as i64),
+        ];
+        // Most of these change rarely: write only what differs from the last publish (a tick
+        // would otherwise cost two dozen dictionary writes per drive).
         let od = self.dev.od_mut();
-        let _ = od.set_u16(a(0x6041, 0), sw);
-        let _ = od.set_i8(a(0x6061, 0), mode);
-        let _ = od.set_i32(a(0x6063, 0), i32c(st.position));
-        let _ = od.set_i32(a(0x6064, 0), i32c(position));
-        let _ = od.set_i32(a(0x2089, 0), i32c(position));
-        let _ = od.set_i32(a(0x6069, 0), i32c(st.velocity));
-        let _ = od.set_i32(a(0x606C, 0), i32c(velocity));
-        let _ = od.set_i32(a(0x208A, 0), i32c(velocity));
-        let _ = od.set_u16(
-            a(0x20EB, 0),
-            velocity.unsigned_abs().min(u16::MAX as u64) as u16,
-        );
-        let _ = od.set_i32(a(0x60F4, 0), i32c(sc.inc_to_pos(st.following_error)));
-        let _ = od.set_i32(a(0x2073, 0), i32c(st.following_error));
-        let _ = od.set_u32(a(0x2013, 0), peak);
-        let _ = od.set_i32(a(0x208C, 0), i32c(remaind));
-        let _ = od.set_u32(a(0x60FD, 0), inputs);
-        let _ = od.set_u16(a(0x2048, 0), limits);
-        let _ = od.set_u32(a(0x60FE, 1), outputs);
-        let _ = od.set_u16(a(0x2041, 0), drive_stat);
-        let _ = od.set_u16(a(0x2091, 0), state_ptp);
-        let _ = od.set_u16(a(0x20F1, 0), state_home);
-        let _ = od.set_u16(a(0x20B5, 0), state_list);
-        let _ = od.set_u32(a(0x2062, 0), int_sig);
-        let _ = od.set_u32(a(0x2049, 0), flt_sig);
-        let _ = od.set_u16(a(0x603F, 0), error_code);
+        for (k, &(i, sub, v)) in values.iter().enumerate() {
+            if self.published[k] != Some(v) {
+                let _ = od.set_int(a(i, sub), v);
+                self.published[k] = Some(v);
+            }
+        }
     }
 
     // ---- the 1007h window ----------------------------------------------------------------
