@@ -23,7 +23,7 @@ use drivers::canopen::heartbeat::HeartbeatEvent;
 use drivers::canopen::master::{Master, MasterEvent, Supervision};
 use drivers::canopen::nmt::{NmtCommand, NmtState, NmtTarget};
 use drivers::canopen::pdo::{CobId, ConfigPlan, Mapping, PdoDirection, PdoSettings};
-use drivers::canopen::sdo::{Completion, DownloadMode};
+use drivers::canopen::sdo::DownloadMode;
 use drivers::canopen::{Address, FunctionCode, NodeId};
 use drivers::time::{Instant, monotonic_now};
 
@@ -282,10 +282,7 @@ fn sdo_wait(m: &mut Machine, bitrate: u32, node: NodeId) -> Result<Vec<u8>, Stri
     let mut out = None;
     m.run_until(bitrate, Duration::from_secs(2), |m| {
         if let Some(e) = m.master.endpoint.master.poll_sdo_event(node) {
-            out = Some(e.outcome.map(|c| match c {
-                Completion::Uploaded(d) => d.to_vec(),
-                Completion::Downloaded => Vec::new(),
-            }));
+            out = Some(e.to_vec());
             true
         } else {
             false

@@ -10,7 +10,7 @@ use std::time::Duration;
 use drivers::can::shm_bus::ShmBus;
 use drivers::can::station::Station;
 use drivers::canopen::master::{Master, Supervision};
-use drivers::canopen::sdo::{Completion, DownloadMode, SdoError};
+use drivers::canopen::sdo::{DownloadMode, SdoError};
 use drivers::canopen::{AbortCode, Address, NodeId};
 use drivers::time::monotonic_now;
 
@@ -53,10 +53,7 @@ fn sdo(st: &mut Station<ShmBus, M>, node: NodeId) -> Result<Vec<u8>, SdoError> {
     while monotonic_now() < end {
         st.step();
         if let Some(e) = st.endpoint.poll_sdo_event(node) {
-            return e.outcome.map(|c| match c {
-                Completion::Uploaded(d) => d.to_vec(),
-                Completion::Downloaded => Vec::new(),
-            });
+            return e.to_vec();
         }
         std::thread::sleep(Duration::from_micros(200));
     }

@@ -11,7 +11,7 @@ use drivers::can::{Bus, ClockMode, Frame, VirtualBus, VirtualBusConfig, VirtualP
 use drivers::canopen::endpoint::Endpoint;
 use drivers::canopen::master::{Master, MasterEvent, Supervision};
 use drivers::canopen::nmt::{NmtCommand, NmtTarget};
-use drivers::canopen::sdo::{Completion, DownloadMode, SdoError};
+use drivers::canopen::sdo::{DownloadMode, SdoError};
 use drivers::canopen::{Address, NodeId};
 use drivers::time::Instant;
 
@@ -195,10 +195,7 @@ impl<D: Endpoint> Rig<D> {
         let mut out = None;
         let ok = self.run_until(200 * MS, |r| {
             if let Some(e) = r.ctl.endpoint.master.poll_sdo_event(n) {
-                out = Some(e.outcome.map(|c| match c {
-                    Completion::Uploaded(d) => d.to_vec(),
-                    Completion::Downloaded => Vec::new(),
-                }));
+                out = Some(e.to_vec());
                 true
             } else {
                 false

@@ -10,7 +10,7 @@ use drivers::canopen::heartbeat::HeartbeatEvent;
 use drivers::canopen::master::{MasterEvent, Supervision};
 use drivers::canopen::nmt::{NmtCommand, NmtState, NmtTarget};
 use drivers::canopen::pdo::{ConfigPlan, Mapping, PdoDirection, PdoSettings};
-use drivers::canopen::sdo::{AbortedBy, Completion, DownloadMode, SdoError};
+use drivers::canopen::sdo::{AbortedBy, DownloadMode, SdoError};
 use drivers::canopen::{AbortCode, Address};
 use drivers::time::Instant;
 use integration_tests::*;
@@ -22,10 +22,7 @@ fn sdo_result(rig: &mut Rig, n: u8, limit: Duration) -> Result<Vec<u8>, SdoError
     let mut out = None;
     let done = rig.run_until(limit, |r| {
         if let Some(e) = r.master.endpoint.poll_sdo_event(node(n)) {
-            out = Some(e.outcome.map(|c| match c {
-                Completion::Uploaded(d) => d.to_vec(),
-                Completion::Downloaded => Vec::new(),
-            }));
+            out = Some(e.to_vec());
             true
         } else {
             false

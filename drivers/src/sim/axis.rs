@@ -21,31 +21,8 @@ fn sub(inc: i64) -> i64 {
     inc.clamp(-MAX_POSITION, MAX_POSITION) * ONE
 }
 
-/// A direction of motion.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Direction {
-    /// Towards increasing positions.
-    Positive,
-    /// Towards decreasing positions.
-    Negative,
-}
-
-impl Direction {
-    /// +1 or -1.
-    pub const fn sign(self) -> i64 {
-        match self {
-            Direction::Positive => 1,
-            Direction::Negative => -1,
-        }
-    }
-    /// The other direction.
-    pub const fn reverse(self) -> Direction {
-        match self {
-            Direction::Positive => Direction::Negative,
-            Direction::Negative => Direction::Positive,
-        }
-    }
-}
+/// A direction of motion (one type with the CiA 402 homing tables).
+pub use crate::cia402::homing::Direction;
 
 /// Encoder, gear and feed: the conversion between increments and the output (written once).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -708,7 +685,7 @@ impl Axis {
     /// Jogs in `dir` at `velocity` inc/s with the maximum acceleration; end it with
     /// [`Axis::hold`].
     pub fn jog(&mut self, dir: Direction, velocity: u32) -> Result<(), AxisError> {
-        let v = velocity.min(i32::MAX as u32) as i32 * dir.sign() as i32;
+        let v = velocity.min(i32::MAX as u32) as i32 * dir.sign();
         self.run_velocity(v, self.cfg.max_acceleration, self.cfg.max_deceleration)
     }
 

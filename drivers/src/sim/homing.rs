@@ -55,11 +55,8 @@ impl HomingMethod {
 
     /// The description of a method given as data (which signal, which way, index or not).
     pub const fn from_plan(plan: crate::cia402::homing::HomingPlan) -> Self {
-        use crate::cia402::homing::{Direction as D, HomeSignal as S};
-        let search = match plan.search {
-            D::Positive => Direction::Positive,
-            D::Negative => Direction::Negative,
-        };
+        use crate::cia402::homing::HomeSignal as S;
+        let search = plan.search;
         let (reference, index) = match plan.signal {
             S::CurrentPosition => (Reference::CurrentPosition, false),
             S::HardStop => (Reference::FixedStop(search), false),
@@ -273,7 +270,7 @@ impl Homing {
 
     fn jog(&self, axis: &mut Axis, dir: Direction, v: u32) -> Result<(), HomingError> {
         let a = self.params.acceleration;
-        axis.run_velocity(v.min(i32::MAX as u32) as i32 * dir.sign() as i32, a, a)?;
+        axis.run_velocity(v.min(i32::MAX as u32) as i32 * dir.sign(), a, a)?;
         Ok(())
     }
 
@@ -368,7 +365,7 @@ impl Homing {
             Phase::Leave { dir } => {
                 let (flag, zone) =
                     Self::zone(axis, self.method.reference).unwrap_or((Switches::NONE, None));
-                let moving_away = st.velocity.signum() == dir.sign();
+                let moving_away = st.velocity.signum() == i64::from(dir.sign());
                 if st.falling.contains(flag)
                     && moving_away
                     && let Some(z) = zone
@@ -381,7 +378,7 @@ impl Homing {
                         let beyond = st
                             .index_pulse
                             .map(|p| p - axis.origin())
-                            .filter(|&p| (p - edge).signum() == dir.sign());
+                            .filter(|&p| (p - edge).signum() == i64::from(dir.sign()));
                         match beyond {
                             Some(p) => self.found(axis, p),
                             None => {
@@ -415,7 +412,7 @@ impl Homing {
                 }
             }
             Phase::StopSearch { dir, pushing_since } => {
-                let pushing = st.blocked && st.current_ma.signum() as i64 == dir.sign();
+                let pushing = st.blocked && st.current_ma.signum() as i64 == i64::from(dir.sign());
                 let since = if pushing {
                     Some(pushing_since.unwrap_or(st.time))
                 } else {

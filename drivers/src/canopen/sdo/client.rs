@@ -145,6 +145,18 @@ pub struct SdoEvent<'a> {
     pub outcome: Result<Completion<'a>, SdoError>,
 }
 
+#[cfg(feature = "std")]
+impl SdoEvent<'_> {
+    /// The outcome with the uploaded bytes copied out (empty for a download): for callers that
+    /// keep the result past the next call to the client.
+    pub fn to_vec(&self) -> Result<std::vec::Vec<u8>, SdoError> {
+        self.outcome.map(|c| match c {
+            Completion::Uploaded(d) => d.to_vec(),
+            Completion::Downloaded => std::vec::Vec::new(),
+        })
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Kind {
     Upload(UploadMode),
