@@ -13,6 +13,7 @@
 //! assert_eq!(coordinator::drivers::can::bit_timing::worst_case_bits(false, 8), 135);
 //! ```
 
+pub mod budget;
 pub mod demo;
 
 pub use drivers;
