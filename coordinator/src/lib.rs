@@ -14,5 +14,6 @@
 //! ```
 
 pub mod demo;
+pub mod profile;
 
 pub use drivers;
