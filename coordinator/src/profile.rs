@@ -87,7 +87,8 @@ pub struct AxisLimits {
     pub deceleration: u64,
     /// Jerk limit, inc/s³ (ignored by trapezoids).
     pub jerk: u64,
-    /// Quick-stop deceleration, inc/s².
+    /// Quick-stop deceleration, inc/s² (a quick stop uses at least the path's planned
+    /// deceleration: it is never gentler than a hold).
     pub quick_stop_deceleration: u64,
     /// Quick-stop jerk, inc/s³ (ignored by trapezoids).
     pub quick_stop_jerk: u64,
@@ -1351,6 +1352,7 @@ mod tests {
         ) {
             let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
             let g = Group::plan([start], Target::Relative([dist]), &[l], shape, cycle);
+            prop_assert!(g.is_ok(), "{:?}", g);
             if let Ok(g) = g {
                 prop_assume!(g.duration_cycles() < 20_000);
                 check_plan(&g, &[l], shape, cycle);
@@ -1364,10 +1366,61 @@ mod tests {
             scurve in any::<bool>(),
         ) {
             let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
-            if let Ok(g) = Group::plan([0; 3], Target::Relative(dist), &l, shape, MS) {
+            let g = Group::plan([0; 3], Target::Relative(dist), &l, shape, MS);
+            prop_assert!(g.is_ok(), "{:?}", g);
+            if let Ok(g) = g {
                 prop_assume!(g.duration_cycles() < 20_000);
                 check_plan(&g, &l, shape, MS);
             }
+        }
+
+        #[test]
+        fn hold_or_quick_stop_anywhere_then_resume(
+            dist in prop::array::uniform2(-300_000i64..300_000),
+            l in prop::array::uniform2(limits_strategy()),
+            at_permille in 0u64..1_000,
+            quick in any::<bool>(),
+            scurve in any::<bool>(),
+        ) {
+            let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
+            let g = Group::plan([0; 2], Target::Relative(dist), &l, shape, MS);
+            prop_assert!(g.is_ok(), "{:?}", g);
+            let Ok(mut g) = g else { return Ok(()) };
+            let n = g.duration_cycles();
+            prop_assume!(n < 20_000);
+            run(&mut g, n * at_permille / 1_000);
+            if quick { g.quick_stop() } else { g.hold() }
+            let mut k = 0;
+            while matches!(g.state(), GroupState::Holding | GroupState::QuickStopping) {
+                let p = g.step();
+                k += 1;
+                prop_assert!(k <= n + 2, "a stop takes longer than the move");
+                for i in 0..2 {
+                    let (dec, jerk) = if quick {
+                        // A quick stop is never gentler than a hold.
+                        (
+                            l[i].quick_stop_deceleration.max(l[i].deceleration),
+                            l[i].quick_stop_jerk.max(l[i].jerk),
+                        )
+                    } else {
+                        (l[i].deceleration, l[i].jerk)
+                    };
+                    let amax = dec.max(l[i].acceleration);
+                    prop_assert!(p[i].velocity.unsigned_abs() <= l[i].velocity);
+                    prop_assert!(p[i].acceleration.unsigned_abs() <= amax + amax / 1_000 + 1, "{:?}", p);
+                    if scurve {
+                        prop_assert!(p[i].jerk.unsigned_abs() <= jerk + jerk / 1_000 + 1, "{:?}", p);
+                    }
+                }
+            }
+            if g.state() == GroupState::Stopped {
+                let a = g.step();
+                prop_assert_eq!(a, g.step());
+                prop_assert!(g.resume().is_ok());
+            }
+            run(&mut g, 2 * n + 10);
+            prop_assert_eq!(g.state(), GroupState::Done);
+            prop_assert_eq!(g.step().map(|s| s.position), g.target());
         }
     }
 }
