@@ -20,6 +20,10 @@ fn bench(c: &mut Criterion) {
     c.bench_function("plan scurve 1 axis", |b| {
         b.iter(|| SCurve::plan(black_box(0), black_box(123_456), limits(), CYCLE_NS))
     });
+    // A short move: the peak velocity is found by bisection, the slowest planning case.
+    c.bench_function("plan scurve 1 axis short", |b| {
+        b.iter(|| SCurve::plan(black_box(0), black_box(1_234), limits(), CYCLE_NS))
+    });
     c.bench_function("plan trapezoid 1 axis", |b| {
         b.iter(|| Trapezoid::plan(black_box(0), black_box(123_456), limits(), CYCLE_NS))
     });

@@ -37,9 +37,11 @@
 //! # Feed override, hold, quick stop
 //!
 //! Override scales the rate of the path's time (`tau += rate` per cycle), ramped by a fixed
-//! step per cycle ([`Group::set_override_ramp`]). Time scaling multiplies velocity by the rate,
-//! acceleration by its square and jerk by its cube: at or below 100 % the limits hold (plus the
-//! `v * dr/dt` term while the rate ramps); **above 100 % the limits scale** (up to 2x, 4x, 8x at
+//! step per cycle ([`Group::set_override_ramp`]; by default a 100 % change takes the plan's
+//! `v_max / a_max`). Time scaling multiplies velocity by the rate, acceleration by its square and
+//! jerk by its cube: at or below 100 % the limits hold, except that while the rate ramps the
+//! `v * dr/dt` term adds up to one more `a_max` with the default ramp (so at most `2 a_max`; the
+//! jerk of the ramp's corners is not limited); **above 100 % the limits scale** (up to 2x, 4x, 8x at
 //! 200 %). A caller that must never exceed the limits caps the override at 100 %.
 //! A hold plans a stop along the path from the current state with the planned deceleration and
 //! jerk; resume plans a new move from the stop point to the end with the planned limits. A quick
@@ -681,7 +683,9 @@ impl<const N: usize> Group<N> {
             tau: 0,
             rate: TIME_ONE,
             rate_target: TIME_ONE,
-            rate_step: TIME_ONE / 100,
+            // A 100 % change in v_max / a_max: the v * dr/dt term stays within a_max.
+            rate_step: ((TIME_ONE as u128 * limits.acceleration) / limits.velocity.max(1))
+                .clamp(1, TIME_ONE as u128) as i64,
             state: if len == 0 {
                 GroupState::Done
             } else {
@@ -766,7 +770,8 @@ impl<const N: usize> Group<N> {
         Ok(())
     }
 
-    /// Sets how many cycles the override takes to ramp by 100 % (at least 1; default 100).
+    /// Sets how many cycles the override takes to ramp by 100 % (at least 1; default: the
+    /// plan's `v_max / a_max`).
     pub fn set_override_ramp(&mut self, cycles: u32) {
         self.rate_step = (TIME_ONE / cycles.max(1) as i64).max(1);
     }
@@ -1126,6 +1131,14 @@ mod tests {
             // Velocity scales with the override: capped at half, or up to twice, v_max.
             let vmax = 100_000 * pct as i64 / 100;
             assert!(peak <= vmax && peak > vmax * 98 / 100, "{pct} %: {peak}");
+        }
+        // With the default ramp, slowing from 100 % to 30 % in the cruise stays within 2 a_max.
+        let mut g = plan.clone();
+        run(&mut g, n / 2);
+        g.set_override(30).unwrap();
+        for _ in 0..n {
+            let s = g.step()[0];
+            assert!(s.acceleration.abs() <= 2_000_000, "{s:?}");
         }
         let mut g = plan.clone();
         assert_eq!(g.set_override(201), Err(CommandError::Override(201)));
