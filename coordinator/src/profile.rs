@@ -502,7 +502,7 @@ fn plan_stop(now: PathSample, lim: &PathLimits, limit: i128) -> Segment {
             let apq = if den == 0 {
                 0
             } else {
-                (2 * (vq << TIME_BITS) + aq * t1 as i128) / den
+                (2 * (vq << TIME_BITS)).saturating_add(aq.saturating_mul(t1 as i128)) / den
             };
             let j1 = if t1 == 0 {
                 0
@@ -1340,6 +1340,11 @@ mod tests {
         assert_eq!(g.step().map(|s| s.position), [5, 6]);
     }
 
+    /// Any limit, with small and large ones as likely as the rest.
+    fn wide() -> impl Strategy<Value = u64> {
+        prop_oneof![any::<u64>(), 1u64..1_000, 1u64..10_000_000_000]
+    }
+
     fn limits_strategy() -> impl Strategy<Value = AxisLimits> {
         (
             1_000u64..2_000_000,
@@ -1434,6 +1439,37 @@ mod tests {
             run(&mut g, 2 * n + 10);
             prop_assert_eq!(g.state(), GroupState::Done);
             prop_assert_eq!(g.step().map(|s| s.position), g.target());
+        }
+
+        #[test]
+        fn never_panics_on_any_input(
+            start in -MAX_POSITION..=MAX_POSITION,
+            dist in prop_oneof![-(1i64 << 47)..(1 << 47), -100i64..100],
+            v in wide(), a in wide(), d in wide(), j in wide(),
+            cycle in prop_oneof![any::<u32>(), 1u32..10_000_000],
+            ks in prop::array::uniform4(any::<u64>()),
+            scurve in any::<bool>(),
+        ) {
+            let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
+            let l = AxisLimits::new(v, a, j).with_deceleration(d);
+            if let Ok(mut g) = Group::plan([start, 0], Target::Relative([dist, 1]), &[l; 2], shape, cycle) {
+                for k in ks {
+                    g.sample(k);
+                    g.sample(k % 10_000);
+                }
+                let n = g.duration_cycles();
+                g.sample(n);
+                g.set_override(200).unwrap();
+                g.step();
+                g.hold();
+                g.step();
+                g.quick_stop();
+                for _ in 0..50 {
+                    g.step();
+                }
+                let _ = g.resume();
+                g.step();
+            }
         }
     }
 }
