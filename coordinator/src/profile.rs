@@ -911,6 +911,8 @@ mod tests {
         let n = g.duration_cycles();
         let target = g.target();
         let mut prev: Option<[Sample; N]> = None;
+        // Last three positions per axis, for the second and third differences.
+        let mut hist = [[0i64; 3]; N];
         let mut prev_s = -1;
         for k in 0..=n + 3 {
             let p = g.path_at(k);
@@ -938,6 +940,30 @@ mod tests {
                         "axis {i} moved {step} > {bound} at cycle {k}"
                     );
                 }
+                // Differences of samples of a continuous profile are weighted means of its
+                // derivatives, so they obey the limits too, up to the rounding of each position
+                // to whole increments (±1/2): 2 for the second difference, 4 for the third.
+                let h = hist[i];
+                let c = c as u128;
+                if k >= 2 {
+                    let d2 = (x.position - 2 * h[2] + h[1]).unsigned_abs() as u128;
+                    let amax = l.acceleration.max(l.deceleration) as u128;
+                    let bound = amax * c * c / 1_000_000_000_000_000_000 + 2;
+                    assert!(
+                        d2 <= bound,
+                        "axis {i} 2nd difference {d2} > {bound} at cycle {k}"
+                    );
+                }
+                if k >= 3 && shape == Shape::SCurve {
+                    let d3 = (x.position - 3 * h[2] + 3 * h[1] - h[0]).unsigned_abs() as u128;
+                    let jc = (l.jerk as u128 * c / 1_000_000_000) * c / 1_000_000_000 * c;
+                    let bound = jc / 1_000_000_000 + 4;
+                    assert!(
+                        d3 <= bound,
+                        "axis {i} 3rd difference {d3} > {bound} at cycle {k}"
+                    );
+                }
+                hist[i] = [h[1], h[2], x.position];
                 if k >= n {
                     assert_eq!(x.position, target[i], "not on target at cycle {k} >= {n}");
                     assert_eq!((x.velocity, x.acceleration), (0, 0));
