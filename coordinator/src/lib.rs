@@ -15,5 +15,6 @@
 
 pub mod budget;
 pub mod demo;
+pub mod profile;
 
 pub use drivers;
