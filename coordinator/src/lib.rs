@@ -6,14 +6,19 @@
 //! `profile` (trapezoidal and jerk-limited profiles), `axis` (FHPP and CiA 402 master-side state
 //! machines), `comparator`, `records`, `budget` (bus admission), `cycle` (the pure step),
 //! `config` and `runtime` (the real-time thread, the executor, shared-memory publishing).
-//! Until then, [`demo`] is what `coordinator run` does: a CANopen master driving simulated
+//! So far: [`budget`] (the bus-load admission check) and [`profile`] (trapezoidal and
+//! jerk-limited profiles, time-synchronised group moves), both `no_std`. Until the cycle
+//! exists, `demo` (with the `std` feature) is what `coordinator run` does: a CANopen master driving simulated
 //! devices over the virtual bus.
 //!
 //! ```
 //! assert_eq!(coordinator::drivers::can::bit_timing::worst_case_bits(false, 8), 135);
 //! ```
 
+#![cfg_attr(not(feature = "std"), no_std)]
+
 pub mod budget;
+#[cfg(feature = "std")]
 pub mod demo;
 pub mod profile;
 
