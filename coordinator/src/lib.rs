@@ -19,6 +19,8 @@
 
 pub mod budget;
 #[cfg(feature = "std")]
+pub mod config;
+#[cfg(feature = "std")]
 pub mod demo;
 pub mod profile;
 

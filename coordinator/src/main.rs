@@ -38,11 +38,24 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// Print a commented example configuration (the embedded default machine).
+    ConfigExample,
+    /// Validate a configuration file and print each bus's worst-case load per cycle; exit
+    /// status 1 if anything is refused.
+    Check {
+        /// The TOML configuration file.
+        file: std::path::PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
+        Command::ConfigExample => {
+            print!("{}", coordinator::config::EXAMPLE);
+            ExitCode::SUCCESS
+        }
+        Command::Check { file } => check(&file),
         Command::Run {
             duration,
             virtual_time,
@@ -88,5 +101,30 @@ fn main() -> ExitCode {
                 }
             }
         }
+    }
+}
+
+/// `coordinator check FILE`: the budget lines, then `OK` or every refusal.
+fn check(file: &std::path::Path) -> ExitCode {
+    let text = match std::fs::read_to_string(file) {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("error: {}: {e}", file.display());
+            return ExitCode::FAILURE;
+        }
+    };
+    let config = match coordinator::config::Config::parse(&text) {
+        Ok(c) => c,
+        Err(e) => {
+            println!("error: {}: {e}", file.display());
+            return ExitCode::FAILURE;
+        }
+    };
+    let report = config.check();
+    print!("{report}");
+    if report.is_ok() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
     }
 }
