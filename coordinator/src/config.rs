@@ -1065,3 +1065,307 @@ fn valid_host_port(s: &str) -> bool {
         None => false,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The example with `from` replaced by `to` (which must occur).
+    fn edited(edits: &[(&str, &str)]) -> String {
+        let mut text = EXAMPLE.to_string();
+        for (from, to) in edits {
+            assert!(text.contains(from), "{from:?} not in the example");
+            text = text.replacen(from, to, 1);
+        }
+        text
+    }
+
+    fn errors(text: &str) -> Vec<String> {
+        let c = Config::parse(text).unwrap();
+        c.check().errors.iter().map(|e| e.to_string()).collect()
+    }
+
+    #[test]
+    fn example_is_accepted_with_its_budget() {
+        let c = Config::parse(EXAMPLE).unwrap();
+        let r = c.check();
+        assert!(r.is_ok(), "{r}");
+        assert_eq!(r.loads.len(), 1);
+        let l = &r.loads[0];
+        // SYNC 55 + 2 * (135 + 135 + 115) PDO bits + guarding 2 * (55 + 65) + heartbeat 65
+        // + EMCY 135 + SDO 270.
+        assert_eq!(l.bits(), 55 + 2 * 385 + 240 + 65 + 135 + 270);
+        assert_eq!(
+            (l.frames(), l.micros(), l.load()),
+            (15, 1535, Permille(768))
+        );
+        assert!(r.to_string().ends_with("OK\n"));
+        assert_eq!(c.axes[3].profile(), Profile::Fhpp);
+        assert_eq!(c.axes[2].profile(), Profile::Cia402);
+    }
+
+    #[test]
+    fn pdos_follow_device_and_profile() {
+        assert_eq!(axis_pdos(DeviceKind::MtrDci, Profile::Fhpp, false).len(), 1);
+        assert_eq!(axis_pdos(DeviceKind::Emca, Profile::Fhpp, true).len(), 2);
+        assert_eq!(axis_pdos(DeviceKind::Emca, Profile::Fhpp, true)[1].len, 8);
+        assert_eq!(
+            axis_pdos(DeviceKind::Tlc5xx, Profile::Cia402, false)[0].len,
+            6
+        );
+        assert!(axis_pdos(DeviceKind::CmmoSt, Profile::Fhpp, false).is_empty());
+        // FPC on two axes of the example no longer fits 80 %.
+        let e = errors(&edited(&[("fpc = false", "fpc = true")]));
+        assert_eq!(
+            e,
+            [
+                "buses[0]: bus can0: 17 frames, 1805 us per 2000 us cycle = 90.3 %, \
+              over the 80.0 % limit"
+            ]
+        );
+    }
+
+    #[test]
+    fn supervision_defaults_per_device() {
+        let c = Config::parse(&edited(&[
+            ("guard_time_ms = 100 ", "# "),
+            ("heartbeat_ms = 100 ", "# "),
+        ]))
+        .unwrap();
+        let ms100 = Duration::from_millis(100);
+        assert_eq!(
+            c.axes[0].supervision(),
+            Supervision::Guarding { guard_time: ms100 }
+        );
+        assert_eq!(
+            c.axes[1].supervision(),
+            Supervision::Guarding { guard_time: ms100 }
+        );
+        assert_eq!(
+            c.axes[2].supervision(),
+            Supervision::Heartbeat { period: ms100 }
+        );
+        assert!(c.check().is_ok());
+    }
+
+    #[test]
+    fn each_bad_setting_names_its_key() {
+        let cases: &[(&[(&str, &str)], &str)] = &[
+            (
+                &[("node = 2", "node = 0")],
+                "axes[1].node: 0 is not a CANopen node-ID (1..=127)",
+            ),
+            (
+                &[("node = 2", "node = 128")],
+                "axes[1].node: 128 is not a CANopen node-ID (1..=127)",
+            ),
+            (
+                &[("node = 3", "node = 1")],
+                "axes[2].node: node 1 on bus can0 is already used by axes[0]",
+            ),
+            (
+                &[("axes = [\"x\", \"y\"]", "axes = [\"x\", \"w\"]")],
+                "groups[0].axes[1]: no axis named \"w\"",
+            ),
+            (
+                &[("axes = [\"x\", \"y\"]", "axes = [\"x\", \"gripper\"]")],
+                "groups[0].axes: axis \"gripper\" is on Modbus, which has no SYNC",
+            ),
+            (
+                &[(
+                    "velocity = 150.0, acceleration",
+                    "velocity = 0.0, acceleration",
+                )],
+                "axes[0].limits.velocity: 0 must be a positive number",
+            ),
+            (
+                &[("jerk = 20000.0", "jerk = -1.0")],
+                "axes[0].limits.jerk: -1 must be a positive number",
+            ),
+            (
+                &[("force = 100.0", "force = 500.0")],
+                "axes[0].limits.force: 500 is outside 0..=300",
+            ),
+            (
+                &[(
+                    "position_min = 0.0, position_max = 400.0",
+                    "position_min = 400.0, position_max = 400.0",
+                )],
+                "axes[0].limits.position_min: 400 is not below position_max 400",
+            ),
+            (
+                &[("position_max = 250.0", "position_max = 2500000.0")],
+                "axes[1].limits.position_max: 2500000 units are 2500000000 increments, outside the drive's 32-bit range",
+            ),
+            (
+                &[("increments_per_unit = 400.0", "increments_per_unit = 0.0")],
+                "axes[0].increments_per_unit: 0 must be a positive number",
+            ),
+            (
+                &[("increments_per_unit = 100.0", "increments_per_unit = 0.001")],
+                "axes[3].limits.velocity: 90 units are 0.09 increments, less than one",
+            ),
+            (
+                &[(
+                    "modbus = \"192.168.0.20:502\"",
+                    "modbus = \"192.168.0.20:502\"\nbus = \"can0\"",
+                )],
+                "axes[3].bus: a cmmo-st axis is on Modbus TCP, not on a CAN bus",
+            ),
+            (
+                &[("modbus = \"192.168.0.20:502\"", "modbus = \"192.168.0.20\"")],
+                "axes[3].modbus: \"192.168.0.20\" is not host:port",
+            ),
+            (
+                &[("modbus = \"192.168.0.20:502\"", "# no address")],
+                "axes[3].modbus: missing: a cmmo-st axis needs it",
+            ),
+            (
+                &[("node = 3", "node = 3\nmodbus = \"h:1\"")],
+                "axes[2].modbus: a tlc5xx axis is on CANopen, not on Modbus TCP",
+            ),
+            (
+                &[("bus = \"can0\"\nnode = 3", "bus = \"can9\"\nnode = 3")],
+                "axes[2].bus: no bus named \"can9\"",
+            ),
+            (
+                &[("guard_time_ms = 100 ", "heartbeat_ms = 100 ")],
+                "axes[0].heartbeat_ms: a mtr-dci axis has no heartbeat, only node guarding",
+            ),
+            (
+                &[(
+                    "heartbeat_ms = 100 ",
+                    "heartbeat_ms = 100\nguard_time_ms = 50 ",
+                )],
+                "axes[2].heartbeat_ms: heartbeat_ms and guard_time_ms are exclusive",
+            ),
+            (
+                &[(
+                    "device = \"tlc5xx\"",
+                    "device = \"tlc5xx\"\nprofile = \"fhpp\"",
+                )],
+                "axes[2].profile: tlc5xx does not offer the fhpp profile",
+            ),
+            (
+                &[("fpc = false", "fpc = true\nprofile = \"cia402\"")],
+                "axes[1].fpc: a emca axis has the FPC only with the fhpp profile",
+            ),
+            (
+                &[("name = \"z\"", "name = \"x\"")],
+                "axes[2].name: the name \"x\" is already used by axes[0]",
+            ),
+            (
+                &[("axis = \"gripper\"", "axis = \"hand\"")],
+                "records[2].axis: no axis named \"hand\"",
+            ),
+            (
+                &[("next = 2", "next = 5")],
+                "records[0].next: axis \"x\" has no record 5",
+            ),
+            (
+                &[("number = 2", "number = 32")],
+                "records[1].number: 32 is outside 1..=31",
+            ),
+            (
+                &[("number = 2", "number = 1")],
+                "records[1].number: record 1 of axis \"x\" is already defined by records[0]",
+            ),
+            (
+                &[("position = 390.0", "position = 401.0")],
+                "records[1].position: 401 is outside 0..=400",
+            ),
+            (
+                &[("velocity = 45.0", "velocity = 95.0")],
+                "records[2].velocity: 95 exceeds the axis limit 90",
+            ),
+            (
+                &[("cycle_us = 2000", "cycle_us = 0")],
+                "cycle_us: 0 is outside 250..=100000",
+            ),
+            (
+                &[("bitrate = 1000000 ", "bitrate = 10000 ")],
+                "buses[0].bitrate: 10000 is outside 20000..=1000000",
+            ),
+            (
+                &[("load_limit_percent = 80", "load_limit_percent = 0")],
+                "load_limit_percent: 0 is outside 1..=100",
+            ),
+        ];
+        for (edits, expected) in cases {
+            let e = errors(&edited(edits));
+            assert!(
+                e.iter().any(|m| m.starts_with(expected)),
+                "{edits:?}: expected {expected:?}, got {e:#?}"
+            );
+        }
+    }
+
+    #[test]
+    fn all_errors_are_reported() {
+        let e = errors(&edited(&[
+            ("node = 2", "node = 0"),
+            ("next = 2", "next = 9"),
+            ("velocity = 45.0", "velocity = 95.0"),
+        ]));
+        assert_eq!(e.len(), 3, "{e:#?}");
+    }
+
+    #[test]
+    fn a_group_spans_buses_only_if_their_syncs_line_up() {
+        let second_bus = "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\n\n[[buses]]";
+        let two = [
+            ("[[buses]]", second_bus),
+            ("bus = \"can0\"\nnode = 2", "bus = \"can1\"\nnode = 2"),
+        ];
+        let c = Config::parse(&edited(&two)).unwrap();
+        let r = c.check();
+        assert!(r.is_ok(), "{r}");
+        assert_eq!(r.loads.len(), 2);
+
+        let mut other_cycle = two.to_vec();
+        other_cycle[0].1 =
+            "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\ncycle_us = 4000\n\n[[buses]]";
+        assert_eq!(
+            errors(&edited(&other_cycle)),
+            [
+                "groups[0].axes[1]: buses \"can0\" and \"can1\" do not share one SYNC: \
+              their cycle periods differ"
+            ]
+        );
+        let mut consumer = two.to_vec();
+        consumer[0].1 =
+            "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\nsync = \"consumer\"\n\n[[buses]]";
+        let e = errors(&edited(&consumer));
+        assert_eq!(e.len(), 1);
+        assert!(e[0].contains("SYNC consumer"), "{e:?}");
+    }
+
+    #[test]
+    fn a_cycle_too_short_is_refused_with_the_numbers() {
+        let e = errors(&edited(&[("cycle_us = 2000", "cycle_us = 1000")]));
+        assert_eq!(
+            e,
+            [
+                "buses[0]: bus can0: 15 frames, 1535 us per 1000 us cycle = 153.5 %, \
+              does not fit the cycle"
+            ]
+        );
+        // A higher limit does not help a cycle that cannot fit at all.
+        let e = errors(&edited(&[
+            ("cycle_us = 2000", "cycle_us = 1000"),
+            ("load_limit_percent = 80", "load_limit_percent = 100"),
+        ]));
+        assert!(e[0].ends_with("does not fit the cycle"), "{e:?}");
+    }
+
+    #[test]
+    fn unknown_and_missing_keys_are_parse_errors() {
+        let e = Config::parse(&edited(&[("sdo_slots", "sdo_slot")])).unwrap_err();
+        assert_eq!(e.key, "line 17");
+        assert!(e.to_string().contains("unknown field `sdo_slot`"), "{e}");
+        let e = Config::parse(&edited(&[("device = \"emca\"", "device = \"emcb\"")])).unwrap_err();
+        assert!(e.to_string().contains("emcb"), "{e}");
+        let e = Config::parse("load_limit_percent = 50\n").unwrap_err();
+        assert!(e.to_string().contains("cycle_us"), "{e}");
+    }
+}
