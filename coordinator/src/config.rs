@@ -392,6 +392,9 @@ pub enum Problem {
     /// A number that must be positive (and finite) is not.
     #[error("{0} must be a positive number")]
     NotPositive(f64),
+    /// A number that must be finite is infinite or NaN.
+    #[error("{0} is not a finite number")]
+    NotFinite(f64),
     /// The lower bound is not below the upper one.
     #[error("{min} is not below position_max {max}")]
     EmptyRange {
@@ -948,10 +951,7 @@ impl Config {
             }
             let l = &axis.limits;
             if !rec.position.is_finite() {
-                err.push(
-                    format!("{key}.position"),
-                    Problem::NotPositive(rec.position),
-                );
+                err.push(format!("{key}.position"), Problem::NotFinite(rec.position));
             } else if !rec.relative
                 && l.position_min < l.position_max
                 && !(l.position_min..=l.position_max).contains(&rec.position)
@@ -990,7 +990,7 @@ fn check_scaling(key: &str, a: &AxisConfig, err: &mut Errors) {
         ("position_max", l.position_max),
     ] {
         if !v.is_finite() {
-            err.push(format!("{lk}.{name}"), Problem::NotPositive(v));
+            err.push(format!("{lk}.{name}"), Problem::NotFinite(v));
         } else if scale_ok && !(i32::MIN as f64..=i32::MAX as f64).contains(&scaled(v)) {
             err.push(
                 format!("{lk}.{name}"),
@@ -1277,6 +1277,14 @@ mod tests {
             (
                 &[("velocity = 45.0", "velocity = 95.0")],
                 "records[2].velocity: 95 exceeds the axis limit 90",
+            ),
+            (
+                &[("position = 390.0", "position = inf")],
+                "records[1].position: inf is not a finite number",
+            ),
+            (
+                &[("position_min = -50.0", "position_min = nan")],
+                "axes[1].limits.position_min: NaN is not a finite number",
             ),
             (
                 &[("cycle_us = 2000", "cycle_us = 0")],
