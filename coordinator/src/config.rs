@@ -1279,6 +1279,31 @@ mod tests {
                 "records[2].velocity: 95 exceeds the axis limit 90",
             ),
             (
+                &[(
+                    "axes = [\"x\", \"y\"]",
+                    "axes = [\"x\", \"y\"]\n\n[[groups]]\nname = \"gantry\"\naxes = [\"y\"]",
+                )],
+                "groups[1].name: the name \"gantry\" is already used by groups[0]",
+            ),
+            (
+                &[(
+                    "axes = [\"x\", \"y\"]",
+                    "axes = [\"x\", \"y\"]\n\n[[groups]]\nname = \"g2\"\naxes = [\"y\"]",
+                )],
+                "groups[1].axes[0]: axis \"y\" is already in group \"gantry\"",
+            ),
+            (
+                &[("axes = [\"x\", \"y\"]", "axes = []")],
+                "groups[0].axes: a group needs at least one axis",
+            ),
+            (
+                &[(
+                    "# Festo MTR-DCI on CANopen",
+                    "[[buses]]\nname = \"can0\"\nkind = \"virtual\"\n# Festo MTR-DCI on CANopen",
+                )],
+                "buses[1].name: the name \"can0\" is already used by buses[0]",
+            ),
+            (
                 &[("position = 390.0", "position = inf")],
                 "records[1].position: inf is not a finite number",
             ),
