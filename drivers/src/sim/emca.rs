@@ -11,15 +11,11 @@
 //! assert_eq!(d.device().od().get_u32(Address::new(0x1000, 0)), Ok(0x12D));
 //! ```
 
-use core::ops::{Deref, DerefMut};
-
-use crate::can::Frame;
 use crate::canopen::NodeId;
 use crate::canopen::device::{CommProfile, PdoDefault};
-use crate::canopen::endpoint::Endpoint;
 use crate::fhpp::Variant;
 use crate::sim::fhpp_drive::DriveConfig;
-use crate::sim::mtr_dci::{FestoNode, MTR_DCI_FHPP, SimError};
+use crate::sim::mtr_dci::{FestoNode, MTR_DCI_FHPP, SimError, festo_device};
 use crate::time::Instant;
 
 /// The EMCA's communication objects (§5.1): device type 12Dh, vendor 1Dh, PDO1 (FHPP) and PDO2
@@ -57,29 +53,4 @@ impl Emca {
     }
 }
 
-impl Deref for Emca {
-    type Target = FestoNode;
-    fn deref(&self) -> &FestoNode {
-        &self.0
-    }
-}
-impl DerefMut for Emca {
-    fn deref_mut(&mut self) -> &mut FestoNode {
-        &mut self.0
-    }
-}
-
-impl Endpoint for Emca {
-    fn handle_frame(&mut self, frame: &Frame, now: Instant) {
-        self.0.handle_frame(frame, now)
-    }
-    fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
-        self.0.poll_transmit(now)
-    }
-    fn poll_timeout(&self) -> Option<Instant> {
-        self.0.poll_timeout()
-    }
-    fn handle_timeout(&mut self, now: Instant) {
-        self.0.handle_timeout(now)
-    }
-}
+festo_device!(Emca);

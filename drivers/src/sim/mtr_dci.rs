@@ -32,8 +32,6 @@
 //! assert!(d.device().od().entry(drivers::canopen::Address::new(0x1017, 0)).is_err());
 //! ```
 
-use core::ops::{Deref, DerefMut};
-
 use crate::can::Frame;
 use crate::canopen::device::{
     CommProfile, Device, DeviceEvent, DeviceHooks, PdoDefault, insert_communication_objects,
@@ -1092,6 +1090,39 @@ fn stored_pnu(drive: &FhppDrive, pnu: u16) -> i64 {
 #[derive(Debug)]
 pub struct MtrDci(FestoNode);
 
+/// A Festo device type is a [`FestoNode`] under its own name: it derefs to the node and is an
+/// [`Endpoint`] through it.
+macro_rules! festo_device {
+    ($t:ident) => {
+        impl core::ops::Deref for $t {
+            type Target = $crate::sim::mtr_dci::FestoNode;
+            fn deref(&self) -> &$crate::sim::mtr_dci::FestoNode {
+                &self.0
+            }
+        }
+        impl core::ops::DerefMut for $t {
+            fn deref_mut(&mut self) -> &mut $crate::sim::mtr_dci::FestoNode {
+                &mut self.0
+            }
+        }
+        impl $crate::canopen::endpoint::Endpoint for $t {
+            fn handle_frame(&mut self, frame: &$crate::can::Frame, now: $crate::time::Instant) {
+                self.0.handle_frame(frame, now)
+            }
+            fn poll_transmit(&mut self, now: $crate::time::Instant) -> Option<$crate::can::Frame> {
+                self.0.poll_transmit(now)
+            }
+            fn poll_timeout(&self) -> Option<$crate::time::Instant> {
+                self.0.poll_timeout()
+            }
+            fn handle_timeout(&mut self, now: $crate::time::Instant) {
+                self.0.handle_timeout(now)
+            }
+        }
+    };
+}
+pub(crate) use festo_device;
+
 impl MtrDci {
     /// A powered-on MTR-DCI (boot-up message queued) with the default axis.
     pub fn new(node: NodeId, profile: Profile, now: Instant) -> Result<MtrDci, SimError> {
@@ -1116,32 +1147,7 @@ impl MtrDci {
     }
 }
 
-impl Deref for MtrDci {
-    type Target = FestoNode;
-    fn deref(&self) -> &FestoNode {
-        &self.0
-    }
-}
-impl DerefMut for MtrDci {
-    fn deref_mut(&mut self) -> &mut FestoNode {
-        &mut self.0
-    }
-}
-
-impl Endpoint for MtrDci {
-    fn handle_frame(&mut self, frame: &Frame, now: Instant) {
-        self.0.handle_frame(frame, now)
-    }
-    fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
-        self.0.poll_transmit(now)
-    }
-    fn poll_timeout(&self) -> Option<Instant> {
-        self.0.poll_timeout()
-    }
-    fn handle_timeout(&mut self, now: Instant) {
-        self.0.handle_timeout(now)
-    }
-}
+festo_device!(MtrDci);
 
 #[cfg(test)]
 mod tests {
