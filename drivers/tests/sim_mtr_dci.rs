@@ -502,16 +502,7 @@ fn scenario() -> Vec<(u16, Vec<u8>, u64)> {
     r.pdo1_until(direct(0x43, 0x01, 0, 30, 8_000), 20_000, "MC", |s| {
         s[1] & MC != 0
     });
-    r.log
-        .iter()
-        .map(|f| {
-            (
-                f.cob_id().unwrap(),
-                f.data().to_vec(),
-                f.timestamp().as_nanos(),
-            )
-        })
-        .collect()
+    r.fingerprint()
 }
 
 #[test]

@@ -87,6 +87,20 @@ impl<D: Endpoint> Rig<D> {
         }
     }
 
+    /// Every frame seen so far as (COB-ID, data, completion time): what two runs compare.
+    pub fn fingerprint(&self) -> Vec<(u16, Vec<u8>, u64)> {
+        self.log
+            .iter()
+            .map(|f| {
+                (
+                    f.cob_id().unwrap(),
+                    f.data().to_vec(),
+                    f.timestamp().as_nanos(),
+                )
+            })
+            .collect()
+    }
+
     pub fn now(&self) -> Instant {
         self.bus.now()
     }
