@@ -17,11 +17,17 @@
 
 #![cfg_attr(not(feature = "std"), no_std)]
 
+pub mod axis;
 pub mod budget;
+pub mod command;
+pub mod comparator;
+pub mod event;
 #[cfg(feature = "std")]
 pub mod config;
 #[cfg(feature = "std")]
 pub mod demo;
+pub mod fault;
 pub mod profile;
+pub mod records;
 
 pub use drivers;

@@ -1,0 +1,73 @@
+//! What the cycle tells the services: state changes, faults, chain completion. Queued by the
+//! cycle (fixed capacity, no allocation) and taken by the non-real-time side, which reports
+//! them (console, `motion/events`).
+
+use crate::axis::AxisState;
+use crate::command::{AxisId, GroupId};
+use crate::fault::FaultReason;
+
+/// One event of the cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Event {
+    /// An axis changed state.
+    AxisState {
+        /// The cycle.
+        cycle: u64,
+        /// The axis.
+        axis: AxisId,
+        /// Its new state.
+        state: AxisState,
+    },
+    /// An axis faulted.
+    Fault {
+        /// The cycle in which it was detected (and the group reacted).
+        cycle: u64,
+        /// The axis.
+        axis: AxisId,
+        /// Why.
+        reason: FaultReason,
+    },
+    /// An axis's fault was acknowledged.
+    Acknowledged {
+        /// The cycle.
+        cycle: u64,
+        /// The axis.
+        axis: AxisId,
+    },
+    /// A group's chain reached a record (its motion finished).
+    RecordReached {
+        /// The cycle.
+        cycle: u64,
+        /// The group.
+        group: GroupId,
+        /// The record.
+        record: u16,
+    },
+    /// A group's chain completed (RCC).
+    ChainComplete {
+        /// The cycle.
+        cycle: u64,
+        /// The group.
+        group: GroupId,
+        /// The last record.
+        record: u16,
+    },
+    /// A group's chain was aborted (stop, fault, or a condition never met at MC).
+    ChainAborted {
+        /// The cycle.
+        cycle: u64,
+        /// The group.
+        group: GroupId,
+        /// The record it was at.
+        record: u16,
+    },
+    /// The Modbus answer of an earlier cycle arrived late (and was used in this one).
+    LateModbus {
+        /// The cycle.
+        cycle: u64,
+        /// The axis.
+        axis: AxisId,
+        /// How many cycles late.
+        cycles: u32,
+    },
+}
