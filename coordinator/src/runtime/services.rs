@@ -1,0 +1,671 @@
+//! The non-real-time side of the coordinator: static tasks on an embassy executor (platform
+//! std, one thread) that talk to the cycle thread only through single-producer single-consumer
+//! queues (`heapless::spsc`), so the cycle never locks, allocates or waits for them.
+//!
+//! [`channels`] creates the queues once, in a leaked `'static` block, and splits them into the
+//! cycle thread's halves ([`CycleEnds`]) and the services' halves ([`ServiceEnds`]).
+//! [`spawn_services`] starts the executor thread with three tasks:
+//!
+//! - **boot**: runs the [`BootSequencer`] over the frame queues (it sends SDO/NMT frames the
+//!   cycle puts on the bus after its PDOs, and receives the SDO answers, boot-ups and EMCYs
+//!   the cycle forwards), with embassy timers for its timeouts, and hands every
+//!   [`BootReport`] to the cycle so it brings a booted axis online. After the boot it keeps
+//!   draining the received frames and reports EMCYs.
+//! - **commands**: takes [`Command`]s from [`CommandClient`]s, tags them, queues them for the
+//!   cycle and routes each [`Answer`] back to its caller by tag. A request the cycle's queue
+//!   cannot take is answered at once with `Rejected::Busy`, so every request gets an answer.
+//! - **events**: takes the cycle's [`Event`]s and hands them to the sink.
+//!
+//! The queues are polled every [`SERVICE_TICK`]: the cycle cannot wake an async task without a
+//! waker (which it would have to call from the real-time thread), and a millisecond of latency
+//! is nothing for services.
+
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::rc::Rc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, mpsc};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use drivers::can::Frame;
+use drivers::canopen::ids;
+use drivers::time::monotonic_now;
+use heapless::spsc::{Consumer, Producer, Queue};
+
+use super::boot::{BootPlan, BootReport, BootSequencer};
+use crate::command::{Answer, Command, Rejected, Reply, Request};
+use crate::event::Event;
+
+/// Requests the cycle can have waiting (services → cycle).
+pub const REQUESTS: usize = 32;
+/// Answers the services can have waiting (cycle → services).
+pub const ANSWERS: usize = 32;
+/// Events the services can have waiting (cycle → services): a burst of state changes of a
+/// large machine in one cycle fits.
+pub const EVENTS: usize = 128;
+/// Frames the cycle can have waiting to send (services → cycle): SDO and NMT only, at most a
+/// few per node at a time.
+pub const TX_FRAMES: usize = 64;
+/// Received frames waiting for the services (cycle → services): SDO answers, boot-ups and
+/// heartbeats/guarding replies, EMCYs; room for several cycles of them.
+pub const RX_FRAMES: usize = 128;
+/// Boot reports waiting for the cycle (one per node).
+pub const BOOT_REPORTS: usize = 32;
+/// Commands a [`CommandClient`] can have queued before the intake task takes them.
+pub const CLIENT_QUEUE: usize = 64;
+/// How often the tasks look at the queues.
+pub const SERVICE_TICK: Duration = Duration::from_millis(1);
+
+// heapless 0.9's spsc queue of N slots holds N - 1 items.
+struct Queues {
+    requests: Queue<Request, { REQUESTS + 1 }>,
+    answers: Queue<Answer, { ANSWERS + 1 }>,
+    events: Queue<Event, { EVENTS + 1 }>,
+    tx_frames: Queue<Frame, { TX_FRAMES + 1 }>,
+    rx_frames: Queue<Frame, { RX_FRAMES + 1 }>,
+    boot_reports: Queue<BootReport, { BOOT_REPORTS + 1 }>,
+}
+
+/// A queue was full: the item was not queued (and is handed back where that helps).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the {queue} queue is full ({capacity} entries)")]
+pub struct QueueFull {
+    /// Which queue.
+    pub queue: &'static str,
+    /// Its capacity.
+    pub capacity: usize,
+}
+
+/// The cycle thread's halves of the queues. Every method is allocation-free, lock-free and
+/// never waits, so the cycle step may call them.
+pub struct CycleEnds {
+    /// Requests from the services.
+    pub requests: Consumer<'static, Request>,
+    /// Answers to the services.
+    pub answers: Producer<'static, Answer>,
+    /// Events to the services.
+    pub events: Producer<'static, Event>,
+    /// SDO/NMT frames to put on the bus after the cycle's PDOs.
+    pub tx_frames: Consumer<'static, Frame>,
+    /// Received frames for the services (see [`is_service_frame`]).
+    pub rx_frames: Producer<'static, Frame>,
+    /// Boot results: bring a booted axis online.
+    pub boot_reports: Consumer<'static, BootReport>,
+}
+
+impl core::fmt::Debug for CycleEnds {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("CycleEnds").finish_non_exhaustive()
+    }
+}
+
+impl CycleEnds {
+    /// Hands a received frame to the services if it is theirs ([`is_service_frame`]); `Ok(false)`
+    /// if it is not, `Err` if their queue is full (the frame is dropped; count it).
+    pub fn offer_received(&mut self, frame: &Frame) -> Result<bool, QueueFull> {
+        if !is_service_frame(frame) {
+            return Ok(false);
+        }
+        self.rx_frames
+            .enqueue(*frame)
+            .map(|()| true)
+            .map_err(|_| QueueFull {
+                queue: "received frames",
+                capacity: RX_FRAMES,
+            })
+    }
+
+    /// Queues an answer for the services.
+    pub fn answer(&mut self, answer: Answer) -> Result<(), QueueFull> {
+        self.answers.enqueue(answer).map_err(|_| QueueFull {
+            queue: "answers",
+            capacity: ANSWERS,
+        })
+    }
+
+    /// Queues an event for the services.
+    pub fn event(&mut self, event: Event) -> Result<(), QueueFull> {
+        self.events.enqueue(event).map_err(|_| QueueFull {
+            queue: "events",
+            capacity: EVENTS,
+        })
+    }
+}
+
+/// The services' halves of the queues; given to [`spawn_services`].
+pub struct ServiceEnds {
+    /// Requests to the cycle.
+    pub requests: Producer<'static, Request>,
+    /// Answers from the cycle.
+    pub answers: Consumer<'static, Answer>,
+    /// Events from the cycle.
+    pub events: Consumer<'static, Event>,
+    /// SDO/NMT frames for the cycle to send.
+    pub tx_frames: Producer<'static, Frame>,
+    /// Frames the cycle received for the services.
+    pub rx_frames: Consumer<'static, Frame>,
+    /// Boot results for the cycle.
+    pub boot_reports: Producer<'static, BootReport>,
+}
+
+impl core::fmt::Debug for ServiceEnds {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ServiceEnds").finish_non_exhaustive()
+    }
+}
+
+/// Creates the queues (leaked: they live as long as the program, which is what the cycle
+/// thread needs; call it once per machine) and splits them.
+pub fn channels() -> (CycleEnds, ServiceEnds) {
+    let q: &'static mut Queues = Box::leak(Box::new(Queues {
+        requests: Queue::new(),
+        answers: Queue::new(),
+        events: Queue::new(),
+        tx_frames: Queue::new(),
+        rx_frames: Queue::new(),
+        boot_reports: Queue::new(),
+    }));
+    let (req_p, req_c) = q.requests.split();
+    let (ans_p, ans_c) = q.answers.split();
+    let (ev_p, ev_c) = q.events.split();
+    let (tx_p, tx_c) = q.tx_frames.split();
+    let (rx_p, rx_c) = q.rx_frames.split();
+    let (br_p, br_c) = q.boot_reports.split();
+    (
+        CycleEnds {
+            requests: req_c,
+            answers: ans_p,
+            events: ev_p,
+            tx_frames: tx_c,
+            rx_frames: rx_p,
+            boot_reports: br_c,
+        },
+        ServiceEnds {
+            requests: req_p,
+            answers: ans_c,
+            events: ev_c,
+            tx_frames: tx_p,
+            rx_frames: rx_c,
+            boot_reports: br_p,
+        },
+    )
+}
+
+/// Whether a received frame is the services' business: SDO answers (580h + n), NMT error
+/// control (700h + n: boot-ups, heartbeats, guarding replies) and EMCY / legacy boot-ups
+/// (80h + n). Pure and cheap, for the cycle.
+pub fn is_service_frame(frame: &Frame) -> bool {
+    let Some(id) = frame.cob_id() else {
+        return false;
+    };
+    let node = id & 0x7F;
+    node != 0 && matches!(id & !0x7F, ids::SDO_TX | ids::NMT_ERROR_CONTROL | ids::EMCY)
+}
+
+/// What the services report to the sink.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ServiceEvent {
+    /// An event of the cycle.
+    Cycle(Event),
+    /// A node finished booting (or failed).
+    Boot(BootReport),
+    /// Every planned node has a report.
+    BootFinished,
+    /// An EMCY frame arrived (after the boot): node, error code, error register.
+    Emcy {
+        /// The node.
+        node: u8,
+        /// The error code.
+        code: u16,
+        /// 1001h.
+        register: u8,
+    },
+}
+
+impl core::fmt::Display for ServiceEvent {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ServiceEvent::Cycle(e) => write!(f, "{e:?}"),
+            ServiceEvent::Boot(r) => write!(f, "{r}"),
+            ServiceEvent::BootFinished => f.write_str("boot finished"),
+            ServiceEvent::Emcy {
+                node,
+                code,
+                register,
+            } => write!(
+                f,
+                "node {node}: EMCY {code:04X}h, error register {register:02X}h"
+            ),
+        }
+    }
+}
+
+/// Where the services' reports go (called on the executor thread).
+pub type Sink = Box<dyn FnMut(ServiceEvent) + Send>;
+
+/// Why a command could not be sent or answered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ClientError {
+    /// The client queue is full: too many commands in flight.
+    #[error("too many commands in flight ({CLIENT_QUEUE})")]
+    Full,
+    /// The services have stopped.
+    #[error("the services have stopped")]
+    Stopped,
+    /// No answer within the time given.
+    #[error("no answer within {0:?}")]
+    Timeout(Duration),
+}
+
+type ClientRequest = (Command, mpsc::Sender<Answer>);
+
+/// A handle that sends commands to the cycle through the services; cheap to clone, usable
+/// from any thread. Never blocks on a full queue: it returns [`ClientError::Full`].
+#[derive(Debug, Clone)]
+pub struct CommandClient {
+    tx: mpsc::SyncSender<ClientRequest>,
+}
+
+impl CommandClient {
+    /// Sends a command; the answer arrives on the returned receiver.
+    pub fn send(&self, command: Command) -> Result<mpsc::Receiver<Answer>, ClientError> {
+        let (atx, arx) = mpsc::channel();
+        self.tx.try_send((command, atx)).map_err(|e| match e {
+            mpsc::TrySendError::Full(_) => ClientError::Full,
+            mpsc::TrySendError::Disconnected(_) => ClientError::Stopped,
+        })?;
+        Ok(arx)
+    }
+
+    /// Sends a command and waits up to `timeout` for its answer.
+    pub fn call(&self, command: Command, timeout: Duration) -> Result<Answer, ClientError> {
+        self.send(command)?
+            .recv_timeout(timeout)
+            .map_err(|e| match e {
+                mpsc::RecvTimeoutError::Timeout => ClientError::Timeout(timeout),
+                mpsc::RecvTimeoutError::Disconnected => ClientError::Stopped,
+            })
+    }
+}
+
+/// The running services: a client handle and the way to stop them.
+#[derive(Debug)]
+pub struct ServicesHandle {
+    client: CommandClient,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl ServicesHandle {
+    /// A command client.
+    pub fn client(&self) -> CommandClient {
+        self.client.clone()
+    }
+
+    /// Stops the tasks and joins the executor thread. Commands still waiting for an answer
+    /// see [`ClientError::Stopped`].
+    pub fn stop(mut self) {
+        self.shutdown();
+    }
+
+    fn shutdown(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for ServicesHandle {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+/// Why the services could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum SpawnError {
+    /// The executor thread could not be created.
+    #[error("cannot start the services thread: {0}")]
+    Thread(#[from] std::io::Error),
+}
+
+/// What the tasks share on the executor thread.
+struct Shared {
+    stop: Arc<AtomicBool>,
+    live: Arc<AtomicUsize>,
+    sink: RefCell<Sink>,
+}
+
+impl Shared {
+    fn report(&self, e: ServiceEvent) {
+        if let Ok(mut s) = self.sink.try_borrow_mut() {
+            s(e);
+        }
+    }
+    fn stopping(&self) -> bool {
+        self.stop.load(Ordering::Acquire)
+    }
+}
+
+/// Decrements the live-task count when a task ends (also if it panics).
+struct Alive(Arc<AtomicUsize>);
+impl Drop for Alive {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+async fn tick(d: Duration) {
+    embassy_time::Timer::after(embassy_time::Duration::from_micros(d.as_micros() as u64)).await;
+}
+
+/// Tasks of one services instance; a pool of 4 lets tests run a few machines side by side.
+#[embassy_executor::task(pool_size = 4)]
+async fn boot_task(
+    shared: Rc<Shared>,
+    plans: Vec<BootPlan>,
+    mut tx: Producer<'static, Frame>,
+    mut rx: Consumer<'static, Frame>,
+    mut reports: Producer<'static, BootReport>,
+) {
+    let _alive = Alive(shared.live.clone());
+    let mut seq = BootSequencer::new(plans, monotonic_now());
+    let mut held: Option<Frame> = None;
+    let mut handed = 0usize;
+    let mut finished_told = false;
+    while !shared.stopping() {
+        let now = monotonic_now();
+        while let Some(f) = rx.dequeue() {
+            if let Some(code) = emcy_of(&f) {
+                shared.report(code);
+            }
+            seq.handle_frame(&f, now);
+        }
+        if seq.poll_timeout().is_some_and(|t| t <= now) {
+            seq.handle_timeout(now);
+        }
+        // Out to the cycle; a frame the queue cannot take waits for the next tick.
+        while let Some(f) = held.take().or_else(|| seq.poll_transmit(now)) {
+            if let Err(f) = tx.enqueue(f) {
+                held = Some(f);
+                break;
+            }
+        }
+        while let Some(r) = seq.reports().get(handed).copied() {
+            if reports.enqueue(r).is_err() {
+                break;
+            }
+            shared.report(ServiceEvent::Boot(r));
+            handed += 1;
+        }
+        if !finished_told && seq.is_finished() && handed == seq.reports().len() {
+            finished_told = true;
+            shared.report(ServiceEvent::BootFinished);
+        }
+        let wait = seq
+            .poll_timeout()
+            .map(|t| t.saturating_duration_since(monotonic_now()))
+            .map_or(SERVICE_TICK, |d| d.min(SERVICE_TICK));
+        tick(wait).await;
+    }
+}
+
+/// An EMCY (80h + n, 8 bytes: a boot-up on that identifier has 0 or 1) as a service event.
+fn emcy_of(f: &Frame) -> Option<ServiceEvent> {
+    let id = f.cob_id()?;
+    if id & !0x7F != ids::EMCY || id & 0x7F == 0 || f.dlc() != 8 {
+        return None;
+    }
+    let d = f.data8();
+    Some(ServiceEvent::Emcy {
+        node: (id & 0x7F) as u8,
+        code: u16::from_le_bytes([d[0], d[1]]),
+        register: d[2],
+    })
+}
+
+#[embassy_executor::task(pool_size = 4)]
+async fn command_task(
+    shared: Rc<Shared>,
+    clients: mpsc::Receiver<ClientRequest>,
+    mut requests: Producer<'static, Request>,
+    mut answers: Consumer<'static, Answer>,
+) {
+    let _alive = Alive(shared.live.clone());
+    let mut pending: HashMap<u64, mpsc::Sender<Answer>> = HashMap::new();
+    let mut next_tag: u64 = 1;
+    while !shared.stopping() {
+        while let Ok((command, reply_to)) = clients.try_recv() {
+            let tag = next_tag;
+            next_tag = next_tag.wrapping_add(1);
+            match requests.enqueue(Request { tag, command }) {
+                Ok(()) => {
+                    pending.insert(tag, reply_to);
+                }
+                // The cycle is not keeping up: refuse now rather than hold it somewhere.
+                Err(_) => {
+                    let _ = reply_to.send(Answer {
+                        tag,
+                        reply: Reply::Rejected(Rejected::Busy),
+                    });
+                }
+            }
+        }
+        while let Some(a) = answers.dequeue() {
+            if let Some(to) = pending.remove(&a.tag) {
+                // The caller may have gone; its answer is then dropped.
+                let _ = to.send(a);
+            }
+        }
+        tick(SERVICE_TICK).await;
+    }
+}
+
+#[embassy_executor::task(pool_size = 4)]
+async fn event_task(shared: Rc<Shared>, mut events: Consumer<'static, Event>) {
+    let _alive = Alive(shared.live.clone());
+    while !shared.stopping() {
+        while let Some(e) = events.dequeue() {
+            shared.report(ServiceEvent::Cycle(e));
+        }
+        tick(SERVICE_TICK).await;
+    }
+}
+
+/// Starts the services' executor thread with the boot, command and event tasks; `sink` gets
+/// every report. At most 4 instances may run at once (the static task pools).
+pub fn spawn_services(
+    ends: ServiceEnds,
+    plans: Vec<BootPlan>,
+    sink: Sink,
+) -> Result<ServicesHandle, SpawnError> {
+    let (ctx, crx) = mpsc::sync_channel(CLIENT_QUEUE);
+    let stop = Arc::new(AtomicBool::new(false));
+    let live = Arc::new(AtomicUsize::new(0));
+    let stop2 = stop.clone();
+    let thread = std::thread::Builder::new()
+        .name("services".into())
+        .spawn(move || run_executor(ends, plans, sink, crx, stop2, live))?;
+    Ok(ServicesHandle {
+        client: CommandClient { tx: ctx },
+        stop,
+        thread: Some(thread),
+    })
+}
+
+fn run_executor(
+    ends: ServiceEnds,
+    plans: Vec<BootPlan>,
+    sink: Sink,
+    clients: mpsc::Receiver<ClientRequest>,
+    stop: Arc<AtomicBool>,
+    live: Arc<AtomicUsize>,
+) {
+    let shared = Rc::new(Shared {
+        stop: stop.clone(),
+        live: live.clone(),
+        sink: RefCell::new(sink),
+    });
+    // The executor must be 'static; one small leak per services instance.
+    let executor: &'static mut embassy_executor::Executor =
+        Box::leak(Box::new(embassy_executor::Executor::new()));
+    let ServiceEnds {
+        requests,
+        answers,
+        events,
+        tx_frames,
+        rx_frames,
+        boot_reports,
+    } = ends;
+    let live_done = live.clone();
+    executor.run_until(
+        |spawner| {
+            // A full task pool (more than 4 instances) stops the others again.
+            fn go<S>(
+                spawner: embassy_executor::Spawner,
+                t: Result<embassy_executor::SpawnToken<S>, embassy_executor::SpawnError>,
+                live: &AtomicUsize,
+                stop: &AtomicBool,
+            ) {
+                match t {
+                    Ok(t) => {
+                        live.fetch_add(1, Ordering::AcqRel);
+                        spawner.spawn(t);
+                    }
+                    Err(_) => stop.store(true, Ordering::Release),
+                }
+            }
+            let t = boot_task(shared.clone(), plans, tx_frames, rx_frames, boot_reports);
+            go(spawner, t, &live, &stop);
+            let t = command_task(shared.clone(), clients, requests, answers);
+            go(spawner, t, &live, &stop);
+            go(spawner, event_task(shared, events), &live, &stop);
+        },
+        // Every task has seen the stop flag and ended, so its pool slot is free again.
+        move || live_done.load(Ordering::Acquire) == 0,
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::command::Target;
+
+    fn frame(id: u16) -> Frame {
+        Frame::std8(id, [0; 8])
+    }
+
+    #[test]
+    fn the_cycle_forwards_only_service_frames() {
+        for id in [0x583, 0x703, 0x083, 0x0FF] {
+            assert!(is_service_frame(&frame(id)), "{id:03X}h");
+        }
+        for id in [0x000, 0x080, 0x183, 0x203, 0x603, 0x700] {
+            assert!(!is_service_frame(&frame(id)), "{id:03X}h");
+        }
+    }
+
+    #[test]
+    fn full_queues_return_errors() {
+        let (mut cycle, mut service) = channels();
+        assert_eq!(cycle.offer_received(&frame(0x183)), Ok(false));
+        for _ in 0..RX_FRAMES {
+            assert_eq!(cycle.offer_received(&frame(0x583)), Ok(true));
+        }
+        assert_eq!(
+            cycle.offer_received(&frame(0x583)),
+            Err(QueueFull {
+                queue: "received frames",
+                capacity: RX_FRAMES
+            })
+        );
+        let a = Answer {
+            tag: 1,
+            reply: Reply::Latched { cycle: 1 },
+        };
+        for _ in 0..ANSWERS {
+            cycle.answer(a).unwrap();
+        }
+        assert!(cycle.answer(a).is_err());
+        let e = Event::Acknowledged { cycle: 1, axis: 0 };
+        for _ in 0..EVENTS {
+            cycle.event(e).unwrap();
+        }
+        assert!(cycle.event(e).is_err());
+        let r = Request {
+            tag: 1,
+            command: Command::Stop(Target::All),
+        };
+        for _ in 0..REQUESTS {
+            service.requests.enqueue(r).unwrap();
+        }
+        assert!(service.requests.enqueue(r).is_err());
+        // Taking one makes room for one.
+        assert_eq!(cycle.requests.dequeue(), Some(r));
+        assert!(service.requests.enqueue(r).is_ok());
+    }
+
+    #[test]
+    fn a_full_client_queue_is_an_error_not_a_wait() {
+        let (tx, _rx) = mpsc::sync_channel(CLIENT_QUEUE);
+        let c = CommandClient { tx };
+        for _ in 0..CLIENT_QUEUE {
+            c.send(Command::Stop(Target::All)).unwrap();
+        }
+        assert_eq!(
+            c.send(Command::Stop(Target::All)).err(),
+            Some(ClientError::Full)
+        );
+        drop(_rx);
+        assert_eq!(
+            c.send(Command::Stop(Target::All)).err(),
+            Some(ClientError::Stopped)
+        );
+    }
+
+    #[test]
+    fn requests_the_cycle_cannot_take_are_answered_busy_and_the_rest_by_tag() {
+        let (mut cycle, service) = channels();
+        let h = spawn_services(service, Vec::new(), Box::new(|_| {})).unwrap();
+        let c = h.client();
+        // The cycle takes nothing yet: REQUESTS fit its queue, the rest are refused at once.
+        let waiting: Vec<_> = (0..REQUESTS + 8)
+            .map(|_| c.send(Command::Stop(Target::All)).unwrap())
+            .collect();
+        let mut busy = 0;
+        for rx in &waiting[REQUESTS..] {
+            let a = rx.recv_timeout(Duration::from_secs(5)).unwrap();
+            assert_eq!(a.reply, Reply::Rejected(Rejected::Busy));
+            busy += 1;
+        }
+        assert_eq!(busy, 8);
+        // Now the cycle answers the queued ones, each with a cycle number of its own.
+        let mut tags = Vec::new();
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        while tags.len() < REQUESTS && std::time::Instant::now() < deadline {
+            if let Some(r) = cycle.requests.dequeue() {
+                tags.push(r.tag);
+                cycle
+                    .answer(Answer {
+                        tag: r.tag,
+                        reply: Reply::Latched { cycle: r.tag * 10 },
+                    })
+                    .unwrap();
+            } else {
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        assert_eq!(tags.len(), REQUESTS);
+        for rx in &waiting[..REQUESTS] {
+            let a = rx.recv_timeout(Duration::from_secs(5)).unwrap();
+            assert_eq!(a.reply, Reply::Latched { cycle: a.tag * 10 });
+        }
+        h.stop();
+        assert_eq!(
+            c.send(Command::Stop(Target::All)).err(),
+            Some(ClientError::Stopped)
+        );
+    }
+}
