@@ -422,8 +422,11 @@ fn services_boot_through_the_queues_and_answer_every_request() {
         assert!(r.result.is_ok(), "{r}");
     }
     // The cycle got the same reports.
-    std::thread::sleep(Duration::from_millis(20));
-    assert_eq!(booted.lock().unwrap().len(), 3);
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while booted.lock().unwrap().len() < 3 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(*booted.lock().unwrap(), boot_events);
 
     // Every request gets its answer, matched by tag, from several threads at once.
     let client = handle.client();

@@ -571,10 +571,11 @@ fn build_ops(plan: &BootPlan) -> Result<(Vec<Op>, Vec<ConfigPlan>), BootFailure>
 }
 
 impl BootSequencer {
-    /// Starts booting `plans` at `now`: every node's reset communication is queued. A plan
-    /// that cannot work (invalid PDO settings, a node planned twice) is reported failed at
-    /// once, without bus traffic.
-    pub fn new(plans: Vec<BootPlan>, now: Instant) -> BootSequencer {
+    /// Starts booting `plans`: every node's reset communication is queued. A plan that cannot
+    /// work (invalid PDO settings, a node planned twice) is reported failed at once, without
+    /// bus traffic. Every timeout runs from when its frame is handed out by
+    /// [`BootSequencer::poll_transmit`], not from `_now` (the frames may wait in a queue).
+    pub fn new(plans: Vec<BootPlan>, _now: Instant) -> BootSequencer {
         let mut s = BootSequencer {
             nodes: Vec::with_capacity(plans.len()),
             nmt: VecDeque::new(),
@@ -616,7 +617,7 @@ impl BootSequencer {
                         restarts: 0,
                     });
                     let i = s.nodes.len() - 1;
-                    s.run(i, now);
+                    s.run(i);
                 }
                 Err(e) => s.reports.push(BootReport {
                     node: plan.node,
@@ -677,7 +678,7 @@ impl BootSequencer {
     }
 
     /// Issues node `i`'s current op.
-    fn run(&mut self, i: usize, _now: Instant) {
+    fn run(&mut self, i: usize) {
         let Some(n) = self.nodes.get_mut(i) else {
             return;
         };
@@ -729,7 +730,7 @@ impl BootSequencer {
     }
 
     /// Takes node `i`'s SDO completions and moves it on.
-    fn drain_sdo(&mut self, i: usize, now: Instant) {
+    fn drain_sdo(&mut self, i: usize) {
         loop {
             let Some(n) = self.nodes.get_mut(i) else {
                 return;
@@ -748,7 +749,7 @@ impl BootSequencer {
             if n.restart {
                 n.restart = false;
                 n.at = 1;
-                self.run(i, now);
+                self.run(i);
                 continue;
             }
             let op = n.op();
@@ -784,7 +785,7 @@ impl BootSequencer {
                         }
                     }
                     n.at += 1;
-                    self.run(i, now);
+                    self.run(i);
                 }
             }
         }
@@ -801,7 +802,7 @@ impl BootSequencer {
                     if let Some(n) = self.nodes.get_mut(i) {
                         n.at += 1;
                     }
-                    self.run(i, now);
+                    self.run(i);
                 }
                 // Before the reset went out: the power-on boot-up, not ours.
                 Some((NodeState::NmtQueued, Some(Op::Reset))) | Some((NodeState::Finished, _)) => {}
@@ -826,7 +827,7 @@ impl BootSequencer {
             if let Some(n) = self.nodes.get_mut(i) {
                 n.sdo.handle_frame(frame, now);
             }
-            self.drain_sdo(i, now);
+            self.drain_sdo(i);
         }
     }
 
@@ -894,7 +895,7 @@ impl BootSequencer {
             }
             if n.sdo.poll_timeout().is_some_and(|t| t <= now) {
                 n.sdo.handle_timeout(now);
-                self.drain_sdo(i, now);
+                self.drain_sdo(i);
             }
         }
     }
