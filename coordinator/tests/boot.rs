@@ -271,7 +271,8 @@ fn aborted_writes_report_step_object_and_code() {
 #[test]
 fn a_static_mapping_that_differs_fails_read_back() {
     let mut p = plans();
-    // Expect the CiA 402 mapping on an MTR-DCI that speaks FHPP: the read-back shows it.
+    // Expect a CiA 402 TPDO1 on an EMCA whose static FHPP mapping cannot be it: the read-back
+    // shows the difference.
     let mut wrong = plan_for(node(2), DeviceKind::Emca, &FHPP_RPDO1, &TLC_TPDO1, GUARD).unwrap();
     wrong.device_type = None;
     p[1] = wrong;

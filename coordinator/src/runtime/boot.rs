@@ -841,7 +841,7 @@ impl BootSequencer {
                 match n.op() {
                     Some(Op::Reset) => {
                         n.state = NodeState::WaitBootUp {
-                            deadline: now + n.plan.timeouts.boot_up,
+                            deadline: now.saturating_add(n.plan.timeouts.boot_up),
                         };
                     }
                     Some(Op::Start) => {
