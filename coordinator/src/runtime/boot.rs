@@ -155,6 +155,9 @@ pub struct BootPlan {
     pub pdos: Vec<PdoPlan>,
     /// The node's side of supervision.
     pub supervision: SupervisionPlan,
+    /// Drive parameters to write and read back after the supervision: (object, value, size in
+    /// bytes 1..=4).
+    pub parameters: Vec<(Address, u32, u8)>,
     /// Bounds on the waits.
     pub timeouts: BootTimeouts,
 }
@@ -221,6 +224,7 @@ pub fn plan_for(
         vendor_id: Some(vendor_id),
         pdos,
         supervision,
+        parameters: Vec::new(),
         timeouts: BootTimeouts::default(),
     })
 }
@@ -238,6 +242,9 @@ pub enum BootStep {
     PdoReadBack,
     /// Writing and reading back 1017h or 100Ch/100Dh.
     Supervision,
+    /// Writing and reading back the drive parameters the axis needs (homing method, profile
+    /// velocity and acceleration).
+    Parameters,
     /// NMT start.
     Start,
 }
@@ -250,6 +257,7 @@ impl fmt::Display for BootStep {
             BootStep::PdoConfig => "PDO configuration",
             BootStep::PdoReadBack => "PDO read-back",
             BootStep::Supervision => "supervision",
+            BootStep::Parameters => "drive parameters",
             BootStep::Start => "NMT start",
         })
     }
@@ -565,6 +573,21 @@ fn build_ops(plan: &BootPlan) -> Result<(Vec<Op>, Vec<ConfigPlan>), BootFailure>
             supervise(Address::new(0x100C, 0), u32::from(guard_ms), 2);
             supervise(Address::new(0x100D, 0), u32::from(life_factor), 1);
         }
+    }
+    for &(addr, value, size) in &plan.parameters {
+        ops.push(Op::Write {
+            step: BootStep::Parameters,
+            addr,
+            value,
+            size,
+        });
+        // Read back what a device of this size returns (sign bits beyond `size` dropped).
+        let mask = if size >= 4 { u32::MAX } else { (1u32 << (8 * u32::from(size))) - 1 };
+        ops.push(Op::Read {
+            step: BootStep::Parameters,
+            addr,
+            expect: Expect::Equal(value & mask),
+        });
     }
     ops.push(Op::Start);
     Ok((ops, config))
