@@ -2205,7 +2205,7 @@ mod tests {
                 condition: StepCondition::Comparator {
                     axis: 0,
                     quantity: Quantity::Position,
-                    window: Window::new(78_000, 82_000, Duration::from_millis(10)),
+                    window: Window::new(60_000, 84_000, Duration::from_millis(10)),
                 },
                 next: 11,
             }
@@ -2268,7 +2268,7 @@ mod tests {
     fn group_record_modes_and_comparator_units() {
         let text = edited(&[
             (
-                "step = { condition = \"position\", axis = \"x\", min = 195.0, max = 205.0, damping_ms = 10, next = 11 }",
+                "step = { condition = \"position\", axis = \"x\", min = 150.0, max = 210.0, damping_ms = 10, next = 11 }",
                 "step = { condition = \"velocity\", axis = \"y\", min = -2.5, max = 2.5, next = 11 }\n\
                  alternative = { condition = \"force\", axis = \"x\", min = -10.0, max = 20.5, damping_ms = 3, next = 13 }",
             ),
@@ -2368,8 +2368,8 @@ mod tests {
                 "groups[0].records[0].acceleration: 150 is outside 1..=100",
             ),
             (
-                &[("min = 195.0, max = 205.0", "min = 205.0, max = 195.0")],
-                "groups[0].records[0].step.min: min 205 is above max 195: the condition could never be met",
+                &[("min = 150.0, max = 210.0", "min = 210.0, max = 150.0")],
+                "groups[0].records[0].step.min: min 210 is above max 150: the condition could never be met",
             ),
             (
                 &[("axis = \"x\", min", "axis = \"z\", min")],
@@ -2383,7 +2383,7 @@ mod tests {
                 "groups[0].records[0].step.axis: missing: a position step needs it",
             ),
             (
-                &[("min = 195.0, max = 205.0", "min = 195.0, max = 9000000.0")],
+                &[("min = 150.0, max = 210.0", "min = 195.0, max = 9000000.0")],
                 "groups[0].records[0].step.max: 9000000 units are 3600000000 increments, outside the drive's 32-bit range",
             ),
             (
@@ -2489,5 +2489,174 @@ mod tests {
             e,
             ["groups[0].records[3].targets.y: 900 is outside -50..=250"]
         );
+    }
+
+    /// The example's chains in virtual time: 2 ms cycles, each axis moving linearly toward its
+    /// target at its share of its velocity limit, `motion_done` when every axis is there.
+    /// Returns every group's actions with their cycle.
+    fn run_example_chains(
+        di_rises_at: Option<u64>,
+    ) -> Vec<Vec<(u64, crate::records::ChainAction)>> {
+        use crate::records::{Chain, ChainAction, ChainInputs};
+        use drivers::time::Instant;
+        let c = Config::parse(EXAMPLE).unwrap();
+        let tables = c.group_tables().unwrap();
+        struct G {
+            chain: Chain,
+            pos: Vec<i64>,
+            target: Vec<i64>,
+            speed: Vec<i64>,
+            rate: Vec<i64>,
+            done: bool,
+            log: Vec<(u64, ChainAction)>,
+        }
+        let mut groups: Vec<G> = c
+            .groups
+            .iter()
+            .map(|g| {
+                let rate: Vec<i64> = g
+                    .axes
+                    .iter()
+                    .map(|n| {
+                        let a = c.axes.iter().find(|a| &a.name == n).unwrap();
+                        (a.limits.velocity * a.increments_per_unit * 0.002) as i64
+                    })
+                    .collect();
+                G {
+                    chain: Chain::new(),
+                    pos: vec![0; g.axes.len()],
+                    target: vec![0; g.axes.len()],
+                    speed: rate.clone(),
+                    rate,
+                    done: true,
+                    log: Vec::new(),
+                }
+            })
+            .collect();
+        groups[0]
+            .chain
+            .start(&tables[0].1, 10, Instant::ZERO)
+            .unwrap();
+        groups[1]
+            .chain
+            .start(&tables[1].1, 0, Instant::ZERO)
+            .unwrap();
+        let (mut di, mut previous) = (0u32, 0u32);
+        for cycle in 0..5000u64 {
+            if Some(cycle) == di_rises_at {
+                di = 1;
+            }
+            let reached: Vec<Option<u16>> =
+                groups.iter().map(|g| g.chain.status().reached).collect();
+            for (gi, g) in groups.iter_mut().enumerate() {
+                for ((p, t), v) in g.pos.iter_mut().zip(&g.target).zip(&g.speed) {
+                    *p += (*t - *p).clamp(-v, *v);
+                }
+                g.done = g.done || g.pos == g.target;
+                let zeros = vec![0i64; g.pos.len()];
+                let inputs = ChainInputs {
+                    now: Instant::from_millis(2 * cycle),
+                    cycle,
+                    motion_done: g.done,
+                    positions: &g.pos,
+                    velocities: &zeros,
+                    forces: &[],
+                    inputs: di,
+                    previous_inputs: previous,
+                    reached: &reached,
+                };
+                let table = &tables[gi].1;
+                for a in g.chain.step(table, &inputs) {
+                    g.log.push((cycle, a));
+                    if let ChainAction::StartMotion { record } = a {
+                        let r = table.get(record).unwrap();
+                        for (i, t) in r.targets.iter().take(g.pos.len()).enumerate() {
+                            g.target[i] = match *t {
+                                AxisTarget::Keep => g.pos[i],
+                                AxisTarget::Absolute(x) => x,
+                                AxisTarget::Relative(d) => g.pos[i] + d,
+                            };
+                            g.speed[i] = (g.rate[i] * i64::from(r.velocity_percent) / 100).max(1);
+                        }
+                        g.done = false;
+                    }
+                }
+            }
+            previous = di;
+        }
+        groups.into_iter().map(|g| g.log).collect()
+    }
+
+    #[test]
+    fn the_example_chains_run_across_groups() {
+        use crate::records::ChainAction::{Complete, Reached, StartMotion};
+        let logs = run_example_chains(None);
+        let what = |log: &[(u64, crate::records::ChainAction)]| {
+            log.iter().map(|(_, a)| *a).collect::<Vec<_>>()
+        };
+        // Gantry: 10 steps on the fly (x in its window), 11 (no MC shown) at MC to 12, which
+        // waits for the lift's record 1, then 13 ends the chain.
+        assert_eq!(
+            what(&logs[0]),
+            [
+                StartMotion { record: 10 },
+                StartMotion { record: 11 },
+                StartMotion { record: 12 },
+                Reached { record: 12 },
+                StartMotion { record: 13 },
+                Reached { record: 13 },
+                Complete { record: 13 },
+            ]
+        );
+        assert_eq!(
+            what(&logs[1]),
+            [
+                StartMotion { record: 0 },
+                Reached { record: 0 },
+                StartMotion { record: 1 },
+                Reached { record: 1 },
+                Complete { record: 1 },
+            ]
+        );
+        let at = |log: &[(u64, crate::records::ChainAction)], a| {
+            log.iter().find(|(_, x)| *x == a).unwrap().0
+        };
+        // Record 10 hands over before its move could arrive (x needs 80 000 inc at 96 inc per
+        // cycle, 834 cycles): x enters the window (60 000) at cycle 625, plus 5 cycles of
+        // damping, plus record 11's start delay of 25 cycles.
+        assert_eq!(at(&logs[0], StartMotion { record: 11 }), 625 + 5 + 25);
+        // The lift's delay: 200 ms = 100 cycles after its MC.
+        assert_eq!(
+            at(&logs[1], StartMotion { record: 1 }) - at(&logs[1], Reached { record: 0 }),
+            100
+        );
+        // The gantry waited at 12 for the lift and went on in the cycle after it was seen.
+        let lift_done = at(&logs[1], Reached { record: 1 });
+        assert!(at(&logs[0], Reached { record: 12 }) < lift_done);
+        assert_eq!(at(&logs[0], StartMotion { record: 13 }), lift_done + 1);
+    }
+
+    #[test]
+    fn the_example_chain_branches_on_the_input() {
+        use crate::records::ChainAction::{Complete, StartMotion};
+        let plain = run_example_chains(None);
+        let start_11 = plain[0]
+            .iter()
+            .find(|(_, a)| *a == StartMotion { record: 11 })
+            .unwrap()
+            .0;
+        // Input 0 rises while record 11 moves: the alternative, record 13, at once.
+        let logs = run_example_chains(Some(start_11 + 5));
+        let gantry: Vec<_> = logs[0].iter().map(|(_, a)| *a).collect();
+        assert_eq!(
+            gantry[..3],
+            [
+                StartMotion { record: 10 },
+                StartMotion { record: 11 },
+                StartMotion { record: 13 }
+            ]
+        );
+        assert_eq!(logs[0][2].0, start_11 + 5);
+        assert!(gantry.contains(&Complete { record: 13 }));
     }
 }
