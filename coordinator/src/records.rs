@@ -32,6 +32,7 @@ use core::time::Duration;
 use drivers::time::Instant;
 
 use crate::comparator::{self, Comparator, Window};
+use crate::event::Event;
 
 /// The most axes a group (and so a record) holds.
 pub const MAX_GROUP_AXES: usize = 8;
@@ -439,7 +440,9 @@ pub struct ChainInputs<'a> {
     pub now: Instant,
     /// This cycle's number.
     pub cycle: u64,
-    /// The group's move has arrived and every axis reports MC.
+    /// The group's move has arrived and every axis reports MC. It must be about the move the
+    /// last [`ChainAction::StartMotion`] started: false from the cycle after that order until
+    /// the move arrives (in the order's own cycle it is ignored).
     pub motion_done: bool,
     /// Actual positions, increments.
     pub positions: &'a [i64],
@@ -493,6 +496,31 @@ pub enum ChainAction {
         /// Why.
         reason: AbortReason,
     },
+}
+
+impl ChainAction {
+    /// The event the cycle reports for this action of group `group` in `cycle`; `None` for
+    /// [`ChainAction::StartMotion`], which is an order to the cycle, not news.
+    pub const fn event(self, cycle: u64, group: crate::command::GroupId) -> Option<Event> {
+        match self {
+            ChainAction::StartMotion { .. } => None,
+            ChainAction::Reached { record } => Some(Event::RecordReached {
+                cycle,
+                group,
+                record,
+            }),
+            ChainAction::Complete { record } => Some(Event::ChainComplete {
+                cycle,
+                group,
+                record,
+            }),
+            ChainAction::Aborted { record, .. } => Some(Event::ChainAborted {
+                cycle,
+                group,
+                record,
+            }),
+        }
+    }
 }
 
 /// The actions of one [`Chain::step`], in order. A step yields at most two (`Reached` then one
@@ -1483,6 +1511,39 @@ mod tests {
                 .all(|p| p[0] == 3 && p.get(1).is_none_or(|&x| x == 4))
         );
         assert!(r.chain.is_running());
+    }
+
+    #[test]
+    fn actions_map_to_the_cycles_events() {
+        assert_eq!(StartMotion { record: 3 }.event(9, 1), None);
+        assert_eq!(
+            Reached { record: 3 }.event(9, 1),
+            Some(Event::RecordReached {
+                cycle: 9,
+                group: 1,
+                record: 3
+            })
+        );
+        assert_eq!(
+            Complete { record: 4 }.event(10, 0),
+            Some(Event::ChainComplete {
+                cycle: 10,
+                group: 0,
+                record: 4
+            })
+        );
+        let aborted = Aborted {
+            record: 5,
+            reason: AbortReason::Stopped,
+        };
+        assert_eq!(
+            aborted.event(11, 2),
+            Some(Event::ChainAborted {
+                cycle: 11,
+                group: 2,
+                record: 5
+            })
+        );
     }
 
     #[test]
