@@ -22,6 +22,11 @@
 //!   arrival aborts the chain (the drives' MC = 1, RCC = 0), unless its other condition can still
 //!   come after MC (MC, a delay after MC, an input edge, another group's record): then the chain
 //!   waits ([`ChainState::Waiting`]).
+//!   A record with `End` and an alternative ends at its arrival unless the alternative was met
+//!   first (or in that cycle).
+//! - [`StepCondition::RecordReached`] is a level: it holds while the other group's `reached` is
+//!   that record, which a (re)start of the other group clears. A record's time condition counts
+//!   from the record's entry, its start delay included, as on the drives.
 //! - Stop ([`Chain::abort`]) aborts; [`Chain::start`] restarts from any record at any time.
 //!
 //! Everything is `no_std`, allocation-free, and a `step` does a bounded amount of work (at most
