@@ -12,7 +12,7 @@
 //! converted to whole increments once, and refused when the result does not fit the drive's
 //! integer range.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::time::Duration;
 
@@ -20,6 +20,11 @@ use drivers::can::bit_timing::{MAX_BITRATE, MIN_BITRATE};
 use serde::Deserialize;
 
 use crate::budget::{BusLoad, BusTraffic, Pdo, Permille, Supervision};
+use crate::comparator::Window;
+use crate::records::{
+    self, AxisTarget, Edge, MAX_GROUP_AXES, Quantity, RecordError, RecordMode, RecordTable,
+    StepCondition,
+};
 
 /// The commented example `coordinator config-example` prints: four axes, one of each device
 /// kind, on the virtual bus and Modbus TCP, a group and a few records.
@@ -303,6 +308,180 @@ pub struct GroupConfig {
     pub name: String,
     /// Member axes by name; an axis belongs to at most one group.
     pub axes: Vec<String>,
+    /// The group's record table (`[[groups.records]]`), run by the coordinator's chains.
+    #[serde(default)]
+    pub records: Vec<GroupRecordConfig>,
+}
+
+fn default_percent() -> u32 {
+    100
+}
+
+fn default_true() -> bool {
+    true
+}
+
+/// One record of a group's table (`[[groups.records]]`): a group move and how the chain goes
+/// on from it. See `docs/configuration.md`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroupRecordConfig {
+    /// Record number, 0..=255, unique in the group.
+    pub number: u32,
+    /// Per member axis by name: target (or distance with `relative`) in the axis's units; for
+    /// `mode = "velocity"` only the sign counts (the direction). Axes not named keep still.
+    #[serde(default)]
+    pub targets: BTreeMap<String, f64>,
+    /// The targets are distances from where the record starts.
+    #[serde(default)]
+    pub relative: bool,
+    /// Share of each axis's velocity limit, 1..=100 %.
+    #[serde(default = "default_percent")]
+    pub velocity: u32,
+    /// Share of each axis's acceleration limit, 1..=100 %.
+    #[serde(default = "default_percent")]
+    pub acceleration: u32,
+    /// Share of each axis's jerk limit, 1..=100 %.
+    #[serde(default = "default_percent")]
+    pub jerk: u32,
+    /// What the record commands.
+    #[serde(default)]
+    pub mode: GroupRecordMode,
+    /// Force for `mode = "force"`, % of nominal (-300..=300, not 0).
+    pub force: Option<f64>,
+    /// Delay before the record's move starts, ms.
+    #[serde(default)]
+    pub delay_ms: u32,
+    /// The step condition and the next record; none ends the chain here.
+    pub step: Option<StepConfig>,
+    /// An alternative condition and record (branching; the step wins a tie).
+    pub alternative: Option<StepConfig>,
+    /// Show MC when this record finishes inside a chain (FHPP PNU 425).
+    #[serde(default = "default_true")]
+    pub mc_in_chain: bool,
+}
+
+/// `mode` of a group record.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GroupRecordMode {
+    /// A time-synchronised move to the targets.
+    #[default]
+    Position,
+    /// Run at `velocity` % of the limits in the direction of each target's sign.
+    Velocity,
+    /// Push with `force`, toward the targets.
+    Force,
+}
+
+/// `condition` of a step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ConditionKind {
+    /// The group's move arrived (MC).
+    Mc,
+    /// At once (on the fly).
+    Immediately,
+    /// `ms` after MC.
+    Delay,
+    /// Position comparator on `axis`: `[min, max]` units held `damping_ms`.
+    Position,
+    /// Velocity comparator on `axis`: units/s.
+    Velocity,
+    /// Force comparator on `axis`: % of nominal.
+    Force,
+    /// Time since the record started in `[min, max]` ms.
+    Time,
+    /// An edge of digital input `input` (`edge`, default rising).
+    Input,
+    /// Group `group` reached its record `record`.
+    Record,
+}
+
+impl ConditionKind {
+    /// The name in the configuration.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Mc => "mc",
+            Self::Immediately => "immediately",
+            Self::Delay => "delay",
+            Self::Position => "position",
+            Self::Velocity => "velocity",
+            Self::Force => "force",
+            Self::Time => "time",
+            Self::Input => "input",
+            Self::Record => "record",
+        }
+    }
+
+    /// The optional keys this condition takes (`next` and `condition` are always there).
+    fn keys(self) -> &'static [&'static str] {
+        match self {
+            Self::Mc | Self::Immediately => &[],
+            Self::Delay => &["ms"],
+            Self::Position | Self::Velocity | Self::Force => &["axis", "min", "max", "damping_ms"],
+            Self::Time => &["min", "max"],
+            Self::Input => &["input", "edge"],
+            Self::Record => &["group", "record"],
+        }
+    }
+}
+
+/// An input edge in the configuration.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EdgeConfig {
+    /// 0 → 1.
+    #[default]
+    Rising,
+    /// 1 → 0.
+    Falling,
+}
+
+/// A step condition with its next record (`step = { ... }`, `alternative = { ... }`). Which
+/// keys a condition takes: [`ConditionKind`]; others are refused.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepConfig {
+    /// The condition.
+    pub condition: ConditionKind,
+    /// The record to step to, in the same group.
+    pub next: u32,
+    /// `delay`: ms after MC.
+    pub ms: Option<u32>,
+    /// Comparators: the member axis.
+    pub axis: Option<String>,
+    /// Comparators and `time`: the window's lower bound (axis units, units/s, %, or ms).
+    pub min: Option<f64>,
+    /// Comparators and `time`: the window's upper bound.
+    pub max: Option<f64>,
+    /// Comparators: how long the value must stay inside, ms (default 0).
+    pub damping_ms: Option<u32>,
+    /// `input`: the bit of the machine's input word, 0..=31.
+    pub input: Option<u32>,
+    /// `input`: which edge (default rising).
+    pub edge: Option<EdgeConfig>,
+    /// `record`: the other group.
+    pub group: Option<String>,
+    /// `record`: its record number.
+    pub record: Option<u32>,
+}
+
+impl StepConfig {
+    /// The optional keys that are set, by name.
+    fn set_keys(&self) -> [(&'static str, bool); 9] {
+        [
+            ("ms", self.ms.is_some()),
+            ("axis", self.axis.is_some()),
+            ("min", self.min.is_some()),
+            ("max", self.max.is_some()),
+            ("damping_ms", self.damping_ms.is_some()),
+            ("input", self.input.is_some()),
+            ("edge", self.edge.is_some()),
+            ("group", self.group.is_some()),
+            ("record", self.record.is_some()),
+        ]
+    }
 }
 
 /// One positioning record.
@@ -475,6 +654,63 @@ pub enum Problem {
     /// The bus budget refuses the bus (the message carries the numbers).
     #[error("{0}")]
     Budget(String),
+    /// A group name no group has.
+    #[error("no group named {0:?}")]
+    UnknownGroup(String),
+    /// An axis that is not a member of the record's group.
+    #[error("axis {axis:?} is not in group {group:?}")]
+    NotInGroup {
+        /// The axis.
+        axis: String,
+        /// The group.
+        group: String,
+    },
+    /// Two records with one number in one group's table.
+    #[error("record {number} of group {group:?} is already defined by {other}")]
+    DuplicateGroupRecord {
+        /// The group.
+        group: String,
+        /// The record number.
+        number: u32,
+        /// The key of the first definition.
+        other: String,
+    },
+    /// A record number the group's table does not hold.
+    #[error("group {group:?} has no record {number}")]
+    UnknownGroupRecord {
+        /// The group.
+        group: String,
+        /// The record number.
+        number: u32,
+    },
+    /// A key this step condition or record mode requires is missing.
+    #[error("missing: {0} needs it")]
+    Needs(&'static str),
+    /// A key this step condition or record mode does not take.
+    #[error("{0} does not take this key")]
+    Unused(&'static str),
+    /// A comparator or time window that could never be met.
+    #[error("min {min} is above max {max}: the condition could never be met")]
+    EmptyWindow {
+        /// The lower bound.
+        min: f64,
+        /// The upper bound.
+        max: f64,
+    },
+    /// An alternative on a record without a step.
+    #[error("an alternative needs a step (a record without one ends the chain)")]
+    AlternativeWithoutStep,
+    /// A group with records and more axes than a record holds.
+    #[error("a group with records has at most {max} axes, this one has {axes}")]
+    GroupTooLarge {
+        /// The group's axes.
+        axes: usize,
+        /// The most a record holds.
+        max: usize,
+    },
+    /// The record table refused a record (a check this file missed).
+    #[error("{0}")]
+    Record(RecordError),
 }
 
 /// One refused setting: the key and what is wrong with it.
@@ -751,6 +987,7 @@ impl Config {
 
         self.check_groups(&axis_index, &bus_index, &mut err);
         self.check_records(&axis_index, &mut err);
+        self.build_group_tables(&mut err);
 
         // Budgets: every bus whose own settings are valid.
         let limit = Permille::from_percent(self.load_limit_percent.clamp(1, 100));
@@ -977,6 +1214,531 @@ impl Config {
             }
         }
     }
+}
+
+/// The record numbers each group defines (valid numbers only), with the index of the first
+/// definition; the same for every check, so a link to a refused record is not also reported.
+type Defined = Vec<HashMap<u32, usize>>;
+
+impl Config {
+    /// The groups' record tables, in group order (one per group, empty where a group has no
+    /// records), with targets and comparator windows converted from user units to increments
+    /// (`increments_per_unit`), forces from % to ‰. Refuses with the first error of
+    /// [`Config::check`] if the configuration is not accepted, so a table never comes from a
+    /// configuration `check` refuses.
+    pub fn group_tables(&self) -> Result<Vec<(String, Box<RecordTable>)>, ConfigError> {
+        if let Some(e) = self.check().errors.into_iter().next() {
+            return Err(e);
+        }
+        let mut err = Errors(Vec::new());
+        let tables = self.build_group_tables(&mut err);
+        match err.0.into_iter().next() {
+            Some(e) => Err(e),
+            None => Ok(tables),
+        }
+    }
+
+    /// Validates and converts every `[[groups.records]]`; errors go to `err` with their keys.
+    fn build_group_tables(&self, err: &mut Errors) -> Vec<(String, Box<RecordTable>)> {
+        let defined: Defined = self
+            .groups
+            .iter()
+            .map(|g| {
+                let mut m = HashMap::new();
+                for (r, rec) in g.records.iter().enumerate() {
+                    if (rec.number as usize) < records::RECORDS {
+                        m.entry(rec.number).or_insert(r);
+                    }
+                }
+                m
+            })
+            .collect();
+        let mut tables = Vec::with_capacity(self.groups.len());
+        for (g, group) in self.groups.iter().enumerate() {
+            let gkey = format!("groups[{g}]");
+            let axes = group.axes.len().min(MAX_GROUP_AXES) as u8;
+            let mut table = Box::new(RecordTable::with_axes(axes));
+            if !group.records.is_empty() && group.axes.len() > MAX_GROUP_AXES {
+                err.push(
+                    format!("{gkey}.records"),
+                    Problem::GroupTooLarge {
+                        axes: group.axes.len(),
+                        max: MAX_GROUP_AXES,
+                    },
+                );
+                tables.push((group.name.clone(), table));
+                continue;
+            }
+            let before = err.0.len();
+            for (r, rc) in group.records.iter().enumerate() {
+                let key = format!("{gkey}.records[{r}]");
+                let n0 = err.0.len();
+                let record = self.group_record(g, r, &key, rc, &defined, err);
+                if let Some(record) = record
+                    && err.0.len() == n0
+                    && let Err(e) = table.insert(rc.number as u16, record)
+                {
+                    err.push(key, Problem::Record(e));
+                }
+            }
+            if err.0.len() == before
+                && let Err(e) = table.validate()
+            {
+                err.push(format!("{gkey}.records"), Problem::Record(e));
+            }
+            tables.push((group.name.clone(), table));
+        }
+        tables
+    }
+
+    /// Axis `name` as a member of group `g`: its index in the group and its configuration.
+    fn member(
+        &self,
+        g: usize,
+        name: &str,
+        key: &str,
+        err: &mut Errors,
+    ) -> Option<(usize, &AxisConfig)> {
+        let group = &self.groups[g];
+        let axis = self.axes.iter().find(|a| a.name == name);
+        match (group.axes.iter().position(|a| a == name), axis) {
+            (Some(i), Some(a)) => Some((i, a)),
+            (_, None) => {
+                err.push(key, Problem::UnknownAxis(name.to_string()));
+                None
+            }
+            (None, Some(_)) => {
+                err.push(
+                    key,
+                    Problem::NotInGroup {
+                        axis: name.to_string(),
+                        group: group.name.clone(),
+                    },
+                );
+                None
+            }
+        }
+    }
+
+    fn group_record(
+        &self,
+        g: usize,
+        r: usize,
+        key: &str,
+        rc: &GroupRecordConfig,
+        defined: &Defined,
+        err: &mut Errors,
+    ) -> Option<records::Record> {
+        let group = &self.groups[g];
+        let mut ok = true;
+        let mut rec = records::Record::default();
+        if rc.number as usize >= records::RECORDS {
+            err.push(
+                format!("{key}.number"),
+                Problem::Range {
+                    value: rc.number.into(),
+                    min: 0.0,
+                    max: (records::RECORDS - 1) as f64,
+                },
+            );
+            ok = false;
+        } else if let Some(&first) = defined[g].get(&rc.number)
+            && first != r
+        {
+            err.push(
+                format!("{key}.number"),
+                Problem::DuplicateGroupRecord {
+                    group: group.name.clone(),
+                    number: rc.number,
+                    other: format!("groups[{g}].records[{first}]"),
+                },
+            );
+            ok = false;
+        }
+        for (name, value, slot) in [
+            ("velocity", rc.velocity, &mut rec.velocity_percent),
+            (
+                "acceleration",
+                rc.acceleration,
+                &mut rec.acceleration_percent,
+            ),
+            ("jerk", rc.jerk, &mut rec.jerk_percent),
+        ] {
+            if (1..=100).contains(&value) {
+                *slot = value as u8;
+            } else {
+                err.push(
+                    format!("{key}.{name}"),
+                    Problem::Range {
+                        value: value.into(),
+                        min: 1.0,
+                        max: 100.0,
+                    },
+                );
+                ok = false;
+            }
+        }
+        rec.mode = match rc.mode {
+            GroupRecordMode::Position => RecordMode::Position,
+            GroupRecordMode::Velocity => RecordMode::Velocity,
+            GroupRecordMode::Force => RecordMode::Force,
+        };
+        match (rc.mode, rc.force) {
+            (GroupRecordMode::Force, None) => {
+                err.push(format!("{key}.force"), Problem::Needs("a force record"));
+                ok = false;
+            }
+            (GroupRecordMode::Force, Some(f)) => {
+                if f.is_finite() && f != 0.0 && (-300.0..=300.0).contains(&f) {
+                    rec.force_permille = (f * 10.0).round() as i32;
+                } else {
+                    err.push(
+                        format!("{key}.force"),
+                        Problem::Range {
+                            value: f,
+                            min: -300.0,
+                            max: 300.0,
+                        },
+                    );
+                    ok = false;
+                }
+            }
+            (mode, Some(_)) => {
+                let what = if mode == GroupRecordMode::Velocity {
+                    "a velocity record"
+                } else {
+                    "a position record"
+                };
+                err.push(format!("{key}.force"), Problem::Unused(what));
+                ok = false;
+            }
+            (_, None) => {}
+        }
+        rec.delay_ms = rc.delay_ms;
+        rec.mc_in_chain = rc.mc_in_chain;
+        for (name, &v) in &rc.targets {
+            let k = format!("{key}.targets.{name}");
+            let Some((i, axis)) = self.member(g, name, &k, err) else {
+                ok = false;
+                continue;
+            };
+            match target(rc, axis, v) {
+                Ok(t) => rec.targets[i] = t,
+                Err(p) => {
+                    err.push(k, p);
+                    ok = false;
+                }
+            }
+        }
+        if rc.step.is_none() && rc.alternative.is_some() {
+            err.push(
+                format!("{key}.alternative"),
+                Problem::AlternativeWithoutStep,
+            );
+            ok = false;
+        }
+        if let Some(s) = &rc.step {
+            match self.step(g, &format!("{key}.step"), s, defined, err) {
+                Some(step) => rec.step = step,
+                None => ok = false,
+            }
+        }
+        if let Some(s) = &rc.alternative {
+            match self.step(g, &format!("{key}.alternative"), s, defined, err) {
+                Some(step) => rec.alternative = Some(step),
+                None => ok = false,
+            }
+        }
+        ok.then_some(rec)
+    }
+
+    fn step(
+        &self,
+        g: usize,
+        key: &str,
+        s: &StepConfig,
+        defined: &Defined,
+        err: &mut Errors,
+    ) -> Option<records::Step> {
+        let group = &self.groups[g];
+        let kind = s.condition;
+        let what = step_name(kind);
+        let mut ok = true;
+        for (k, set) in s.set_keys() {
+            if set && !kind.keys().contains(&k) {
+                err.push(format!("{key}.{k}"), Problem::Unused(what));
+                ok = false;
+            }
+        }
+        if !defined[g].contains_key(&s.next) {
+            err.push(
+                format!("{key}.next"),
+                Problem::UnknownGroupRecord {
+                    group: group.name.clone(),
+                    number: s.next,
+                },
+            );
+            ok = false;
+        }
+        let mut need = |name: &str, present: bool| {
+            if !present {
+                err.push(format!("{key}.{name}"), Problem::Needs(what));
+            }
+            present
+        };
+        let condition = match kind {
+            ConditionKind::Mc => Some(StepCondition::Mc),
+            ConditionKind::Immediately => Some(StepCondition::Immediately),
+            ConditionKind::Delay => {
+                need("ms", s.ms.is_some()).then(|| StepCondition::Delay(s.ms.unwrap_or_default()))
+            }
+            ConditionKind::Position | ConditionKind::Velocity | ConditionKind::Force => {
+                let has = need("axis", s.axis.is_some())
+                    & need("min", s.min.is_some())
+                    & need("max", s.max.is_some());
+                if has {
+                    self.comparator(g, key, s, err)
+                } else {
+                    None
+                }
+            }
+            ConditionKind::Time => {
+                let has = need("min", s.min.is_some()) & need("max", s.max.is_some());
+                if has { time_window(key, s, err) } else { None }
+            }
+            ConditionKind::Input => {
+                if need("input", s.input.is_some()) {
+                    match s.input.filter(|b| *b <= 31) {
+                        Some(bit) => Some(StepCondition::Input {
+                            bit: bit as u8,
+                            edge: match s.edge.unwrap_or_default() {
+                                EdgeConfig::Rising => Edge::Rising,
+                                EdgeConfig::Falling => Edge::Falling,
+                            },
+                        }),
+                        None => {
+                            err.push(
+                                format!("{key}.input"),
+                                Problem::Range {
+                                    value: s.input.unwrap_or_default().into(),
+                                    min: 0.0,
+                                    max: 31.0,
+                                },
+                            );
+                            None
+                        }
+                    }
+                } else {
+                    None
+                }
+            }
+            ConditionKind::Record => {
+                let has = need("group", s.group.is_some()) & need("record", s.record.is_some());
+                if has {
+                    self.record_reached(key, s, defined, err)
+                } else {
+                    None
+                }
+            }
+        };
+        let condition = condition?;
+        ok.then_some(records::Step {
+            condition,
+            next: s.next as u16,
+        })
+    }
+
+    /// A comparator step (axis, min and max present).
+    fn comparator(
+        &self,
+        g: usize,
+        key: &str,
+        s: &StepConfig,
+        err: &mut Errors,
+    ) -> Option<StepCondition> {
+        let name = s.axis.as_deref().unwrap_or_default();
+        let (i, axis) = self.member(g, name, &format!("{key}.axis"), err)?;
+        let (min, max) = (s.min.unwrap_or_default(), s.max.unwrap_or_default());
+        let mut ok = true;
+        for (k, v) in [("min", min), ("max", max)] {
+            if !v.is_finite() {
+                err.push(format!("{key}.{k}"), Problem::NotFinite(v));
+                ok = false;
+            }
+        }
+        if ok && min > max {
+            err.push(format!("{key}.min"), Problem::EmptyWindow { min, max });
+            ok = false;
+        }
+        if !ok {
+            return None;
+        }
+        let (quantity, scale, bound) = match s.condition {
+            ConditionKind::Velocity => (
+                Quantity::Velocity,
+                axis.increments_per_unit,
+                u32::MAX as f64,
+            ),
+            ConditionKind::Force => (Quantity::Force, 10.0, 3000.0),
+            _ => (
+                Quantity::Position,
+                axis.increments_per_unit,
+                i32::MAX as f64,
+            ),
+        };
+        let mut scaled = [0i64; 2];
+        for (slot, (k, v)) in scaled.iter_mut().zip([("min", min), ("max", max)]) {
+            let inc = (v * scale).round();
+            if inc.abs() > bound {
+                let problem = if s.condition == ConditionKind::Force {
+                    Problem::Range {
+                        value: v,
+                        min: -300.0,
+                        max: 300.0,
+                    }
+                } else {
+                    Problem::Increments {
+                        value: v,
+                        increments: inc,
+                    }
+                };
+                err.push(format!("{key}.{k}"), problem);
+                ok = false;
+            }
+            *slot = inc as i64;
+        }
+        let damping = Duration::from_millis(s.damping_ms.unwrap_or(0).into());
+        ok.then_some(StepCondition::Comparator {
+            axis: i as u8,
+            quantity,
+            window: Window::new(scaled[0], scaled[1], damping),
+        })
+    }
+
+    /// A `record` step (group and record present).
+    fn record_reached(
+        &self,
+        key: &str,
+        s: &StepConfig,
+        defined: &Defined,
+        err: &mut Errors,
+    ) -> Option<StepCondition> {
+        let name = s.group.as_deref().unwrap_or_default();
+        let record = s.record.unwrap_or_default();
+        let Some(og) = self.groups.iter().position(|x| x.name == name) else {
+            err.push(
+                format!("{key}.group"),
+                Problem::UnknownGroup(name.to_string()),
+            );
+            return None;
+        };
+        if !defined[og].contains_key(&record) {
+            err.push(
+                format!("{key}.record"),
+                Problem::UnknownGroupRecord {
+                    group: name.to_string(),
+                    number: record,
+                },
+            );
+            return None;
+        }
+        let group = u8::try_from(og).ok();
+        if group.is_none() {
+            err.push(
+                format!("{key}.group"),
+                Problem::Range {
+                    value: og as f64,
+                    min: 0.0,
+                    max: 255.0,
+                },
+            );
+        }
+        Some(StepCondition::RecordReached {
+            group: group?,
+            record: record as u16,
+        })
+    }
+}
+
+/// "a position step", for the messages.
+fn step_name(kind: ConditionKind) -> &'static str {
+    match kind {
+        ConditionKind::Mc => "an mc step",
+        ConditionKind::Immediately => "an immediately step",
+        ConditionKind::Delay => "a delay step",
+        ConditionKind::Position => "a position step",
+        ConditionKind::Velocity => "a velocity step",
+        ConditionKind::Force => "a force step",
+        ConditionKind::Time => "a time step",
+        ConditionKind::Input => "an input step",
+        ConditionKind::Record => "a record step",
+    }
+}
+
+/// A `time` step (min and max present): whole ms, `0..=u32::MAX`, min <= max.
+fn time_window(key: &str, s: &StepConfig, err: &mut Errors) -> Option<StepCondition> {
+    let (min, max) = (s.min.unwrap_or_default(), s.max.unwrap_or_default());
+    let mut ok = true;
+    for (k, v) in [("min", min), ("max", max)] {
+        if !(v.is_finite() && (0.0..=u32::MAX as f64).contains(&v)) {
+            err.push(
+                format!("{key}.{k}"),
+                Problem::Range {
+                    value: v,
+                    min: 0.0,
+                    max: u32::MAX as f64,
+                },
+            );
+            ok = false;
+        }
+    }
+    if ok && min > max {
+        err.push(format!("{key}.min"), Problem::EmptyWindow { min, max });
+        ok = false;
+    }
+    ok.then(|| StepCondition::Time {
+        min: min.round() as u32,
+        max: max.round() as u32,
+    })
+}
+
+/// One axis's target of a group record, in increments.
+fn target(rc: &GroupRecordConfig, axis: &AxisConfig, v: f64) -> Result<AxisTarget, Problem> {
+    if !v.is_finite() {
+        return Err(Problem::NotFinite(v));
+    }
+    if rc.mode == GroupRecordMode::Velocity {
+        // Only the direction counts.
+        return Ok(match v.partial_cmp(&0.0) {
+            Some(core::cmp::Ordering::Greater) => AxisTarget::Relative(1),
+            Some(core::cmp::Ordering::Less) => AxisTarget::Relative(-1),
+            _ => AxisTarget::Keep,
+        });
+    }
+    let l = &axis.limits;
+    if l.position_min < l.position_max {
+        let (min, max) = if rc.relative {
+            let span = l.position_max - l.position_min;
+            (-span, span)
+        } else {
+            (l.position_min, l.position_max)
+        };
+        if !(min..=max).contains(&v) {
+            return Err(Problem::Range { value: v, min, max });
+        }
+    }
+    let inc = (v * axis.increments_per_unit).round();
+    if !(i32::MIN as f64..=i32::MAX as f64).contains(&inc) {
+        return Err(Problem::Increments {
+            value: v,
+            increments: inc,
+        });
+    }
+    Ok(if rc.relative {
+        AxisTarget::Relative(inc as i64)
+    } else {
+        AxisTarget::Absolute(inc as i64)
+    })
 }
 
 /// Checks the scaling and the limits of one axis, in units and in increments.
@@ -1400,5 +2162,501 @@ mod tests {
         assert!(e.to_string().contains("emcb"), "{e}");
         let e = Config::parse("load_limit_percent = 50\n").unwrap_err();
         assert!(e.to_string().contains("cycle_us"), "{e}");
+    }
+
+    fn tables(text: &str) -> Vec<(String, Box<RecordTable>)> {
+        Config::parse(text).unwrap().group_tables().unwrap()
+    }
+
+    #[test]
+    fn group_tables_convert_the_example_to_increments() {
+        use crate::records::{Record, Step};
+        let t = tables(EXAMPLE);
+        assert_eq!(t.len(), 2);
+        let (name, gantry) = &t[0];
+        assert_eq!(name, "gantry");
+        assert_eq!(gantry.axes(), 2);
+        assert_eq!(
+            gantry.iter().map(|(n, _)| n).collect::<Vec<_>>(),
+            [10, 11, 12, 13]
+        );
+        let keep = AxisTarget::Keep;
+        let r10 = gantry.get(10).unwrap();
+        // x: 400 inc/mm, y: 1000 inc/mm.
+        assert_eq!(
+            r10.targets[..3],
+            [
+                AxisTarget::Absolute(80_000),
+                AxisTarget::Absolute(100_000),
+                keep
+            ]
+        );
+        assert_eq!(
+            (
+                r10.velocity_percent,
+                r10.acceleration_percent,
+                r10.jerk_percent
+            ),
+            (80, 50, 100)
+        );
+        assert_eq!(
+            r10.step,
+            Step {
+                condition: StepCondition::Comparator {
+                    axis: 0,
+                    quantity: Quantity::Position,
+                    window: Window::new(60_000, 84_000, Duration::from_millis(10)),
+                },
+                next: 11,
+            }
+        );
+        let r11 = gantry.get(11).unwrap();
+        assert_eq!(
+            r11.targets[..2],
+            [AxisTarget::Relative(40_000), AxisTarget::Relative(-40_000)]
+        );
+        assert_eq!((r11.delay_ms, r11.mc_in_chain), (50, false));
+        assert_eq!(r11.step.condition, StepCondition::Mc);
+        assert_eq!(
+            r11.alternative,
+            Some(Step {
+                condition: StepCondition::Input {
+                    bit: 0,
+                    edge: Edge::Rising
+                },
+                next: 13
+            })
+        );
+        assert_eq!(
+            gantry.get(12).unwrap().step.condition,
+            StepCondition::RecordReached {
+                group: 1,
+                record: 1
+            }
+        );
+        assert_eq!(gantry.get(13).unwrap().step.condition, StepCondition::End);
+        let (name, lift) = &t[1];
+        assert_eq!(name, "lift");
+        assert_eq!(
+            *lift.get(0).unwrap(),
+            Record {
+                targets: [
+                    AxisTarget::Absolute(320_000),
+                    keep,
+                    keep,
+                    keep,
+                    keep,
+                    keep,
+                    keep,
+                    keep
+                ],
+                step: Step {
+                    condition: StepCondition::Delay(200),
+                    next: 1
+                },
+                ..Record::default()
+            }
+        );
+        // The tables run: a chain starts on them.
+        let mut chain = crate::records::Chain::new();
+        chain
+            .start(gantry, 10, drivers::time::Instant::ZERO)
+            .unwrap();
+    }
+
+    #[test]
+    fn group_record_modes_and_comparator_units() {
+        let text = edited(&[
+            (
+                "step = { condition = \"position\", axis = \"x\", min = 150.0, max = 210.0, damping_ms = 10, next = 11 }",
+                "step = { condition = \"velocity\", axis = \"y\", min = -2.5, max = 2.5, next = 11 }\n\
+                 alternative = { condition = \"force\", axis = \"x\", min = -10.0, max = 20.5, damping_ms = 3, next = 13 }",
+            ),
+            (
+                "velocity = 50\n",
+                "velocity = 50\nmode = \"velocity\"\ntargets = { z = -1.0 }\n",
+            ),
+            ("targets = { z = 20.0 }\n", ""),
+            (
+                "condition = \"delay\", ms = 200,",
+                "condition = \"time\", min = 10.0, max = 30.0,",
+            ),
+        ]);
+        let t = tables(&text);
+        let r10 = t[0].1.get(10).unwrap();
+        assert_eq!(
+            r10.step.condition,
+            StepCondition::Comparator {
+                axis: 1,
+                quantity: Quantity::Velocity,
+                window: Window::new(-2_500, 2_500, Duration::ZERO),
+            }
+        );
+        assert_eq!(
+            r10.alternative.unwrap().condition,
+            StepCondition::Comparator {
+                axis: 0,
+                quantity: Quantity::Force,
+                window: Window::new(-100, 205, Duration::from_millis(3)),
+            }
+        );
+        let lift = &t[1].1;
+        assert_eq!(
+            lift.get(0).unwrap().step.condition,
+            StepCondition::Time { min: 10, max: 30 }
+        );
+        let r1 = lift.get(1).unwrap();
+        assert_eq!(r1.mode, RecordMode::Velocity);
+        assert_eq!(r1.targets[0], AxisTarget::Relative(-1));
+        let forced = edited(&[("velocity = 50\n", "mode = \"force\"\nforce = -12.5\n")]);
+        let r1 = *tables(&forced)[1].1.get(1).unwrap();
+        assert_eq!((r1.mode, r1.force_permille), (RecordMode::Force, -125));
+    }
+
+    #[test]
+    fn group_tables_refuse_what_check_refuses() {
+        let c = Config::parse(&edited(&[("node = 2", "node = 0")])).unwrap();
+        let e = c.group_tables().unwrap_err();
+        assert_eq!(e.key, "axes[1].node");
+    }
+
+    #[test]
+    fn each_bad_group_record_names_its_key() {
+        let cases: &[(&[(&str, &str)], &str)] = &[
+            (
+                &[("number = 13\n", "number = 300\n")],
+                "groups[0].records[3].number: 300 is outside 0..=255",
+            ),
+            (
+                &[("number = 12\n", "number = 11\n")],
+                "groups[0].records[2].number: record 11 of group \"gantry\" is already defined by groups[0].records[1]",
+            ),
+            (
+                &[("next = 11 }", "next = 19 }")],
+                "groups[0].records[0].step.next: group \"gantry\" has no record 19",
+            ),
+            (
+                &[("next = 13 }", "next = 14 }")],
+                "groups[0].records[1].alternative.next: group \"gantry\" has no record 14",
+            ),
+            (
+                &[("x = 200.0, y = 100.0", "x = 200.0, z = 100.0")],
+                "groups[0].records[0].targets.z: axis \"z\" is not in group \"gantry\"",
+            ),
+            (
+                &[("x = 200.0, y = 100.0", "x = 200.0, w = 100.0")],
+                "groups[0].records[0].targets.w: no axis named \"w\"",
+            ),
+            (
+                &[("x = 200.0, y = 100.0", "x = 500.0, y = 100.0")],
+                "groups[0].records[0].targets.x: 500 is outside 0..=400",
+            ),
+            (
+                &[("x = 100.0, y = -40.0", "x = 100.0, y = -400.0")],
+                "groups[0].records[1].targets.y: -400 is outside -300..=300",
+            ),
+            (
+                &[("x = 100.0, y = -40.0", "x = nan, y = -40.0")],
+                "groups[0].records[1].targets.x: NaN is not a finite number",
+            ),
+            (
+                &[("velocity = 80 ", "velocity = 0 ")],
+                "groups[0].records[0].velocity: 0 is outside 1..=100",
+            ),
+            (
+                &[("acceleration = 50\n", "acceleration = 150\n")],
+                "groups[0].records[0].acceleration: 150 is outside 1..=100",
+            ),
+            (
+                &[("min = 150.0, max = 210.0", "min = 210.0, max = 150.0")],
+                "groups[0].records[0].step.min: min 210 is above max 150: the condition could never be met",
+            ),
+            (
+                &[("axis = \"x\", min", "axis = \"z\", min")],
+                "groups[0].records[0].step.axis: axis \"z\" is not in group \"gantry\"",
+            ),
+            (
+                &[(
+                    "condition = \"position\", axis = \"x\", ",
+                    "condition = \"position\", ",
+                )],
+                "groups[0].records[0].step.axis: missing: a position step needs it",
+            ),
+            (
+                &[("min = 150.0, max = 210.0", "min = 195.0, max = 9000000.0")],
+                "groups[0].records[0].step.max: 9000000 units are 3600000000 increments, outside the drive's 32-bit range",
+            ),
+            (
+                &[(
+                    "condition = \"mc\", next = 12",
+                    "condition = \"mc\", ms = 5, next = 12",
+                )],
+                "groups[0].records[1].step.ms: an mc step does not take this key",
+            ),
+            (
+                &[("input = 0,", "input = 32,")],
+                "groups[0].records[1].alternative.input: 32 is outside 0..=31",
+            ),
+            (
+                &[(
+                    "group = \"lift\", record = 1",
+                    "group = \"lifter\", record = 1",
+                )],
+                "groups[0].records[2].step.group: no group named \"lifter\"",
+            ),
+            (
+                &[(
+                    "group = \"lift\", record = 1",
+                    "group = \"lift\", record = 5",
+                )],
+                "groups[0].records[2].step.record: group \"lift\" has no record 5",
+            ),
+            (
+                &[("group = \"lift\", record = 1", "record = 1")],
+                "groups[0].records[2].step.group: missing: a record step needs it",
+            ),
+            (
+                &[("condition = \"delay\", ms = 200,", "condition = \"delay\",")],
+                "groups[1].records[0].step.ms: missing: a delay step needs it",
+            ),
+            (
+                &[(
+                    "condition = \"delay\", ms = 200,",
+                    "condition = \"time\", min = 30.0, max = 10.0,",
+                )],
+                "groups[1].records[0].step.min: min 30 is above max 10",
+            ),
+            (
+                &[(
+                    "condition = \"delay\", ms = 200,",
+                    "condition = \"time\", min = -1.0, max = 10.0,",
+                )],
+                "groups[1].records[0].step.min: -1 is outside 0..=4294967295",
+            ),
+            (
+                &[("velocity = 50\n", "velocity = 50\nmode = \"force\"\n")],
+                "groups[1].records[1].force: missing: a force record needs it",
+            ),
+            (
+                &[(
+                    "velocity = 50\n",
+                    "velocity = 50\nmode = \"force\"\nforce = 400.0\n",
+                )],
+                "groups[1].records[1].force: 400 is outside -300..=300",
+            ),
+            (
+                &[("velocity = 50\n", "velocity = 50\nforce = 20.0\n")],
+                "groups[1].records[1].force: a position record does not take this key",
+            ),
+            (
+                &[(
+                    "step = { condition = \"delay\", ms = 200, next = 1 }",
+                    "alternative = { condition = \"mc\", next = 1 }",
+                )],
+                "groups[1].records[0].alternative: an alternative needs a step",
+            ),
+            (
+                &[(
+                    "axes = [\"z\"]",
+                    "axes = [\"z\", \"gripper\", \"a\", \"b\", \"c\", \"d\", \"e\", \"f\", \"g\"]",
+                )],
+                "groups[1].records: a group with records has at most 8 axes, this one has 9",
+            ),
+        ];
+        for (edits, expected) in cases {
+            let e = errors(&edited(edits));
+            assert!(
+                e.iter().any(|m| m.starts_with(expected)),
+                "{edits:?}: expected {expected:?}, got {e:#?}"
+            );
+        }
+        // Typos in a step are parse errors naming the key.
+        let e = Config::parse(&edited(&[("damping_ms = 10,", "dampng_ms = 10,")])).unwrap_err();
+        assert!(e.to_string().contains("unknown field `dampng_ms`"), "{e}");
+        let e = Config::parse(&edited(&[(
+            "condition = \"mc\"",
+            "condition = \"arrived\"",
+        )]))
+        .unwrap_err();
+        assert!(e.to_string().contains("arrived"), "{e}");
+    }
+
+    #[test]
+    fn one_bad_record_does_not_drag_its_referrers_into_the_report() {
+        // Record 13 refused for its targets: the records stepping to it are not also refused.
+        let e = errors(&edited(&[("x = 10.0, y = 0.0", "x = 10.0, y = 900.0")]));
+        assert_eq!(
+            e,
+            ["groups[0].records[3].targets.y: 900 is outside -50..=250"]
+        );
+    }
+
+    /// The example's chains in virtual time: 2 ms cycles, each axis moving linearly toward its
+    /// target at its share of its velocity limit, `motion_done` when every axis is there.
+    /// Returns every group's actions with their cycle.
+    fn run_example_chains(
+        di_rises_at: Option<u64>,
+    ) -> Vec<Vec<(u64, crate::records::ChainAction)>> {
+        use crate::records::{Chain, ChainAction, ChainInputs};
+        use drivers::time::Instant;
+        let c = Config::parse(EXAMPLE).unwrap();
+        let tables = c.group_tables().unwrap();
+        struct G {
+            chain: Chain,
+            pos: Vec<i64>,
+            target: Vec<i64>,
+            speed: Vec<i64>,
+            rate: Vec<i64>,
+            done: bool,
+            log: Vec<(u64, ChainAction)>,
+        }
+        let mut groups: Vec<G> = c
+            .groups
+            .iter()
+            .map(|g| {
+                let rate: Vec<i64> = g
+                    .axes
+                    .iter()
+                    .map(|n| {
+                        let a = c.axes.iter().find(|a| &a.name == n).unwrap();
+                        (a.limits.velocity * a.increments_per_unit * 0.002) as i64
+                    })
+                    .collect();
+                G {
+                    chain: Chain::new(),
+                    pos: vec![0; g.axes.len()],
+                    target: vec![0; g.axes.len()],
+                    speed: rate.clone(),
+                    rate,
+                    done: true,
+                    log: Vec::new(),
+                }
+            })
+            .collect();
+        groups[0]
+            .chain
+            .start(&tables[0].1, 10, Instant::ZERO)
+            .unwrap();
+        groups[1]
+            .chain
+            .start(&tables[1].1, 0, Instant::ZERO)
+            .unwrap();
+        let (mut di, mut previous) = (0u32, 0u32);
+        for cycle in 0..5000u64 {
+            if Some(cycle) == di_rises_at {
+                di = 1;
+            }
+            let reached: Vec<Option<u16>> =
+                groups.iter().map(|g| g.chain.status().reached).collect();
+            for (gi, g) in groups.iter_mut().enumerate() {
+                for ((p, t), v) in g.pos.iter_mut().zip(&g.target).zip(&g.speed) {
+                    *p += (*t - *p).clamp(-v, *v);
+                }
+                g.done = g.done || g.pos == g.target;
+                let zeros = vec![0i64; g.pos.len()];
+                let inputs = ChainInputs {
+                    now: Instant::from_millis(2 * cycle),
+                    cycle,
+                    motion_done: g.done,
+                    positions: &g.pos,
+                    velocities: &zeros,
+                    forces: &[],
+                    inputs: di,
+                    previous_inputs: previous,
+                    reached: &reached,
+                };
+                let table = &tables[gi].1;
+                for a in g.chain.step(table, &inputs) {
+                    g.log.push((cycle, a));
+                    if let ChainAction::StartMotion { record } = a {
+                        let r = table.get(record).unwrap();
+                        for (i, t) in r.targets.iter().take(g.pos.len()).enumerate() {
+                            g.target[i] = match *t {
+                                AxisTarget::Keep => g.pos[i],
+                                AxisTarget::Absolute(x) => x,
+                                AxisTarget::Relative(d) => g.pos[i] + d,
+                            };
+                            g.speed[i] = (g.rate[i] * i64::from(r.velocity_percent) / 100).max(1);
+                        }
+                        g.done = false;
+                    }
+                }
+            }
+            previous = di;
+        }
+        groups.into_iter().map(|g| g.log).collect()
+    }
+
+    #[test]
+    fn the_example_chains_run_across_groups() {
+        use crate::records::ChainAction::{Complete, Reached, StartMotion};
+        let logs = run_example_chains(None);
+        let what = |log: &[(u64, crate::records::ChainAction)]| {
+            log.iter().map(|(_, a)| *a).collect::<Vec<_>>()
+        };
+        // Gantry: 10 steps on the fly (x in its window), 11 (no MC shown) at MC to 12, which
+        // waits for the lift's record 1, then 13 ends the chain.
+        assert_eq!(
+            what(&logs[0]),
+            [
+                StartMotion { record: 10 },
+                StartMotion { record: 11 },
+                StartMotion { record: 12 },
+                Reached { record: 12 },
+                StartMotion { record: 13 },
+                Reached { record: 13 },
+                Complete { record: 13 },
+            ]
+        );
+        assert_eq!(
+            what(&logs[1]),
+            [
+                StartMotion { record: 0 },
+                Reached { record: 0 },
+                StartMotion { record: 1 },
+                Reached { record: 1 },
+                Complete { record: 1 },
+            ]
+        );
+        let at = |log: &[(u64, crate::records::ChainAction)], a| {
+            log.iter().find(|(_, x)| *x == a).unwrap().0
+        };
+        // Record 10 hands over before its move could arrive (x needs 80 000 inc at 96 inc per
+        // cycle, 834 cycles): x enters the window (60 000) at cycle 625, plus 5 cycles of
+        // damping, plus record 11's start delay of 25 cycles.
+        assert_eq!(at(&logs[0], StartMotion { record: 11 }), 625 + 5 + 25);
+        // The lift's delay: 200 ms = 100 cycles after its MC.
+        assert_eq!(
+            at(&logs[1], StartMotion { record: 1 }) - at(&logs[1], Reached { record: 0 }),
+            100
+        );
+        // The gantry waited at 12 for the lift and went on in the cycle after it was seen.
+        let lift_done = at(&logs[1], Reached { record: 1 });
+        assert!(at(&logs[0], Reached { record: 12 }) < lift_done);
+        assert_eq!(at(&logs[0], StartMotion { record: 13 }), lift_done + 1);
+    }
+
+    #[test]
+    fn the_example_chain_branches_on_the_input() {
+        use crate::records::ChainAction::{Complete, StartMotion};
+        let plain = run_example_chains(None);
+        let start_11 = plain[0]
+            .iter()
+            .find(|(_, a)| *a == StartMotion { record: 11 })
+            .unwrap()
+            .0;
+        // Input 0 rises while record 11 moves: the alternative, record 13, at once.
+        let logs = run_example_chains(Some(start_11 + 5));
+        let gantry: Vec<_> = logs[0].iter().map(|(_, a)| *a).collect();
+        assert_eq!(
+            gantry[..3],
+            [
+                StartMotion { record: 10 },
+                StartMotion { record: 11 },
+                StartMotion { record: 13 }
+            ]
+        );
+        assert_eq!(logs[0][2].0, start_11 + 5);
+        assert!(gantry.contains(&Complete { record: 13 }));
     }
 }

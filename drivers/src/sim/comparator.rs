@@ -30,6 +30,14 @@ pub struct Window {
 }
 
 impl Window {
+    /// A window over `[min, max]` held for `damping` (`min > max` makes it never active).
+    pub const fn new(min: i64, max: i64, damping: Duration) -> Window {
+        Window { min, max, damping }
+    }
+
+    /// A window that is never active (`min > max`), for "no comparator here".
+    pub const NEVER: Window = Window::new(1, 0, Duration::ZERO);
+
     /// Whether the comparator can ever be active: never where `min > max`.
     pub const fn enabled(&self) -> bool {
         self.min <= self.max
