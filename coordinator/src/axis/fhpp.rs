@@ -24,8 +24,8 @@
 //!
 //! Streaming (`Follow`): a START while a task runs retargets (MTR-DCI digest 000 E7; EMCA and
 //! CMMO-ST with the direct start condition PNU 583 = 1 "interrupt", which the boot must write).
-//! Each target is the path's position [`LEAD_CYCLES`] cycles ahead (when the next target will
-//! arrive), with a speed of 5/4 of the path's (at least [`FhppSettings::min_follow_velocity`])
+//! Each target is the path's position as many cycles ahead as the last handshake took (at
+//! least [`MIN_LEAD_CYCLES`]: when the next target will arrive), with a speed of 5/4 of the path's (at least [`FhppSettings::min_follow_velocity`])
 //! so the drive's generator keeps up. `motion_complete` is set only when the last target the
 //! drive acknowledged equals the demanded position and SPOS.MC = 1 after that acknowledge.
 //!
@@ -44,12 +44,15 @@ use super::{AxisError, AxisState, Demand, Feedback, Image};
 /// Bytes of the FHPP cyclic image, each way.
 pub const IMAGE_LEN: usize = 8;
 
-/// How many cycles ahead a streamed target is placed: a target is taken every second cycle.
-pub const LEAD_CYCLES: i64 = 2;
+/// The fewest cycles a streamed target is placed ahead of the path (a target is taken every
+/// second cycle at best); the lead follows the cycles the last handshake took.
+pub const MIN_LEAD_CYCLES: u32 = 2;
+/// The most cycles a streamed target is placed ahead of the path.
+pub const MAX_LEAD_CYCLES: u32 = 8;
 
 /// A START that the drive did not acknowledge within this many images is dropped and raised
 /// again (the drive can miss an edge in the cycle it finishes the previous task).
-const RETRY_CYCLES: u32 = 4;
+const RETRY_CYCLES: u32 = 6;
 
 /// Drive settings the axis needs to scale its setpoints (the boot reads or writes them).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -134,6 +137,8 @@ pub struct FhppAxis {
     continuous: bool,
     /// The record select payload's record number (kept for teach and halt).
     record: u8,
+    /// Cycles since the last streamed START was raised.
+    since_raise: u32,
 }
 
 impl FhppAxis {
@@ -157,6 +162,7 @@ impl FhppAxis {
             acked_target: None,
             continuous: false,
             record: 0,
+            since_raise: 0,
         }
     }
 
@@ -584,8 +590,13 @@ impl FhppAxis {
 
     /// `Follow`: direct position targets on START edges, one per handshake.
     fn follow(&mut self, fresh: bool, position: i64, velocity: i64) {
-        let lead = velocity.saturating_mul(LEAD_CYCLES * i64::from(self.cycle_ns)) / 1_000_000_000;
-        let target = clamp_i32(position.saturating_add(lead));
+        self.since_raise = self.since_raise.saturating_add(1);
+        let lead = self.since_raise.clamp(MIN_LEAD_CYCLES, MAX_LEAD_CYCLES);
+        let ahead =
+            i128::from(velocity) * i128::from(lead) * i128::from(self.cycle_ns) / 1_000_000_000;
+        let target = clamp_i32(
+            (i128::from(position) + ahead).clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i64,
+        );
         let speed = self.follow_speed(velocity);
         if !self.enable(Opm::Direct) {
             self.stream = Stream::Free;
@@ -610,6 +621,7 @@ impl FhppAxis {
         }
         if self.stream == Stream::Free && self.acked_target != Some(target) {
             self.stream = Stream::Raised { target, images: 0 };
+            self.since_raise = 0;
             self.payload = OutputPayload::Direct(DirectSetpoint::position(target, speed, false));
         }
         self.cpos = Cpos {
