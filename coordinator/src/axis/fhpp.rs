@@ -25,7 +25,9 @@
 //! Streaming (`Follow`): a START while a task runs retargets (MTR-DCI digest 000 E7; EMCA and
 //! CMMO-ST with the direct start condition PNU 583 = 1 "interrupt", which the boot must write).
 //! Each target is the path's position as many cycles ahead as the last handshake took (at
-//! least [`MIN_LEAD_CYCLES`]: when the next target will arrive), with a speed of 5/4 of the path's (at least [`FhppSettings::min_follow_velocity`])
+//! least [`MIN_LEAD_CYCLES`]: when the next target will arrive) plus the drive's braking
+//! distance at the path's speed ([`FhppSettings::deceleration`]: the drive plans to stop at
+//! every target), never going back while moving, and exact once the path stands; a speed of 5/4 of the path's (at least [`FhppSettings::min_follow_velocity`])
 //! so the drive's generator keeps up. `motion_complete` is set only when the last target the
 //! drive acknowledged equals the demanded position and SPOS.MC = 1 after that acknowledge.
 //!
@@ -65,17 +67,23 @@ pub struct FhppSettings {
     pub min_follow_velocity: u32,
     /// Direct speed mode ramp, % of PNU 560.
     pub speed_ramp_percent: u8,
+    /// The drive's direct-mode deceleration, inc/s² (PNU 541/542, or 503 where those are 0).
+    /// A streamed target is placed this much further ahead than the path's braking distance
+    /// at it, so the drive's generator, which plans to stop at every target, runs at the path's
+    /// speed instead of lagging by its own braking distance; 0 = no such allowance.
+    pub deceleration: u32,
     /// Images a handshake phase may take before the demand is reported failed (0 = never).
     pub handshake_timeout: u32,
 }
 
 impl Default for FhppSettings {
-    /// The simulators' default axis: 100 000 inc/s maximum speed.
+    /// The simulators' default axis: 100 000 inc/s maximum speed, 480 000 inc/s².
     fn default() -> Self {
         FhppSettings {
             base_velocity: 100_000,
             min_follow_velocity: 5_000,
             speed_ramp_percent: 100,
+            deceleration: 480_000,
             handshake_timeout: 0,
         }
     }
@@ -592,11 +600,22 @@ impl FhppAxis {
     fn follow(&mut self, fresh: bool, position: i64, velocity: i64) {
         self.since_raise = self.since_raise.saturating_add(1);
         let lead = self.since_raise.clamp(MIN_LEAD_CYCLES, MAX_LEAD_CYCLES);
-        let ahead =
-            i128::from(velocity) * i128::from(lead) * i128::from(self.cycle_ns) / 1_000_000_000;
-        let target = clamp_i32(
+        let v = i128::from(velocity);
+        let mut ahead = v * i128::from(lead) * i128::from(self.cycle_ns) / 1_000_000_000;
+        if self.settings.deceleration > 0 {
+            // The drive's braking distance at the path's speed, in the direction of travel.
+            ahead += v * v.abs() / (2 * i128::from(self.settings.deceleration));
+        }
+        let mut target = clamp_i32(
             (i128::from(position) + ahead).clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i64,
         );
+        // While moving, a target never goes back against the direction of travel (the
+        // allowance shrinks when the path brakes harder than the drive); at rest it is exact.
+        if let Some(last) = self.acked_target
+            && ((velocity > 0 && target < last) || (velocity < 0 && target > last))
+        {
+            target = last;
+        }
         let speed = self.follow_speed(velocity);
         if !self.enable(Opm::Direct) {
             self.stream = Stream::Free;
@@ -827,14 +846,15 @@ mod tests {
         };
         let (out, _) = ex(&mut a, Some(&ready(0x85)), d(0));
         // CCON direct (0x63), START, CDIR absolute position, 13 % (12 500 inc/s of 100 000),
-        // target 0 + 10 000 inc/s * 4 ms = 40.
+        // target 0 + 10 000 inc/s * 4 ms = 40, plus the drive's braking distance at 10 000 inc/s
+        // (10 000² / (2 * 480 000) = 104).
         assert_eq!(&out[..4], &[0x63, 0x03, 0x00, 13]);
-        assert_eq!(i32::from_le_bytes([out[4], out[5], out[6], out[7]]), 40);
+        assert_eq!(i32::from_le_bytes([out[4], out[5], out[6], out[7]]), 144);
         let (out, _) = ex(&mut a, Some(&ready(0x83)), d(20));
         assert_eq!(out[1], 0x01, "ACK seen: START = 0");
         let (out, fb) = ex(&mut a, Some(&ready(0x81)), d(40));
         assert_eq!(out[1], 0x03, "ACK = 0: the next target at once");
-        assert_eq!(i32::from_le_bytes([out[4], out[5], out[6], out[7]]), 80);
+        assert_eq!(i32::from_le_bytes([out[4], out[5], out[6], out[7]]), 184);
         assert!(!fb.motion_complete);
     }
 
