@@ -77,6 +77,15 @@ impl FhppRig {
         self.until(d, max_ms, |f| f.done)
     }
 
+    /// Repeats `d` for `ms`.
+    fn run(&mut self, d: Demand, ms: u64) -> Feedback {
+        let end = self.t + Duration::from_millis(ms);
+        while self.t < end {
+            self.step(d);
+        }
+        self.fb
+    }
+
     fn actual(&self) -> i64 {
         self.drive.axis().status().position
     }
@@ -145,6 +154,45 @@ fn fhpp_scenario(variant: Variant) {
     assert!(fb.motion_complete);
     assert!((fb.position - rec_target).abs() <= 750, "{fb:?}");
     assert_eq!(r.drive.axis().status().setpoint, rec_target);
+
+    // Jog: JOGP held moves the axis on, released it stops.
+    let from = r.actual();
+    r.done(
+        Demand::Jog {
+            positive: true,
+            velocity: 0,
+        },
+        200,
+    );
+    r.run(
+        Demand::Jog {
+            positive: true,
+            velocity: 0,
+        },
+        300,
+    );
+    let fb = r.until(Demand::Standstill, 2_000, |f| f.state == AxisState::Ready);
+    assert!(
+        fb.position > from + 100,
+        "jogged from {from} to {}",
+        fb.position
+    );
+
+    // Halt in the middle of a record, then another record: the halted one is deleted first.
+    let sub2 = record_subindex(variant, 2).unwrap();
+    r.drive.set_pnu(404, sub2, rec_target + 200_000).unwrap();
+    r.drive.set_pnu(406, sub2, 40_000).unwrap();
+    if variant != Variant::MtrDci {
+        r.drive.set_pnu(407, sub2, 200_000).unwrap();
+        r.drive.set_pnu(408, sub2, 200_000).unwrap();
+    }
+    let d2 = Demand::DriveRecord { number: 2 };
+    r.until(d2, 1_000, |f| f.velocity > 20_000);
+    let fb = r.done(Demand::Halt, 1_000);
+    assert_eq!(fb.state, AxisState::Stopping, "halted, task kept");
+    assert!(r.drive.axis().status().velocity.abs() < 1_000);
+    let fb = r.done(d, 10_000);
+    assert!((fb.position - rec_target).abs() <= 750, "{fb:?}");
 
     // A fault (over-temperature) while enabled, acknowledged once the cause is gone.
     r.drive.inject(Injection::OverTemperature, true);

@@ -19,7 +19,7 @@
 //! | `Force` | direct | CDIR force, value 2 = ‰ (EMCA/CMMO-ST) or % of rated current (MTR-DCI), value 1 = speed limit % | MC after ACK |
 //! | `DriveRecord` | record select | byte 3 = record, START handshake | MC after ACK |
 //! | `Teach` | kept | CPOS.TEACH high until SPOS.TEACH answers, then low until it answers again | the second answer |
-//! | `Halt` | kept | CPOS.HALT = 0, the rest kept | SPOS.MOV = 0 |
+//! | `Halt` | kept | CPOS.HALT = 0, the rest kept (a task demanded next first sends CPOS.CLEAR, TA6, so the halted task is deleted, not resumed) | SPOS.MOV = 0 |
 //! | `QuickStop` | kept | CCON.STOP = 0 (T4) | SPOS.MOV = 0 and MC = 1 |
 //!
 //! Streaming (`Follow`): a START while a task runs retargets (MTR-DCI digest 000 E7; EMCA and
@@ -147,6 +147,8 @@ pub struct FhppAxis {
     record: u8,
     /// Cycles since the last streamed START was raised.
     since_raise: u32,
+    /// CPOS.CLEAR images still to send before a task after a halt.
+    clearing: u8,
 }
 
 impl FhppAxis {
@@ -171,6 +173,7 @@ impl FhppAxis {
             continuous: false,
             record: 0,
             since_raise: 0,
+            clearing: 0,
         }
     }
 
@@ -295,10 +298,42 @@ impl FhppAxis {
         self.handshake = StartHandshake::new(self.settings.handshake_timeout);
         self.feedback.failed = false;
         self.feedback.done = false;
-        if !matches!(demand, Demand::Follow { .. }) {
-            self.stream = Stream::Free;
-            self.acked_target = None;
+        // `begin` runs only when the task changes: a new stream starts afresh.
+        self.stream = Stream::Free;
+        self.acked_target = None;
+        self.since_raise = 0;
+        // After a halt the drive sits in "intermediate stop" keeping its task: a START there
+        // resumes that task (TA4) and HOM is ignored, so a new task first deletes it (TA6).
+        let task = matches!(
+            demand,
+            Demand::Follow { .. }
+                | Demand::Home
+                | Demand::DriveRecord { .. }
+                | Demand::Velocity { .. }
+                | Demand::Force { .. }
+        );
+        self.clearing = if task && self.demand == Demand::Halt {
+            2
+        } else {
+            0
+        };
+    }
+
+    /// Sends CPOS.CLEAR (HALT = 1, no START) until the drive has had an image with it; `true`
+    /// while that runs.
+    fn clear_halted(&mut self, fresh: bool) -> bool {
+        if fresh {
+            self.clearing = self.clearing.saturating_sub(1);
         }
+        if self.clearing == 0 {
+            return false;
+        }
+        self.enable(self.current_opm());
+        self.cpos = Cpos {
+            clear: true,
+            ..Cpos::idle()
+        };
+        true
     }
 
     /// Refuses what the variant cannot do.
@@ -503,7 +538,7 @@ impl FhppAxis {
     /// A task started with the START (or HOM, `hom`) handshake in `opm`: enable, then the
     /// four steps; done at MC after ACK.
     fn handshake_task(&mut self, fresh: bool, opm: Opm, hom: bool) {
-        if !self.enable(opm) {
+        if self.clear_halted(fresh) || !self.enable(opm) {
             return;
         }
         if self.step == Step::Start {
@@ -617,6 +652,9 @@ impl FhppAxis {
             target = last;
         }
         let speed = self.follow_speed(velocity);
+        if self.clear_halted(fresh) {
+            return;
+        }
         if !self.enable(Opm::Direct) {
             self.stream = Stream::Free;
             self.payload = OutputPayload::Direct(DirectSetpoint::position(target, speed, false));
@@ -912,6 +950,24 @@ mod tests {
         let (out, fb) = ex(&mut a, Some(&inp(0x11, 0x84, 0, 0, 0)), Demand::QuickStop);
         assert_eq!(out[0] & 0x03, 0x01, "CCON.STOP = 0, ENABLE = 1");
         assert!(fb.done);
+    }
+
+    #[test]
+    fn a_task_after_halt_first_clears_the_halted_one() {
+        let mut a = axis(Variant::MtrDci);
+        ex(
+            &mut a,
+            Some(&inp(0x13, 0x91, 1, 0, 0)),
+            Demand::DriveRecord { number: 1 },
+        );
+        ex(&mut a, Some(&inp(0x13, 0x91, 1, 0, 0)), Demand::Halt);
+        // Halted (SPOS.HALT = 0, MC = 0): CLEAR with HALT = 1 and no START.
+        let d = Demand::DriveRecord { number: 2 };
+        let (out, _) = ex(&mut a, Some(&inp(0x13, 0x80, 1, 0, 0)), d);
+        assert_eq!(out[1], 0x41);
+        // Ready again (TA6): the new record's START.
+        let (out, _) = ex(&mut a, Some(&inp(0x13, 0x85, 1, 0, 0)), d);
+        assert_eq!((out[1], out[2]), (0x03, 2));
     }
 
     #[test]
