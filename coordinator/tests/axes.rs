@@ -199,6 +199,8 @@ fn fhpp_scenario(variant: Variant) {
     let fb = r.until(Demand::Standstill, 500, |f| f.state == AxisState::Fault);
     assert!(!fb.done);
     r.drive.inject(Injection::OverTemperature, false);
+    let fb = r.run(Demand::Standstill, 100);
+    assert_eq!(fb.state, AxisState::Fault, "enabling does not acknowledge");
     let fb = r.done(Demand::Acknowledge, 500);
     assert_ne!(fb.state, AxisState::Fault);
     assert!(r.drive.fault_number().is_none());
@@ -458,6 +460,9 @@ fn cia402_tlc5xx_enable_home_follow_halt_fault_reset() {
     let fb = r.until(Demand::Standstill, 500, |f| f.state == AxisState::Fault);
     assert!(!fb.done);
     r.tlc.set_over_temperature(false);
+    for _ in 0..50 {
+        assert_eq!(r.step(Demand::Standstill).state, AxisState::Fault);
+    }
     let fb = r.done(Demand::Acknowledge, 500);
     assert_eq!(fb.state, AxisState::Disabled);
     assert!(r.tlc.faults().is_empty());

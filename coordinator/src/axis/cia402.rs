@@ -14,7 +14,8 @@
 //! TLC5xx switches modes only at standstill, p.9-112) before it raises bit 4.
 //!
 //! What each [`Demand`] puts on the wire (every demand that needs power first steps the state
-//! machine toward Operation enabled with [`next_controlword`], bits 4..8 low on the way):
+//! machine toward Operation enabled with [`next_controlword`], bits 4..8 low on the way; in
+//! Fault it sends Disable voltage and waits: only `Acknowledge` makes the bit 7 edge):
 //!
 //! | demand | 6060h | controlword | done when |
 //! |---|---|---|---|
@@ -425,6 +426,12 @@ impl Cia402Axis {
     fn power(&mut self) -> bool {
         match self.state() {
             Some(State::OperationEnabled) => true,
+            Some(State::Fault | State::FaultReactionActive) => {
+                // Only `Acknowledge` resets a fault: bit 7 stays low here.
+                self.cw = Command::DisableVoltage.controlword();
+                self.pp.reset();
+                false
+            }
             Some(s) => {
                 let base = Controlword(self.cw.0 & Controlword::FAULT_RESET);
                 self.cw = next_controlword(s, base);
@@ -907,6 +914,23 @@ mod tests {
         let (_, fb) = ex(&mut a, &tpdo(0x0007, 30, 1), Demand::QuickStop);
         assert!(fb.done);
         assert_eq!(fb.state, AxisState::Stopping);
+    }
+
+    #[test]
+    fn enabling_never_resets_a_fault() {
+        let mut a = axis();
+        for _ in 0..3 {
+            let (o, fb) = ex(
+                &mut a,
+                &tpdo(0x0008, 0, 1),
+                Demand::Follow {
+                    position: 5,
+                    velocity: 0,
+                },
+            );
+            assert_eq!(o.controlword.0, 0x0000);
+            assert_eq!(fb.state, AxisState::Fault);
+        }
     }
 
     #[test]

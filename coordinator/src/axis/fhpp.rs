@@ -5,7 +5,8 @@
 //!
 //! What each [`Demand`] puts on the wire (CCON always carries LOCK = 1 so FCT cannot take
 //! control from under the coordinator; every demand that needs the drive enabled first runs
-//! [`bring_up`] toward S4 in the demand's operating mode):
+//! [`bring_up`] toward S4 in the demand's operating mode, except that a fault is never reset
+//! by it: with SCON.FAULT the axis keeps CCON without edges and waits for `Acknowledge`):
 //!
 //! | demand | OPM | CCON / CPOS / bytes 3..8 | done when |
 //! |---|---|---|---|
@@ -394,6 +395,13 @@ impl FhppAxis {
             self.cpos = Cpos::idle();
             return false;
         };
+        if scon.fault {
+            // Only `Acknowledge` resets a fault: an enabling demand waits without an edge
+            // (CCON kept, RESET = 0; on the MTR-DCI an ENABLE fall would acknowledge, T9).
+            self.ccon.reset = false;
+            self.cpos = Cpos::idle();
+            return false;
+        }
         match bring_up(scon, self.ccon, opm) {
             BringUp::Ready(c) => {
                 self.ccon = c;
@@ -937,6 +945,16 @@ mod tests {
         assert_eq!(o3[0] & 0x08, 0);
         assert!(fb.done);
         assert_eq!(fb.state, AxisState::Disabled);
+    }
+
+    #[test]
+    fn enabling_never_resets_a_fault() {
+        let mut a = axis(Variant::MtrDci);
+        for _ in 0..3 {
+            let (out, fb) = ex(&mut a, Some(&inp(0x18, 0x04, 0, 0, 0)), Demand::Standstill);
+            assert_eq!(out[0] & 0x08, 0, "RESET = 0");
+            assert_eq!(fb.state, AxisState::Fault);
+        }
     }
 
     #[test]
