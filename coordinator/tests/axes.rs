@@ -248,16 +248,18 @@ fn fhpp_emca_enable_home_follow_record_fault_quick_stop() {
 
 use coordinator::axis::pdo_mapping;
 use drivers::can::Frame;
-use drivers::canopen::NodeId;
 use drivers::canopen::endpoint::Endpoint;
+use drivers::canopen::{FunctionCode, NodeId};
 use drivers::cia402::state::State as DriveState;
 use drivers::sim::axis::{Environment, Load, SwitchZone};
+use drivers::sim::mtr_dci::{MtrDci, Profile as MtrProfile};
 use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
 
-/// The TLC5xx driven directly as a CANopen endpoint: per cycle a SYNC, the synchronous TPDO1
+/// A CANopen drive driven directly as an endpoint: per cycle a SYNC, the synchronous TPDO1
 /// it answers with, the axis, and the RPDO1 (type 1: applied at the next SYNC).
-struct TlcRig {
-    tlc: Tlc5xx,
+struct CoRig<E: Endpoint> {
+    dev: E,
+    node: NodeId,
     axis: DriveAxis,
     t: Instant,
     cycle: Duration,
@@ -267,37 +269,24 @@ struct TlcRig {
     missing: u32,
 }
 
-impl TlcRig {
-    fn new() -> TlcRig {
-        let mut cfg = TlcConfig::new(NodeId::new(1).unwrap());
-        cfg.environment = Environment {
-            travel: Some((-60_000, 400_000)),
-            limit_negative: Some(SwitchZone::below(-50_000)),
-            limit_positive: Some(SwitchZone::above(350_000)),
-            reference: Some(SwitchZone::cam(10_000, 12_000)),
-            load: Load::None,
-            index_phase: 0,
-        };
-        let cycle = Duration::from_millis(2);
-        let tlc = Tlc5xx::new(cfg, Instant::ZERO).unwrap();
-        let axis =
-            DriveAxis::new(DeviceKind::Tlc5xx, Profile::Cia402, cycle.as_nanos() as u32).unwrap();
-        let mut r = TlcRig {
-            tlc,
+impl<E: Endpoint> CoRig<E> {
+    fn new(dev: E, node: u8, kind: DeviceKind, cycle: Duration) -> CoRig<E> {
+        let axis = DriveAxis::new(kind, Profile::Cia402, cycle.as_nanos() as u32).unwrap();
+        CoRig {
+            dev,
+            node: NodeId::new(node).unwrap(),
             axis,
             t: Instant::ZERO,
             cycle,
             out: Image::default(),
             fb: Feedback::default(),
             missing: 0,
-        };
-        r.configure();
-        r
+        }
     }
 
     fn drain(&mut self) -> Vec<Frame> {
         let mut v = Vec::new();
-        while let Some(f) = self.tlc.poll_transmit(self.t) {
+        while let Some(f) = self.dev.poll_transmit(self.t) {
             v.push(f);
         }
         v
@@ -315,11 +304,12 @@ impl TlcRig {
         b[4..4 + data.len()].copy_from_slice(data);
         self.drain();
         self.t += Duration::from_micros(500);
-        self.tlc.handle_frame(&Frame::std8(0x601, b), self.t);
+        let rx = FunctionCode::SdoRx.cob_id(self.node);
+        self.dev.handle_frame(&Frame::std8(rx, b), self.t);
         let reply = self
             .drain()
             .into_iter()
-            .find(|f| f.cob_id() == Some(0x581))
+            .find(|f| f.cob_id() == Some(rx - 0x80))
             .expect("SDO reply");
         assert_eq!(
             reply.data()[0],
@@ -328,46 +318,48 @@ impl TlcRig {
         );
     }
 
-    /// The boot the coordinator does: PDO1 both ways from [`pdo_mapping`], synchronous;
-    /// profile velocity and ramps; homing method 23 (reference cam, negative side); start.
-    fn configure(&mut self) {
-        let map = pdo_mapping(DeviceKind::Tlc5xx, Profile::Cia402);
+    /// The PDO part of the coordinator's boot, from [`pdo_mapping`]: remappable PDOs are
+    /// disabled, mapped and enabled again; every PDO gets its transmission type.
+    fn configure_pdos(&mut self, kind: DeviceKind) {
+        let map = pdo_mapping(kind, Profile::Cia402);
         let rpdo = map.rpdo.unwrap();
         let tpdo = map.tpdo.unwrap();
         assert_eq!(rpdo.len(), self.axis.tx_len());
         assert_eq!(tpdo.len(), self.axis.rx_len());
         for (spec, comm, mapping) in [(rpdo, 0x1400u16, 0x1600u16), (tpdo, 0x1800, 0x1A00)] {
-            let cob = u32::from(spec.function.cob_id(NodeId::new(1).unwrap()));
+            let cob = u32::from(spec.function.cob_id(self.node));
             let comm = comm + u16::from(spec.number) - 1;
             let mapping = mapping + u16::from(spec.number) - 1;
-            self.sdo(comm, 1, &(cob | 0x8000_0000).to_le_bytes());
-            self.sdo(mapping, 0, &[0]);
-            for (k, e) in spec.mapping.iter().enumerate() {
-                self.sdo(mapping, k as u8 + 1, &e.to_le_bytes());
+            if spec.remappable {
+                self.sdo(comm, 1, &(cob | 0x8000_0000).to_le_bytes());
+                self.sdo(mapping, 0, &[0]);
+                for (k, e) in spec.mapping.iter().enumerate() {
+                    self.sdo(mapping, k as u8 + 1, &e.to_le_bytes());
+                }
+                self.sdo(mapping, 0, &[spec.mapping.len() as u8]);
             }
-            self.sdo(mapping, 0, &[spec.mapping.len() as u8]);
             self.sdo(comm, 2, &[spec.transmission]);
-            self.sdo(comm, 1, &cob.to_le_bytes());
+            if spec.remappable {
+                self.sdo(comm, 1, &cob.to_le_bytes());
+            }
         }
-        self.sdo(0x6081, 0, &1200u32.to_le_bytes());
-        self.sdo(0x6083, 0, &60_000u32.to_le_bytes());
-        self.sdo(0x6084, 0, &60_000u32.to_le_bytes());
-        self.sdo(0x6098, 0, &[23]);
-        self.sdo(0x6099, 1, &600i32.to_le_bytes());
-        self.sdo(0x6099, 2, &60i32.to_le_bytes());
+    }
+
+    fn start(&mut self) {
         self.t += Duration::from_micros(500);
-        self.tlc
+        self.dev
             .handle_frame(&Frame::new_std(0x000, &[0x01, 0x00]).unwrap(), self.t);
         self.drain();
     }
 
     fn step(&mut self, d: Demand) -> Feedback {
         self.t += self.cycle;
-        self.tlc.handle_timeout(self.t);
+        self.dev.handle_timeout(self.t);
         self.drain();
-        self.tlc
+        self.dev
             .handle_frame(&Frame::new_std(0x080, &[]).unwrap(), self.t);
-        let tpdo = self.drain().into_iter().find(|f| f.cob_id() == Some(0x181));
+        let tx = FunctionCode::Tpdo(1).cob_id(self.node);
+        let tpdo = self.drain().into_iter().find(|f| f.cob_id() == Some(tx));
         if tpdo.is_none() {
             self.missing += 1;
         }
@@ -376,9 +368,10 @@ impl TlcRig {
             .axis
             .exchange(input.as_deref(), &d, &mut self.out)
             .unwrap();
-        let rpdo = Frame::new_std(0x201, self.out.bytes()).unwrap();
+        let rx = FunctionCode::Rpdo(1).cob_id(self.node);
+        let rpdo = Frame::new_std(rx, self.out.bytes()).unwrap();
         let at = self.t + Duration::from_micros(300);
-        self.tlc.handle_frame(&rpdo, at);
+        self.dev.handle_frame(&rpdo, at);
         self.fb
     }
 
@@ -396,78 +389,142 @@ impl TlcRig {
     fn done(&mut self, d: Demand, max_ms: u64) -> Feedback {
         self.until(d, max_ms, |f| f.done)
     }
+
+    /// Streams `ramp` (all its cycles) as `Follow`; returns the worst |path − actual| with
+    /// `actual` read from the drive.
+    fn stream(&mut self, ramp: &Trapezoid, cycles: u64, actual: impl Fn(&E) -> i64) -> i64 {
+        let mut worst = 0;
+        let n = ramp.duration_cycles();
+        for k in 1..=cycles {
+            let s = ramp.sample(k);
+            let fb = self.step(Demand::Follow {
+                position: s.position,
+                velocity: s.velocity,
+            });
+            assert!(!fb.motion_complete, "complete at cycle {k} of {n}");
+            worst = worst.max((s.position - actual(&self.dev)).abs());
+        }
+        worst
+    }
+}
+
+/// The TLC5xx with a reference cam at 10 000..12 000 and limit switches, booted: PDO1 from
+/// [`pdo_mapping`], profile velocity and ramps, homing method 23, NMT start.
+fn tlc_rig() -> CoRig<Tlc5xx> {
+    let mut cfg = TlcConfig::new(NodeId::new(1).unwrap());
+    cfg.environment = Environment {
+        travel: Some((-60_000, 400_000)),
+        limit_negative: Some(SwitchZone::below(-50_000)),
+        limit_positive: Some(SwitchZone::above(350_000)),
+        reference: Some(SwitchZone::cam(10_000, 12_000)),
+        load: Load::None,
+        index_phase: 0,
+    };
+    let tlc = Tlc5xx::new(cfg, Instant::ZERO).unwrap();
+    let mut r = CoRig::new(tlc, 1, DeviceKind::Tlc5xx, Duration::from_millis(2));
+    r.configure_pdos(DeviceKind::Tlc5xx);
+    r.sdo(0x6081, 0, &1200u32.to_le_bytes());
+    r.sdo(0x6083, 0, &60_000u32.to_le_bytes());
+    r.sdo(0x6084, 0, &60_000u32.to_le_bytes());
+    r.sdo(0x6098, 0, &[23]);
+    r.sdo(0x6099, 1, &600i32.to_le_bytes());
+    r.sdo(0x6099, 2, &60i32.to_le_bytes());
+    r.start();
+    r
 }
 
 #[test]
 fn cia402_tlc5xx_enable_home_follow_halt_fault_reset() {
-    let mut r = TlcRig::new();
+    let mut r = tlc_rig();
     let fb = r.done(Demand::Standstill, 100);
     assert_eq!(fb.state, AxisState::Ready);
-    assert_eq!(r.tlc.drive_state(), DriveState::OperationEnabled);
+    assert_eq!(r.dev.drive_state(), DriveState::OperationEnabled);
 
     // Homing method 23 on the reference cam: mode 6, bit 4, bits 12 + 10.
     let fb = r.done(Demand::Home, 20_000);
     assert!(fb.homed && fb.motion_complete && !fb.failed, "{fb:?}");
-    assert!(r.tlc.referenced());
+    assert!(r.dev.referenced());
     assert_eq!(fb.position, 0);
-    assert_eq!(r.tlc.actual_usr(), 0);
+    assert_eq!(r.dev.actual_usr(), 0);
 
     // A trapezoid streamed as PP set-points: complete only on the final one.
     let target = 50_000;
     let limits = AxisLimits::new(100_000, 400_000, 0);
     let ramp = Trapezoid::plan(0, target, limits, r.cycle.as_nanos() as u32).unwrap();
     let n = ramp.duration_cycles();
-    let mut worst_lag = 0;
-    for k in 1..=n {
-        let s = ramp.sample(k);
-        let fb = r.step(Demand::Follow {
-            position: s.position,
-            velocity: s.velocity,
-        });
-        assert!(!fb.motion_complete, "complete at cycle {k} of {n}");
-        worst_lag = worst_lag.max((s.position - i64::from(r.tlc.actual_usr())).abs());
-    }
+    let worst_lag = r.stream(&ramp, n, |d| i64::from(d.actual_usr()));
     assert!(worst_lag < 1_000, "lag {worst_lag}");
-    assert_eq!(r.tlc.mode(), drivers::cia402::modes::Mode::ProfilePosition);
+    assert_eq!(r.dev.mode(), drivers::cia402::modes::Mode::ProfilePosition);
     let last = Demand::Follow {
         position: target,
         velocity: 0,
     };
     let fb = r.until(last, 2_000, |f| f.motion_complete);
     assert!((fb.position - target).abs() <= 10, "{fb:?}");
-    assert!((i64::from(r.tlc.actual_usr()) - target).abs() <= 10);
+    assert!((i64::from(r.dev.actual_usr()) - target).abs() <= 10);
     assert_eq!(fb.state, AxisState::Ready);
 
     // Halt in the middle of a long streamed move: bit 8, the axis stands with bit 10.
     let ramp = Trapezoid::plan(target, 300_000, limits, r.cycle.as_nanos() as u32).unwrap();
-    for k in 1..=ramp.duration_cycles() / 2 {
-        let s = ramp.sample(k);
-        r.step(Demand::Follow {
-            position: s.position,
-            velocity: s.velocity,
-        });
-    }
-    assert!(r.tlc.axis().status().velocity.abs() > 50_000);
+    r.stream(&ramp, ramp.duration_cycles() / 2, |d| {
+        i64::from(d.actual_usr())
+    });
+    assert!(r.dev.axis().status().velocity.abs() > 50_000);
     let fb = r.done(Demand::Halt, 1_000);
     assert_eq!(fb.state, AxisState::Ready);
-    assert!(r.tlc.axis().status().standstill);
+    assert!(r.dev.axis().status().standstill);
     let held = fb.position;
     r.step(Demand::Halt);
     assert_eq!(r.step(Demand::Halt).position, held, "stands while halted");
 
     // A fault (over-temperature), reset by the bit 7 edge once the cause is gone.
-    r.tlc.set_over_temperature(true);
+    r.dev.set_over_temperature(true);
     let fb = r.until(Demand::Standstill, 500, |f| f.state == AxisState::Fault);
     assert!(!fb.done);
-    r.tlc.set_over_temperature(false);
+    r.dev.set_over_temperature(false);
     for _ in 0..50 {
         assert_eq!(r.step(Demand::Standstill).state, AxisState::Fault);
     }
     let fb = r.done(Demand::Acknowledge, 500);
     assert_eq!(fb.state, AxisState::Disabled);
-    assert!(r.tlc.faults().is_empty());
+    assert!(r.dev.faults().is_empty());
     let fb = r.done(Demand::Standstill, 500);
     assert_eq!(fb.state, AxisState::Ready);
-    assert_eq!(r.tlc.drive_state(), DriveState::OperationEnabled);
+    assert_eq!(r.dev.drive_state(), DriveState::OperationEnabled);
     assert_eq!(r.missing, 0, "a TPDO1 every SYNC");
+}
+
+#[test]
+fn cia402_mtr_dci_static_pdo1_enable_home_follow() {
+    let dev = MtrDci::new(NodeId::new(3).unwrap(), MtrProfile::Cia402, Instant::ZERO).unwrap();
+    let mut r = CoRig::new(dev, 3, DeviceKind::MtrDci, Duration::from_millis(2));
+    r.configure_pdos(DeviceKind::MtrDci);
+    r.sdo(0x6081, 0, &40_000u32.to_le_bytes());
+    r.sdo(0x6083, 0, &400_000u32.to_le_bytes());
+    r.start();
+    let fb = r.done(Demand::Standstill, 100);
+    assert_eq!(fb.state, AxisState::Ready);
+    assert_eq!(r.dev.cia402_state(), Some(DriveState::OperationEnabled));
+    // Homing (method 27 by default): the MTR-DCI also shows bit 15 "homing performed".
+    let fb = r.done(Demand::Home, 30_000);
+    assert!(fb.homed && !fb.failed, "{fb:?}");
+    assert_eq!(fb.status & 0x8000, 0x8000);
+    // The MTR-DCI queues set-points (no change set immediately): the stream still arrives.
+    let from = fb.position;
+    let target = from + 20_000;
+    let limits = AxisLimits::new(30_000, 200_000, 0);
+    let ramp = Trapezoid::plan(from, target, limits, r.cycle.as_nanos() as u32).unwrap();
+    r.stream(&ramp, ramp.duration_cycles(), |d| {
+        d.drive().axis().status().position
+    });
+    let fb = r.until(
+        Demand::Follow {
+            position: target,
+            velocity: 0,
+        },
+        5_000,
+        |f| f.motion_complete,
+    );
+    assert!((fb.position - target).abs() <= 750, "{fb:?}");
+    assert_eq!(r.missing, 0);
 }
