@@ -257,6 +257,8 @@ pub struct Cia402Axis {
     /// Jog/velocity streaming: the integrated position, units × 1e9.
     jog_nano: Option<i128>,
     homed: bool,
+    /// Cycles since the last image arrived.
+    gap: u32,
 }
 
 impl Cia402Axis {
@@ -285,6 +287,7 @@ impl Cia402Axis {
             lead: MIN_LEAD_CYCLES,
             jog_nano: None,
             homed: false,
+            gap: 0,
         }
     }
 
@@ -293,6 +296,11 @@ impl Cia402Axis {
     pub fn with_csp(mut self) -> Cia402Axis {
         self.csp = true;
         self
+    }
+
+    /// Replaces the settings (the boot learns them from the drive).
+    pub fn set_settings(&mut self, settings: Cia402Settings) {
+        *self = self.clone().with_settings(settings);
     }
 
     /// The same axis with other settings.
@@ -328,6 +336,8 @@ impl Cia402Axis {
         out: &mut Image,
     ) -> Result<Feedback, AxisError> {
         let mut fresh = false;
+        // Cycles since the last image, for the velocity estimate.
+        self.gap = self.gap.saturating_add(1);
         if let Some(bytes) = input {
             match decode_input(self.layout, bytes) {
                 Ok(i) if State::from_statusword(i.statusword).is_ok() => {
@@ -374,10 +384,12 @@ impl Cia402Axis {
         let position = i64::from(i.position);
         self.feedback.velocity = match self.input {
             Some(_) => {
-                (position - self.feedback.position) * 1_000_000_000 / i64::from(self.cycle_ns)
+                let span = i64::from(self.cycle_ns).saturating_mul(i64::from(self.gap.max(1)));
+                (position - self.feedback.position) * 1_000_000_000 / span
             }
             None => 0,
         };
+        self.gap = 0;
         self.feedback.position = position;
         if self.layout == Layout::MtrDci && i.statusword.has(Statusword::MTR_HOMING_PERFORMED) {
             self.homed = true;
@@ -504,6 +516,10 @@ impl Cia402Axis {
             }
             Demand::Velocity { velocity } => self.jog(fresh, velocity),
             Demand::Halt => {
+                self.cw = self
+                    .cw
+                    .with(Controlword::NEW_SET_POINT, false)
+                    .with(Controlword::FAULT_RESET, false);
                 if self.state() == Some(State::OperationEnabled) {
                     self.cw = self
                         .cw

@@ -150,6 +150,8 @@ pub struct FhppAxis {
     since_raise: u32,
     /// CPOS.CLEAR images still to send before a task after a halt.
     clearing: u8,
+    /// Cycles since the last image arrived.
+    gap: u32,
 }
 
 impl FhppAxis {
@@ -175,7 +177,13 @@ impl FhppAxis {
             record: 0,
             since_raise: 0,
             clearing: 0,
+            gap: 0,
         }
+    }
+
+    /// Replaces the settings (the boot learns them from the drive).
+    pub fn set_settings(&mut self, settings: FhppSettings) {
+        *self = self.clone().with_settings(settings);
     }
 
     /// The same axis with other drive settings.
@@ -215,6 +223,8 @@ impl FhppAxis {
         demand: &Demand,
         out: &mut Image,
     ) -> Result<Feedback, AxisError> {
+        // Cycles since the last image, for the velocity estimate.
+        self.gap = self.gap.saturating_add(1);
         let fresh = match input {
             Some(bytes) => match self.take_input(bytes) {
                 Ok(()) => true,
@@ -284,12 +294,16 @@ impl FhppAxis {
         }
         self.feedback.velocity = match velocity {
             Some(v) => v,
-            None if had => (position - before) * 1_000_000_000 / i64::from(self.cycle_ns),
+            None if had => {
+                let span = i64::from(self.cycle_ns).saturating_mul(i64::from(self.gap.max(1)));
+                (position - before) * 1_000_000_000 / span
+            }
             None => 0,
         };
         self.feedback.position = position;
         self.feedback.force = force;
         self.status = Some(img);
+        self.gap = 0;
         Ok(())
     }
 

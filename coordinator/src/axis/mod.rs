@@ -6,7 +6,23 @@
 //! changes); the axis turns it into this cycle's output image (the RPDO or Modbus register
 //! bytes) from the input image that arrived (TPDO or Modbus registers), and reports a
 //! [`Feedback`]. The codecs are the drivers' (`drivers::fhpp`, `drivers::cia402`), the same the
-//! simulators use. Everything here is `no_std`, allocation-free and bounded.
+//! simulators use. Everything here is `no_std`, allocation-free and bounded: [`DriveAxis::exchange`]
+//! may be called from the cycle step.
+//!
+//! [`pdo_mapping`] says which PDOs the boot configures for each drive (and so which images
+//! [`DriveAxis::exchange`] reads and writes); `config::axis_pdos` budgets the same lengths.
+//!
+//! ```
+//! use coordinator::axis::{Demand, DeviceKind, DriveAxis, Image, Profile};
+//! let mut axis = DriveAxis::new(DeviceKind::MtrDci, Profile::Fhpp, 2_000_000).unwrap();
+//! let mut out = Image::default();
+//! // The drive's power-on image (drive blocked, load voltage, MC): the axis enables it.
+//! let fb = axis
+//!     .exchange(Some(&[0x10, 0x04, 0, 0, 0, 0, 0, 0]), &Demand::Standstill, &mut out)
+//!     .unwrap();
+//! assert_eq!(out.bytes()[..2], [0x23, 0x01]); // CCON ENABLE | STOP | LOCK, CPOS HALT
+//! assert!(!fb.done);
+//! ```
 
 pub mod cia402;
 pub mod fhpp;
@@ -266,6 +282,15 @@ impl DriveAxis {
         match self {
             DriveAxis::Fhpp(_) => fhpp::IMAGE_LEN,
             DriveAxis::Cia402(a) => a.layout().tx_len(),
+        }
+    }
+
+    /// The same axis streaming `Follow` in cyclic synchronous position (CiA 402 mode 8) for a
+    /// drive that offers it; an FHPP axis is returned unchanged.
+    pub fn with_csp(self) -> DriveAxis {
+        match self {
+            DriveAxis::Cia402(a) => DriveAxis::Cia402(a.with_csp()),
+            f => f,
         }
     }
 
