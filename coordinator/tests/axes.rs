@@ -22,6 +22,8 @@ struct FhppRig {
     cycle: Duration,
     out: Image,
     fb: Feedback,
+    /// CPOS.START rising edges sent.
+    starts: u64,
 }
 
 impl FhppRig {
@@ -49,6 +51,7 @@ impl FhppRig {
             cycle,
             out: Image::default(),
             fb: Feedback::default(),
+            starts: 0,
         }
     }
 
@@ -56,7 +59,11 @@ impl FhppRig {
         self.t += self.cycle;
         self.drive.step_to(self.t);
         let input = self.drive.input();
+        let was = self.out.data[1] & 0x02;
         self.fb = self.axis.exchange(Some(&input), &d, &mut self.out).unwrap();
+        if was == 0 && self.out.data[1] & 0x02 != 0 {
+            self.starts += 1;
+        }
         self.drive.exchange(&self.out.data, self.t);
         self.fb
     }
@@ -111,6 +118,7 @@ fn fhpp_scenario(variant: Variant) {
     let limits = AxisLimits::new(50_000, 200_000, 0);
     let ramp = Trapezoid::plan(start, target, limits, r.cycle.as_nanos() as u32).unwrap();
     let n = ramp.duration_cycles();
+    let starts = r.starts;
     let mut worst_lag = 0;
     for k in 1..=n {
         let s = ramp.sample(k);
@@ -122,6 +130,12 @@ fn fhpp_scenario(variant: Variant) {
         worst_lag = worst_lag.max((s.position - r.actual()).abs());
     }
     assert!(worst_lag < 1_500, "lag {worst_lag}");
+    // A fresh target every second cycle.
+    assert!(
+        r.starts - starts >= n / 2 - 1,
+        "{} STARTs in {n} cycles",
+        r.starts - starts
+    );
     let last = Demand::Follow {
         position: target,
         velocity: 0,
@@ -267,6 +281,8 @@ struct CoRig<E: Endpoint> {
     fb: Feedback,
     /// Cycles whose TPDO1 was missing.
     missing: u32,
+    /// Controlword bit 4 rising edges sent (new set-points, homing starts).
+    set_points: u64,
 }
 
 impl<E: Endpoint> CoRig<E> {
@@ -281,6 +297,7 @@ impl<E: Endpoint> CoRig<E> {
             out: Image::default(),
             fb: Feedback::default(),
             missing: 0,
+            set_points: 0,
         }
     }
 
@@ -364,10 +381,14 @@ impl<E: Endpoint> CoRig<E> {
             self.missing += 1;
         }
         let input = tpdo.map(|f| f.data().to_vec());
+        let was = self.out.data[0] & 0x10;
         self.fb = self
             .axis
             .exchange(input.as_deref(), &d, &mut self.out)
             .unwrap();
+        if was == 0 && self.out.data[0] & 0x10 != 0 {
+            self.set_points += 1;
+        }
         let rx = FunctionCode::Rpdo(1).cob_id(self.node);
         let rpdo = Frame::new_std(rx, self.out.bytes()).unwrap();
         let at = self.t + Duration::from_micros(300);
@@ -452,7 +473,12 @@ fn cia402_tlc5xx_enable_home_follow_halt_fault_reset() {
     let limits = AxisLimits::new(100_000, 400_000, 0);
     let ramp = Trapezoid::plan(0, target, limits, r.cycle.as_nanos() as u32).unwrap();
     let n = ramp.duration_cycles();
+    let before = r.set_points;
     let worst_lag = r.stream(&ramp, n, |d| i64::from(d.actual_usr()));
+    // RPDO1 and TPDO1 are synchronous: the acknowledge of a set-point sent after SYNC k is in
+    // the TPDO1 of SYNC k + 2, so a handshake takes four cycles.
+    let sent = r.set_points - before;
+    assert!(sent >= n / 4 - 1, "{sent} set-points in {n} cycles");
     assert!(worst_lag < 1_000, "lag {worst_lag}");
     assert_eq!(r.dev.mode(), drivers::cia402::modes::Mode::ProfilePosition);
     let last = Demand::Follow {
