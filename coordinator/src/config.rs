@@ -207,8 +207,12 @@ impl fmt::Display for Profile {
 const FHPP_PDO1: &[Pdo] = &[Pdo::every_sync(8)];
 /// FHPP with the FPC parameter channel on PDO2 (8 bytes each way).
 const FHPP_PDO1_FPC: &[Pdo] = &[Pdo::every_sync(8), Pdo::every_sync(8)];
-/// CiA 402: controlword + target position (2 + 4 bytes) / statusword + position actual value.
-const CIA402_PDO1: &[Pdo] = &[Pdo::every_sync(6)];
+/// CiA 402 on the TLC5xx: controlword + target position + modes of operation (2 + 4 + 1 bytes)
+/// / statusword + position actual value + modes display (`axis::TLC_RPDO1` / `TLC_TPDO1`).
+const CIA402_PDO1: &[Pdo] = &[Pdo::every_sync(7)];
+/// CiA 402 on the MTR-DCI: its static PDO1 of 8 bytes (controlword, record number, mode,
+/// target position / statusword, record number, mode display, position).
+const MTR_DCI_402_PDO1: &[Pdo] = &[Pdo::every_sync(8)];
 
 /// The PDOs the coordinator maps for one axis, each way (the RPDOs equal the TPDOs in length
 /// and number for every supported mapping). Modbus axes put nothing on a CAN bus.
@@ -219,6 +223,7 @@ pub fn axis_pdos(device: DeviceKind, profile: Profile, fpc: bool) -> &'static [P
     match (profile, fpc) {
         (Profile::Fhpp, false) => FHPP_PDO1,
         (Profile::Fhpp, true) => FHPP_PDO1_FPC,
+        (Profile::Cia402, _) if matches!(device, DeviceKind::MtrDci) => MTR_DCI_402_PDO1,
         (Profile::Cia402, _) => CIA402_PDO1,
     }
 }
@@ -1854,16 +1859,32 @@ mod tests {
         assert!(r.is_ok(), "{r}");
         assert_eq!(r.loads.len(), 1);
         let l = &r.loads[0];
-        // SYNC 55 + 2 * (135 + 135 + 115) PDO bits + guarding 2 * (55 + 65) + heartbeat 65
-        // + EMCY 135 + SDO 270.
-        assert_eq!(l.bits(), 55 + 2 * 385 + 240 + 65 + 135 + 270);
+        // SYNC 55 + 2 * (135 + 135 + 125) PDO bits (the TLC5xx's PDO1 carries 7 bytes) +
+        // guarding 2 * (55 + 65) + heartbeat 65 + EMCY 135 + SDO 270.
+        assert_eq!(l.bits(), 55 + 2 * 395 + 240 + 65 + 135 + 270);
         assert_eq!(
             (l.frames(), l.micros(), l.load()),
-            (15, 1535, Permille(768))
+            (15, 1555, Permille(778))
         );
         assert!(r.to_string().ends_with("OK\n"));
         assert_eq!(c.axes[3].profile(), Profile::Fhpp);
         assert_eq!(c.axes[2].profile(), Profile::Cia402);
+    }
+
+    fn to_axis_kind(d: DeviceKind) -> crate::axis::DeviceKind {
+        match d {
+            DeviceKind::MtrDci => crate::axis::DeviceKind::MtrDci,
+            DeviceKind::Emca => crate::axis::DeviceKind::Emca,
+            DeviceKind::CmmoSt => crate::axis::DeviceKind::CmmoSt,
+            DeviceKind::Tlc5xx => crate::axis::DeviceKind::Tlc5xx,
+        }
+    }
+
+    fn to_axis_profile(p: Profile) -> crate::axis::Profile {
+        match p {
+            Profile::Fhpp => crate::axis::Profile::Fhpp,
+            Profile::Cia402 => crate::axis::Profile::Cia402,
+        }
     }
 
     #[test]
@@ -1873,15 +1894,27 @@ mod tests {
         assert_eq!(axis_pdos(DeviceKind::Emca, Profile::Fhpp, true)[1].len, 8);
         assert_eq!(
             axis_pdos(DeviceKind::Tlc5xx, Profile::Cia402, false)[0].len,
-            6
+            7
         );
+        // The budget counts exactly what the axes map.
+        for (d, p) in [
+            (DeviceKind::MtrDci, Profile::Fhpp),
+            (DeviceKind::Emca, Profile::Fhpp),
+            (DeviceKind::MtrDci, Profile::Cia402),
+            (DeviceKind::Tlc5xx, Profile::Cia402),
+        ] {
+            let map = crate::axis::pdo_mapping(to_axis_kind(d), to_axis_profile(p));
+            let len = usize::from(axis_pdos(d, p, false)[0].len);
+            assert_eq!(map.rpdo.map(|r| r.len()), Some(len), "{d} {p:?}");
+            assert_eq!(map.tpdo.map(|t| t.len()), Some(len), "{d} {p:?}");
+        }
         assert!(axis_pdos(DeviceKind::CmmoSt, Profile::Fhpp, false).is_empty());
         // FPC on two axes of the example no longer fits 80 %.
         let e = errors(&edited(&[("fpc = false", "fpc = true")]));
         assert_eq!(
             e,
             [
-                "buses[0]: bus can0: 17 frames, 1805 us per 2000 us cycle = 90.3 %, \
+                "buses[0]: bus can0: 17 frames, 1825 us per 2000 us cycle = 91.3 %, \
               over the 80.0 % limit"
             ]
         );
@@ -2141,7 +2174,7 @@ mod tests {
         assert_eq!(
             e,
             [
-                "buses[0]: bus can0: 15 frames, 1535 us per 1000 us cycle = 153.5 %, \
+                "buses[0]: bus can0: 15 frames, 1555 us per 1000 us cycle = 155.5 %, \
               does not fit the cycle"
             ]
         );

@@ -43,10 +43,10 @@ fn the_example_round_trips_through_check() {
     let lines: Vec<&str> = out.lines().collect();
     assert_eq!(
         lines[0],
-        "bus can0: 15 frames, 1535 us per 2000 us cycle = 76.8 % \
-         (mean 61.9 %, 1000 kbit/s, room for 3 more 8-byte frames)"
+        "bus can0: 15 frames, 1555 us per 2000 us cycle = 77.8 % \
+         (mean 62.9 %, 1000 kbit/s, room for 3 more 8-byte frames)"
     );
-    assert!(lines.contains(&"  RPDO                  3 frames    385 bits"));
+    assert!(lines.contains(&"  RPDO                  3 frames    395 bits"));
     assert_eq!(lines.last(), Some(&"OK"));
 }
 
@@ -88,7 +88,7 @@ fn a_cycle_that_cannot_fit_is_refused_with_the_numbers() {
     assert!(!ok);
     assert!(
         out.contains(
-            "error: buses[0]: bus can0: 15 frames, 1535 us per 1000 us cycle = 153.5 %, \
+            "error: buses[0]: bus can0: 15 frames, 1555 us per 1000 us cycle = 155.5 %, \
              does not fit the cycle"
         ),
         "{out}"
@@ -102,7 +102,7 @@ fn a_load_over_the_limit_is_refused() {
     let text = example().replacen("load_limit_percent = 80", "load_limit_percent = 70", 1);
     let (ok, out) = check("limit.toml", &text);
     assert!(!ok);
-    assert!(out.contains("= 76.8 %, over the 70.0 % limit"), "{out}");
+    assert!(out.contains("= 77.8 %, over the 70.0 % limit"), "{out}");
 }
 
 #[test]

@@ -1,5 +1,1019 @@
-//! CiA 402 master side (placeholder until the axis work lands).
+//! CiA 402 master side for the TLC5xx (seed 003 §3.1–3.9, §5; digest sections 2 and 8) and
+//! the MTR-DCI in its CiA 402 profile (seed 000 §7.8–7.10): one [`Cia402Axis`] per drive, fed
+//! the TPDO1 data once per cycle, producing the RPDO1 data, with the codecs of
+//! `drivers::cia402` (controlword, statusword, [`next_controlword`], [`PpMaster`]).
+//!
+//! The process image ([`Layout`]):
+//!
+//! | layout | RPDO1 (master → drive) | TPDO1 (drive → master) |
+//! |---|---|---|
+//! | TLC5xx (mapped by the coordinator, 7 bytes) | 6040h controlword, 607Ah target position, 6060h mode | 6041h statusword, 6064h position actual, 6061h mode display |
+//! | MTR-DCI (static, 8 bytes) | 6040h, 2032h:01 record, 6060h, 607Ah | 6041h, 2032h:01, 6061h, 6064h |
+//!
+//! The mode display is mapped so the axis knows when a 6060h change has taken effect (the
+//! TLC5xx switches modes only at standstill, p.9-112) before it raises bit 4.
+//!
+//! What each [`Demand`] puts on the wire (every demand that needs power first steps the state
+//! machine toward Operation enabled with [`next_controlword`], bits 4..8 low on the way; in
+//! Fault it sends Disable voltage and waits: only `Acknowledge` makes the bit 7 edge):
+//!
+//! | demand | 6060h | controlword | done when |
+//! |---|---|---|---|
+//! | `Disable` | kept | Disable voltage (0000h) | Switch on disabled |
+//! | `Standstill` | kept | Enable operation (000Fh), bit 4 low | Operation enabled |
+//! | `Acknowledge` | kept | in Fault: bit 7 alternating (a rising edge every second cycle) | not in Fault |
+//! | `Home` | 6 | once 6061h = 6: bit 4 low, then high and held | bits 12 + 10 (homing attained, target reached) |
+//! | `Follow` | 1 (8 with CSP) | PP: bit 4 set-point handshake with bit 5 "change set immediately" and bit 6 absolute; CSP: 607Ah every cycle | `motion_complete` |
+//! | `Jog`, `Velocity` | 1 | streamed PP set-points integrated from the speed (the mapping has no 60FFh) | first set-point acknowledged |
+//! | `Halt` | kept | bit 8 set | bit 10 (halted at standstill) |
+//! | `QuickStop` | kept | Quick stop (0002h) | Quick stop active (or Switch on disabled) and no motion |
+//! | `Force`, `DriveRecord`, `Teach` | – | refused: `AxisError::Unsupported` | – |
+//!
+//! Streaming: a new set-point is requested whenever the handshake is free (bit 12 seen low
+//! after the last acknowledge), so as often as the bus latency allows; each is the path's
+//! position as many cycles ahead as the last handshake took (at least [`MIN_LEAD_CYCLES`]),
+//! with the drive's profile velocity 6081h (set at boot) as its speed. `motion_complete` comes
+//! only when the last acknowledged set-point equals the demanded position and bit 10 "target
+//! reached" followed that acknowledge.
+//!
+//! Feedback: position from 6064h (user units; increments with the TLC5xx's default scaling),
+//! velocity from the position change per cycle, `homed` after a completed homing (the TLC5xx
+//! statusword has no reference bit; the MTR-DCI's bit 15 "homing performed" is used when set).
+//! 603Fh is not in the image: `fault_code` stays 0 (the EMCY carries it).
+
+use drivers::cia402::controlword::{Command, Controlword};
+use drivers::cia402::homing::HomingStatus;
+use drivers::cia402::modes::{Mode, PpEvent, PpMaster, PpMasterState, SetPointRequest};
+use drivers::cia402::state::{State, next_controlword};
+use drivers::cia402::statusword::Statusword;
+use drivers::cia402::{DeviceProfile, MTR_DCI, TLC5XX};
+
+use super::{AxisError, AxisState, Demand, Feedback, IMAGE_BYTES, Image};
+
+/// The fewest cycles a streamed set-point is placed ahead of the path.
+pub const MIN_LEAD_CYCLES: u32 = 2;
+/// The most cycles a streamed set-point is placed ahead of the path.
+pub const MAX_LEAD_CYCLES: u32 = 8;
+
+/// Images with bit 4 high before a stale "homing completed" is believed.
+const HOMING_STALE_IMAGES: u32 = 3;
+
+/// The PDO layout of the drive's cyclic image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Layout {
+    /// TLC5xx: the coordinator's 7-byte mapping (`super::TLC_RPDO1` / `super::TLC_TPDO1`).
+    Tlc5xx,
+    /// MTR-DCI CiA 402 profile: the static 8-byte PDO1 (§7.4).
+    MtrDci,
+}
+
+impl Layout {
+    /// Bytes of the input image (TPDO1).
+    pub const fn rx_len(self) -> usize {
+        match self {
+            Layout::Tlc5xx => 7,
+            Layout::MtrDci => 8,
+        }
+    }
+    /// Bytes of the output image (RPDO1).
+    pub const fn tx_len(self) -> usize {
+        self.rx_len()
+    }
+    /// How the device implements CiA 402 (bit 6 polarity, change set immediately).
+    pub const fn profile(self) -> DeviceProfile {
+        match self {
+            Layout::Tlc5xx => TLC5XX,
+            Layout::MtrDci => MTR_DCI,
+        }
+    }
+}
+
+/// The drive's TPDO1, decoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Input {
+    /// 6041h.
+    pub statusword: Statusword,
+    /// 6064h position actual value.
+    pub position: i32,
+    /// 6061h modes of operation display.
+    pub mode: i8,
+    /// 2032h:01 record number (MTR-DCI only; 0 on the TLC5xx).
+    pub record: u8,
+}
+
+/// The master's RPDO1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Output {
+    /// 6040h.
+    pub controlword: Controlword,
+    /// 607Ah target position.
+    pub target: i32,
+    /// 6060h modes of operation.
+    pub mode: i8,
+    /// 2032h:01 record number (MTR-DCI only; not sent on the TLC5xx).
+    pub record: u8,
+}
+
+fn le_i32(b: &[u8], at: usize) -> Option<i32> {
+    let s = b.get(at..at + 4)?;
+    Some(i32::from_le_bytes([s[0], s[1], s[2], s[3]]))
+}
+
+fn le_u16(b: &[u8], at: usize) -> Option<u16> {
+    let s = b.get(at..at + 2)?;
+    Some(u16::from_le_bytes([s[0], s[1]]))
+}
+
+fn short(layout: Layout, len: usize) -> AxisError {
+    AxisError::Short {
+        len,
+        need: layout.rx_len(),
+    }
+}
+
+/// Decodes a TPDO1 of `layout` (little-endian, CiA 301); extra bytes are ignored.
+pub fn decode_input(layout: Layout, bytes: &[u8]) -> Result<Input, AxisError> {
+    let e = || short(layout, bytes.len());
+    let statusword = Statusword(le_u16(bytes, 0).ok_or_else(e)?);
+    match layout {
+        Layout::Tlc5xx => Ok(Input {
+            statusword,
+            position: le_i32(bytes, 2).ok_or_else(e)?,
+            mode: *bytes.get(6).ok_or_else(e)? as i8,
+            record: 0,
+        }),
+        Layout::MtrDci => Ok(Input {
+            statusword,
+            record: *bytes.get(2).ok_or_else(e)?,
+            mode: *bytes.get(3).ok_or_else(e)? as i8,
+            position: le_i32(bytes, 4).ok_or_else(e)?,
+        }),
+    }
+}
+
+impl Output {
+    /// The RPDO1 data of `layout`.
+    pub fn to_image(&self, layout: Layout) -> Image {
+        let mut data = [0u8; IMAGE_BYTES];
+        let cw = self.controlword.to_bytes();
+        let t = self.target.to_le_bytes();
+        data[..2].copy_from_slice(&cw);
+        match layout {
+            Layout::Tlc5xx => {
+                data[2..6].copy_from_slice(&t);
+                data[6] = self.mode as u8;
+            }
+            Layout::MtrDci => {
+                data[2] = self.record;
+                data[3] = self.mode as u8;
+                data[4..8].copy_from_slice(&t);
+            }
+        }
+        Image {
+            data,
+            len: layout.tx_len() as u8,
+        }
+    }
+
+    /// Decodes an RPDO1 of `layout` (what a drive receives).
+    pub fn from_bytes(layout: Layout, bytes: &[u8]) -> Result<Output, AxisError> {
+        let e = || short(layout, bytes.len());
+        let controlword = Controlword(le_u16(bytes, 0).ok_or_else(e)?);
+        match layout {
+            Layout::Tlc5xx => Ok(Output {
+                controlword,
+                target: le_i32(bytes, 2).ok_or_else(e)?,
+                mode: *bytes.get(6).ok_or_else(e)? as i8,
+                record: 0,
+            }),
+            Layout::MtrDci => Ok(Output {
+                controlword,
+                record: *bytes.get(2).ok_or_else(e)?,
+                mode: *bytes.get(3).ok_or_else(e)? as i8,
+                target: le_i32(bytes, 4).ok_or_else(e)?,
+            }),
+        }
+    }
+}
+
+/// Drive settings the axis needs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Cia402Settings {
+    /// In cyclic synchronous position: `motion_complete` once the actual position is within
+    /// this many units of the final setpoint (the TLC5xx's p_win default is 10).
+    pub position_window: u32,
+}
+
+impl Default for Cia402Settings {
+    fn default() -> Self {
+        Cia402Settings {
+            position_window: 10,
+        }
+    }
+}
+
+/// Where a demand with a sequence of its own stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Step {
+    /// Starting (power and mode being established).
+    Start,
+    /// Homing: bit 4 low for one image after the mode is active.
+    HomeLow,
+    /// Homing: bit 4 high; `images` since, `running` once a not-completed status was seen.
+    HomeRaised { images: u32, running: bool },
+    /// Acknowledge: fault-reset edges are being sent.
+    Resetting,
+    /// Carried out.
+    Done,
+    /// Failed.
+    Failed,
+}
 
 /// The master side of one CiA 402 drive.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Cia402Axis;
+pub struct Cia402Axis {
+    layout: Layout,
+    profile: DeviceProfile,
+    csp: bool,
+    cycle_ns: u32,
+    settings: Cia402Settings,
+    input: Option<Input>,
+    feedback: Feedback,
+    cw: Controlword,
+    target: i32,
+    mode: Mode,
+    demand: Demand,
+    step: Step,
+    pp: PpMaster,
+    /// The set-point of the running request.
+    requested: i32,
+    /// The set-point the drive acknowledged last.
+    acked: Option<i32>,
+    /// Bit 10 came after that acknowledge.
+    reached: bool,
+    /// Cycles since the last request, and the lead they give.
+    since_request: u32,
+    lead: u32,
+    /// Jog/velocity streaming: the integrated position, units × 1e9.
+    jog_nano: Option<i128>,
+    homed: bool,
+    /// Cycles since the last image arrived.
+    gap: u32,
+}
+
+impl Cia402Axis {
+    /// The master side of a drive with `layout`, exchanged every `cycle_ns`; without cyclic
+    /// synchronous position (see [`Cia402Axis::with_csp`]).
+    pub fn new(layout: Layout, cycle_ns: u32) -> Cia402Axis {
+        let profile = layout.profile();
+        Cia402Axis {
+            layout,
+            profile,
+            csp: false,
+            cycle_ns: cycle_ns.max(1),
+            settings: Cia402Settings::default(),
+            input: None,
+            feedback: Feedback::default(),
+            cw: Controlword(0),
+            target: 0,
+            mode: Mode::ProfilePosition,
+            demand: Demand::Disable,
+            step: Step::Start,
+            pp: PpMaster::new(profile.abs_rel),
+            requested: 0,
+            acked: None,
+            reached: false,
+            since_request: 0,
+            lead: MIN_LEAD_CYCLES,
+            jog_nano: None,
+            homed: false,
+            gap: 0,
+        }
+    }
+
+    /// The same axis streaming `Follow` in cyclic synchronous position (mode 8), for a drive
+    /// that offers it (neither reference device does).
+    pub fn with_csp(mut self) -> Cia402Axis {
+        self.csp = true;
+        self
+    }
+
+    /// Replaces the settings (the boot learns them from the drive).
+    pub fn set_settings(&mut self, settings: Cia402Settings) {
+        *self = self.clone().with_settings(settings);
+    }
+
+    /// The same axis with other settings.
+    pub fn with_settings(mut self, settings: Cia402Settings) -> Cia402Axis {
+        self.settings = settings;
+        self
+    }
+
+    /// The image layout.
+    pub fn layout(&self) -> Layout {
+        self.layout
+    }
+
+    /// Whether `Follow` uses cyclic synchronous position.
+    pub fn csp(&self) -> bool {
+        self.csp
+    }
+
+    /// Forgets the drive's state: offline until the next image.
+    pub fn reset(&mut self) {
+        *self = Cia402Axis {
+            csp: self.csp,
+            settings: self.settings,
+            ..Cia402Axis::new(self.layout, self.cycle_ns)
+        };
+    }
+
+    /// One cycle (see [`super::DriveAxis::exchange`]).
+    pub fn exchange(
+        &mut self,
+        input: Option<&[u8]>,
+        demand: &Demand,
+        out: &mut Image,
+    ) -> Result<Feedback, AxisError> {
+        let mut fresh = false;
+        // Cycles since the last image, for the velocity estimate.
+        self.gap = self.gap.saturating_add(1);
+        if let Some(bytes) = input {
+            match decode_input(self.layout, bytes) {
+                Ok(i) if State::from_statusword(i.statusword).is_ok() => {
+                    self.take_input(i);
+                    fresh = true;
+                }
+                Ok(_) => {
+                    self.write_safe(out);
+                    return Err(AxisError::Decode("undefined CiA 402 statusword pattern"));
+                }
+                Err(e) => {
+                    self.write_safe(out);
+                    return Err(e);
+                }
+            }
+        }
+        if !same_task(&self.demand, demand) {
+            self.begin(demand);
+        }
+        self.demand = *demand;
+        if let Err(e) = check(demand) {
+            self.step = Step::Failed;
+            self.write_safe(out);
+            self.update_feedback();
+            return Err(e);
+        }
+        self.since_request = self.since_request.saturating_add(1);
+        self.run(fresh);
+        *out = self.output().to_image(self.layout);
+        self.update_feedback();
+        Ok(self.feedback)
+    }
+
+    fn output(&self) -> Output {
+        Output {
+            controlword: self.cw,
+            target: self.target,
+            mode: self.mode.code(),
+            record: 0,
+        }
+    }
+
+    fn take_input(&mut self, i: Input) {
+        let position = i64::from(i.position);
+        self.feedback.velocity = match self.input {
+            Some(_) => {
+                let span = i64::from(self.cycle_ns).saturating_mul(i64::from(self.gap.max(1)));
+                (position - self.feedback.position) * 1_000_000_000 / span
+            }
+            None => 0,
+        };
+        self.gap = 0;
+        self.feedback.position = position;
+        if self.layout == Layout::MtrDci && i.statusword.has(Statusword::MTR_HOMING_PERFORMED) {
+            self.homed = true;
+        }
+        self.input = Some(i);
+    }
+
+    fn begin(&mut self, demand: &Demand) {
+        self.step = Step::Start;
+        let streaming = matches!(
+            demand,
+            Demand::Follow { .. } | Demand::Jog { .. } | Demand::Velocity { .. }
+        );
+        if !streaming || !matches!(self.demand, Demand::Follow { .. }) {
+            // A stream of another kind starts from the actual position.
+            self.jog_nano = None;
+        }
+        if !streaming {
+            self.pp.reset();
+            self.acked = None;
+            self.reached = false;
+        }
+    }
+
+    /// The safe image: halt (bit 8) with the state command kept, no new set-point.
+    fn write_safe(&mut self, out: &mut Image) {
+        self.cw = self
+            .cw
+            .with(Controlword::NEW_SET_POINT, false)
+            .with(Controlword::FAULT_RESET, false)
+            .with(Controlword::HALT, true);
+        *out = self.output().to_image(self.layout);
+    }
+
+    fn state(&self) -> Option<State> {
+        self.input
+            .and_then(|i| State::from_statusword(i.statusword).ok())
+    }
+
+    fn sw(&self) -> Statusword {
+        self.input.map(|i| i.statusword).unwrap_or(Statusword(0))
+    }
+
+    /// Steps toward Operation enabled; `true` once there. On the way the mode bits are low and
+    /// a set-point handshake is abandoned.
+    fn power(&mut self) -> bool {
+        match self.state() {
+            Some(State::OperationEnabled) => true,
+            Some(State::Fault | State::FaultReactionActive) => {
+                // Only `Acknowledge` resets a fault: bit 7 stays low here.
+                self.cw = Command::DisableVoltage.controlword();
+                self.pp.reset();
+                false
+            }
+            Some(s) => {
+                let base = Controlword(self.cw.0 & Controlword::FAULT_RESET);
+                self.cw = next_controlword(s, base);
+                self.pp.reset();
+                false
+            }
+            None => {
+                self.cw = Controlword(0);
+                false
+            }
+        }
+    }
+
+    /// Whether the drive shows `self.mode` as active.
+    fn mode_active(&self) -> bool {
+        self.input.is_some_and(|i| i.mode == self.mode.code())
+    }
+
+    fn enable_op() -> Controlword {
+        Command::EnableOperation.controlword()
+    }
+
+    fn run(&mut self, fresh: bool) {
+        match self.demand {
+            Demand::Disable => {
+                self.cw = Command::DisableVoltage.controlword();
+                self.pp.reset();
+                if matches!(
+                    self.state(),
+                    Some(State::SwitchOnDisabled | State::NotReadyToSwitchOn)
+                ) {
+                    self.step = Step::Done;
+                }
+            }
+            Demand::Standstill => {
+                if self.power() {
+                    self.cw = Self::enable_op();
+                    self.pp.reset();
+                    self.step = Step::Done;
+                }
+            }
+            Demand::Acknowledge => match self.state() {
+                Some(s @ (State::Fault | State::FaultReactionActive)) => {
+                    let base = Controlword(self.cw.0 & Controlword::FAULT_RESET);
+                    self.cw = next_controlword(s, base);
+                    self.step = Step::Resetting;
+                }
+                Some(_) => {
+                    self.cw = self.cw.with(Controlword::FAULT_RESET, false);
+                    self.step = Step::Done;
+                }
+                None => {}
+            },
+            Demand::Home => self.home(fresh),
+            Demand::Follow { position, velocity } => {
+                if self.csp {
+                    self.csp_follow(position, velocity);
+                } else {
+                    self.mode = Mode::ProfilePosition;
+                    self.stream(fresh, position, velocity, Some(position));
+                }
+            }
+            Demand::Jog { positive, velocity } => {
+                let v = if positive {
+                    velocity.saturating_abs()
+                } else {
+                    -velocity.saturating_abs()
+                };
+                self.jog(fresh, v);
+            }
+            Demand::Velocity { velocity } => self.jog(fresh, velocity),
+            Demand::Halt => {
+                self.cw = self
+                    .cw
+                    .with(Controlword::NEW_SET_POINT, false)
+                    .with(Controlword::FAULT_RESET, false);
+                if self.state() == Some(State::OperationEnabled) {
+                    self.cw = self
+                        .cw
+                        .with(Controlword::HALT, true)
+                        .with(Controlword::FAULT_RESET, false);
+                    if fresh && self.sw().target_reached() {
+                        self.step = Step::Done;
+                    }
+                }
+            }
+            Demand::QuickStop => {
+                self.cw = Command::QuickStop.controlword();
+                self.pp.reset();
+                let stopped = matches!(
+                    self.state(),
+                    Some(State::QuickStopActive | State::SwitchOnDisabled)
+                );
+                if fresh && stopped && self.feedback.velocity == 0 {
+                    self.step = Step::Done;
+                }
+            }
+            // Refused by `check`.
+            Demand::Force { .. } | Demand::DriveRecord { .. } | Demand::Teach => {}
+        }
+    }
+
+    /// Homing: mode 6, bit 4 low then high once 6061h shows 6; done on bits 12 + 10.
+    fn home(&mut self, fresh: bool) {
+        self.mode = Mode::Homing;
+        if !self.power() {
+            self.step = Step::Start;
+            return;
+        }
+        if !self.mode_active() {
+            self.cw = Self::enable_op();
+            self.step = Step::Start;
+            return;
+        }
+        let status = HomingStatus::from_statusword(self.sw());
+        self.step = match self.step {
+            Step::Start => Step::HomeLow,
+            Step::HomeLow if fresh => Step::HomeRaised {
+                images: 0,
+                running: false,
+            },
+            Step::HomeRaised { images, running } if fresh => {
+                let images = images + 1;
+                let running = running
+                    || !matches!(
+                        status,
+                        Some(HomingStatus::Completed | HomingStatus::ErrorStopped)
+                    );
+                let believed = running || images >= HOMING_STALE_IMAGES;
+                match status {
+                    Some(HomingStatus::Completed) if believed => {
+                        self.homed = true;
+                        Step::Done
+                    }
+                    Some(HomingStatus::ErrorStopped | HomingStatus::ErrorMoving) if believed => {
+                        Step::Failed
+                    }
+                    _ => Step::HomeRaised { images, running },
+                }
+            }
+            s => s,
+        };
+        // Bit 4 stays high after the end: its fall would only matter during a run.
+        let start = matches!(
+            self.step,
+            Step::HomeRaised { .. } | Step::Done | Step::Failed
+        );
+        self.cw = Self::enable_op().with(Controlword::HOMING_START, start);
+    }
+
+    /// `position` moved on by `lead` cycles at `velocity`.
+    fn ahead(&self, position: i64, velocity: i64, lead: u32) -> i32 {
+        let ns = i128::from(lead) * i128::from(self.cycle_ns);
+        let p = i128::from(position) + i128::from(velocity) * ns / 1_000_000_000;
+        p.clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i32
+    }
+
+    /// Jog and velocity: PP set-points streamed from an integrated position.
+    fn jog(&mut self, fresh: bool, velocity: i64) {
+        self.mode = Mode::ProfilePosition;
+        let start = self.feedback.position;
+        let moving = self.state() == Some(State::OperationEnabled);
+        let mut nano = self.jog_nano.unwrap_or(i128::from(start) * 1_000_000_000);
+        if moving {
+            nano += i128::from(velocity) * i128::from(self.cycle_ns);
+        }
+        self.jog_nano = Some(nano);
+        let here = (nano / 1_000_000_000) as i64;
+        self.stream(fresh, here, velocity, None);
+        if self.acked.is_some() {
+            self.step = Step::Done;
+        }
+    }
+
+    /// The profile-position set-point stream: a new set-point whenever the handshake is free,
+    /// `position` placed as many cycles ahead at `velocity` as the last handshake took; `last`
+    /// is the path's end to compare for `motion_complete` (`None` for jog).
+    fn stream(&mut self, fresh: bool, position: i64, velocity: i64, last: Option<i64>) {
+        let target = self.ahead(position, velocity, self.lead);
+        if !self.power() || !self.mode_active() {
+            if self.state() == Some(State::OperationEnabled) {
+                self.cw = Self::enable_op();
+                self.pp.reset();
+            }
+            self.target = target;
+            self.step = Step::Start;
+            return;
+        }
+        if fresh {
+            for e in self.pp.handle_statusword(self.sw()) {
+                match e {
+                    PpEvent::Acknowledged => {
+                        self.acked = Some(self.requested);
+                        self.reached = false;
+                    }
+                    PpEvent::TargetReached => self.reached = true,
+                    PpEvent::Ready => {}
+                }
+            }
+        }
+        let lead = self.since_request.clamp(MIN_LEAD_CYCLES, MAX_LEAD_CYCLES);
+        let target = self.ahead(position, velocity, lead);
+        if self.pp.state() == PpMasterState::Idle && self.acked != Some(target) {
+            let r = SetPointRequest {
+                target,
+                relative: false,
+                immediate: self.profile.change_set_immediately,
+            };
+            if self.pp.request(r).is_ok() {
+                self.lead = lead;
+                self.since_request = 0;
+                self.requested = target;
+                self.reached = false;
+            }
+        }
+        self.target = self.pp.target().unwrap_or(target);
+        self.cw = self.pp.controlword(Self::enable_op());
+        if let Some(end) = last {
+            let arrived = self.pp.state() == PpMasterState::Idle
+                && self.acked == Some(clamp_i32(end))
+                && self.reached
+                && self.sw().target_reached();
+            self.step = if arrived { Step::Done } else { Step::Start };
+        }
+    }
+
+    /// Cyclic synchronous position: the setpoint every cycle, no handshake.
+    fn csp_follow(&mut self, position: i64, velocity: i64) {
+        self.mode = Mode::CyclicSyncPosition;
+        self.target = clamp_i32(position);
+        if !self.power() || !self.mode_active() {
+            if self.state() == Some(State::OperationEnabled) {
+                self.cw = Self::enable_op();
+            }
+            self.step = Step::Start;
+            return;
+        }
+        self.cw = Self::enable_op();
+        let near =
+            self.feedback.position.abs_diff(position) <= u64::from(self.settings.position_window);
+        self.step = if velocity == 0 && near {
+            Step::Done
+        } else {
+            Step::Start
+        };
+    }
+
+    fn update_feedback(&mut self) {
+        let state = self.state();
+        let f = &mut self.feedback;
+        f.done = self.step == Step::Done;
+        f.failed = self.step == Step::Failed;
+        f.homed = self.homed;
+        let (Some(i), Some(state)) = (self.input, state) else {
+            f.state = AxisState::Offline;
+            return;
+        };
+        let sw = i.statusword;
+        f.status = sw.0;
+        f.warning = sw.warning();
+        f.motion_complete = match self.demand {
+            Demand::Follow { .. } | Demand::Home => f.done,
+            Demand::Jog { .. } | Demand::Velocity { .. } => false,
+            _ => sw.target_reached(),
+        };
+        let wants_power = !matches!(self.demand, Demand::Disable | Demand::Acknowledge);
+        f.state = match state {
+            State::Fault | State::FaultReactionActive => AxisState::Fault,
+            State::QuickStopActive => AxisState::Stopping,
+            State::NotReadyToSwitchOn
+            | State::SwitchOnDisabled
+            | State::ReadyToSwitchOn
+            | State::SwitchedOn => {
+                if wants_power {
+                    AxisState::Enabling
+                } else {
+                    AxisState::Disabled
+                }
+            }
+            State::OperationEnabled => match self.demand {
+                Demand::Halt if !sw.target_reached() || f.velocity != 0 => AxisState::Stopping,
+                Demand::Home if !f.done && !f.failed => AxisState::Homing,
+                Demand::Jog { .. } | Demand::Velocity { .. } => AxisState::Moving,
+                _ if f.velocity != 0 => AxisState::Moving,
+                _ if i.mode == Mode::ProfilePosition.code() && !sw.target_reached() => {
+                    AxisState::Moving
+                }
+                _ => AxisState::Ready,
+            },
+        };
+    }
+}
+
+/// Refuses what CiA 402 (as mapped here) cannot do.
+fn check(demand: &Demand) -> Result<(), AxisError> {
+    match demand {
+        Demand::Force { .. } => Err(AxisError::Unsupported("force on a CiA 402 drive")),
+        Demand::DriveRecord { .. } => Err(AxisError::Unsupported("drive records in CiA 402")),
+        Demand::Teach => Err(AxisError::Unsupported("teach in CiA 402")),
+        _ => Ok(()),
+    }
+}
+
+/// Whether `new` continues `old`'s task: streams stay one stream, jogs one direction.
+fn same_task(old: &Demand, new: &Demand) -> bool {
+    match (old, new) {
+        (Demand::Follow { .. }, Demand::Follow { .. }) => true,
+        (Demand::Jog { positive: a, .. }, Demand::Jog { positive: b, .. }) => a == b,
+        (Demand::Velocity { .. }, Demand::Velocity { .. }) => true,
+        _ => old == new,
+    }
+}
+
+fn clamp_i32(v: i64) -> i32 {
+    v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CYCLE: u32 = 1_000_000;
+
+    /// A TLC5xx TPDO1: statusword, position, mode display.
+    fn tpdo(sw: u16, pos: i32, mode: i8) -> [u8; 7] {
+        let s = sw.to_le_bytes();
+        let p = pos.to_le_bytes();
+        [s[0], s[1], p[0], p[1], p[2], p[3], mode as u8]
+    }
+
+    fn ex(a: &mut Cia402Axis, input: &[u8], d: Demand) -> (Output, Feedback) {
+        let mut out = Image::default();
+        let fb = a.exchange(Some(input), &d, &mut out).unwrap();
+        assert_eq!(usize::from(out.len), a.layout().tx_len());
+        (Output::from_bytes(a.layout(), out.bytes()).unwrap(), fb)
+    }
+
+    fn axis() -> Cia402Axis {
+        Cia402Axis::new(Layout::Tlc5xx, CYCLE)
+    }
+
+    #[test]
+    fn layouts_round_trip_and_short_images_are_refused() {
+        let o = Output {
+            controlword: Controlword(0x005F),
+            target: -5,
+            mode: 6,
+            record: 3,
+        };
+        let img = o.to_image(Layout::MtrDci);
+        assert_eq!(img.bytes(), &[0x5F, 0, 3, 6, 0xFB, 0xFF, 0xFF, 0xFF]);
+        assert_eq!(Output::from_bytes(Layout::MtrDci, img.bytes()), Ok(o));
+        let img = o.to_image(Layout::Tlc5xx);
+        assert_eq!(img.bytes(), &[0x5F, 0, 0xFB, 0xFF, 0xFF, 0xFF, 6]);
+        assert_eq!(
+            decode_input(Layout::Tlc5xx, &[0x27, 0x04, 1, 0, 0]),
+            Err(AxisError::Short { len: 5, need: 7 })
+        );
+        let i = decode_input(Layout::MtrDci, &[0x37, 0x86, 2, 1, 10, 0, 0, 0]).unwrap();
+        assert_eq!(
+            (i.statusword.0, i.record, i.mode, i.position),
+            (0x8637, 2, 1, 10)
+        );
+    }
+
+    #[test]
+    fn enable_walks_the_state_machine() {
+        let mut a = axis();
+        let d = Demand::Standstill;
+        let (o, fb) = ex(&mut a, &tpdo(0x0040, 0, 1), d);
+        assert_eq!(o.controlword.0, 0x0006, "Shutdown from Switch on disabled");
+        assert_eq!(o.mode, 1);
+        assert_eq!(fb.state, AxisState::Enabling);
+        let (o, _) = ex(&mut a, &tpdo(0x0421, 0, 1), d);
+        assert_eq!(o.controlword.0, 0x000F);
+        let (o, fb) = ex(&mut a, &tpdo(0x0427, 0, 1), d);
+        assert_eq!(o.controlword.0, 0x000F);
+        assert!(fb.done);
+        assert_eq!(fb.state, AxisState::Ready);
+    }
+
+    #[test]
+    fn follow_streams_pp_set_points_with_bits_4_5_6_and_the_lead() {
+        let mut a = axis();
+        let d = |p| Demand::Follow {
+            position: p,
+            velocity: 100_000,
+        };
+        // Operation enabled, PP active, target reached.
+        let (o, _) = ex(&mut a, &tpdo(0x0427, 0, 1), d(0));
+        // New set-point (4), change set immediately (5), absolute (6 = 1 on the TLC5xx).
+        assert_eq!(o.controlword.0, 0x007F);
+        assert_eq!(o.target, 200, "two cycles ahead at 100 000 units/s");
+        let (o, _) = ex(&mut a, &tpdo(0x1027, 5, 1), d(100));
+        assert_eq!(o.controlword.0 & 0x10, 0, "acknowledged: bit 4 low");
+        assert_eq!(o.target, 200);
+        let (o, fb) = ex(&mut a, &tpdo(0x0027, 60, 1), d(200));
+        assert_eq!(
+            o.controlword.0 & 0x10,
+            0x10,
+            "bit 12 low: the next set-point"
+        );
+        assert_eq!(o.target, 400);
+        assert!(!fb.motion_complete);
+        // A slow drive (4 cycles per handshake) gets a longer lead.
+        ex(&mut a, &tpdo(0x0027, 100, 1), d(300));
+        ex(&mut a, &tpdo(0x1027, 150, 1), d(400));
+        ex(&mut a, &tpdo(0x1027, 200, 1), d(500));
+        let (o, _) = ex(&mut a, &tpdo(0x0027, 250, 1), d(600));
+        assert_eq!(o.target, 600 + 400, "four cycles ahead");
+    }
+
+    #[test]
+    fn follow_is_complete_only_on_the_final_set_point_with_bit_10() {
+        let mut a = axis();
+        let d = Demand::Follow {
+            position: 1000,
+            velocity: 0,
+        };
+        let (o, _) = ex(&mut a, &tpdo(0x0427, 0, 1), d);
+        assert_eq!(o.target, 1000);
+        // Old bit 10 with the acknowledge: not complete.
+        let (_, fb) = ex(&mut a, &tpdo(0x1427, 0, 1), d);
+        assert!(!fb.motion_complete);
+        let (o, fb) = ex(&mut a, &tpdo(0x0027, 500, 1), d);
+        assert_eq!(o.controlword.0 & 0x10, 0, "no new set-point: same target");
+        assert!(!fb.motion_complete);
+        let (_, fb) = ex(&mut a, &tpdo(0x0427, 1000, 1), d);
+        assert!(fb.motion_complete && fb.done);
+    }
+
+    #[test]
+    fn mode_change_waits_for_the_display_before_homing_starts() {
+        let mut a = axis();
+        let (o, _) = ex(&mut a, &tpdo(0x0427, 0, 1), Demand::Home);
+        assert_eq!((o.mode, o.controlword.0), (6, 0x000F));
+        let (o, _) = ex(&mut a, &tpdo(0x0427, 0, 1), Demand::Home);
+        assert_eq!(o.controlword.0, 0x000F, "6061h still 1");
+        let (o, _) = ex(&mut a, &tpdo(0x0427, 0, 6), Demand::Home);
+        assert_eq!(o.controlword.0, 0x000F, "bit 4 low first");
+        let (o, fb) = ex(&mut a, &tpdo(0x0427, 0, 6), Demand::Home);
+        assert_eq!(o.controlword.0, 0x001F, "bit 4 rises");
+        assert_eq!(fb.state, AxisState::Homing);
+        let (_, fb) = ex(&mut a, &tpdo(0x0027, 40, 6), Demand::Home);
+        assert!(!fb.done);
+        let (o, fb) = ex(&mut a, &tpdo(0x1427, 0, 6), Demand::Home);
+        assert_eq!(o.controlword.0, 0x001F);
+        assert!(fb.done && fb.homed && fb.motion_complete);
+    }
+
+    #[test]
+    fn homing_error_fails_the_demand() {
+        let mut a = axis();
+        for sw in [0x0427, 0x0427, 0x0427, 0x0027, 0x2427] {
+            ex(&mut a, &tpdo(sw, 0, 6), Demand::Home);
+        }
+        let (_, fb) = ex(&mut a, &tpdo(0x2427, 0, 6), Demand::Home);
+        assert!(fb.failed && !fb.done && !fb.homed);
+    }
+
+    #[test]
+    fn fault_reset_edge_halt_and_quick_stop() {
+        let mut a = axis();
+        let (o1, fb) = ex(&mut a, &tpdo(0x0008, 0, 1), Demand::Acknowledge);
+        assert_eq!(fb.state, AxisState::Fault);
+        let (o2, _) = ex(&mut a, &tpdo(0x0008, 0, 1), Demand::Acknowledge);
+        assert_ne!(
+            o1.controlword.0 & 0x80,
+            o2.controlword.0 & 0x80,
+            "bit 7 toggles"
+        );
+        let (o3, fb) = ex(&mut a, &tpdo(0x0040, 0, 1), Demand::Acknowledge);
+        assert_eq!(o3.controlword.0 & 0x80, 0);
+        assert!(fb.done);
+        assert_eq!(fb.state, AxisState::Disabled);
+        ex(&mut a, &tpdo(0x0027, 0, 1), Demand::Standstill);
+        let (o, fb) = ex(&mut a, &tpdo(0x0027, 30, 1), Demand::Halt);
+        assert_eq!(o.controlword.0, 0x010F);
+        assert_eq!(fb.state, AxisState::Stopping);
+        let (_, fb) = ex(&mut a, &tpdo(0x0427, 30, 1), Demand::Halt);
+        assert!(fb.done);
+        let (o, _) = ex(&mut a, &tpdo(0x0427, 30, 1), Demand::QuickStop);
+        assert_eq!(o.controlword.0, 0x0002);
+        let (_, fb) = ex(&mut a, &tpdo(0x0007, 30, 1), Demand::QuickStop);
+        assert!(fb.done);
+        assert_eq!(fb.state, AxisState::Stopping);
+    }
+
+    #[test]
+    fn enabling_never_resets_a_fault() {
+        let mut a = axis();
+        for _ in 0..3 {
+            let (o, fb) = ex(
+                &mut a,
+                &tpdo(0x0008, 0, 1),
+                Demand::Follow {
+                    position: 5,
+                    velocity: 0,
+                },
+            );
+            assert_eq!(o.controlword.0, 0x0000);
+            assert_eq!(fb.state, AxisState::Fault);
+        }
+    }
+
+    #[test]
+    fn csp_sends_the_setpoint_every_cycle_without_handshake() {
+        let mut a = axis().with_csp();
+        let (o, _) = ex(
+            &mut a,
+            &tpdo(0x0027, 0, 8),
+            Demand::Follow {
+                position: 10,
+                velocity: 10_000,
+            },
+        );
+        assert_eq!((o.mode, o.controlword.0, o.target), (8, 0x000F, 10));
+        let (o, _) = ex(
+            &mut a,
+            &tpdo(0x0027, 10, 8),
+            Demand::Follow {
+                position: 20,
+                velocity: 0,
+            },
+        );
+        assert_eq!((o.controlword.0, o.target), (0x000F, 20));
+        let (_, fb) = ex(
+            &mut a,
+            &tpdo(0x0027, 20, 8),
+            Demand::Follow {
+                position: 20,
+                velocity: 0,
+            },
+        );
+        assert!(fb.motion_complete);
+    }
+
+    #[test]
+    fn force_teach_and_records_are_refused_with_halt() {
+        let mut a = axis();
+        ex(&mut a, &tpdo(0x0027, 0, 1), Demand::Standstill);
+        let mut out = Image::default();
+        let e = a.exchange(
+            None,
+            &Demand::Force {
+                permille: 100,
+                velocity_limit: 1,
+            },
+            &mut out,
+        );
+        assert!(matches!(e, Err(AxisError::Unsupported(_))));
+        assert_eq!(out.data[1] & 0x01, 0x01, "bit 8 halt");
+        let e = a.exchange(None, &Demand::Teach, &mut out);
+        assert!(matches!(e, Err(AxisError::Unsupported(_))));
+    }
+
+    #[test]
+    fn jog_streams_integrated_positions() {
+        let mut a = axis();
+        let d = Demand::Jog {
+            positive: false,
+            velocity: 50_000,
+        };
+        let (o, fb) = ex(&mut a, &tpdo(0x0427, 1000, 1), d);
+        // 1000 − 50 (one cycle) − 100 (two cycles of lead).
+        assert_eq!(o.target, 850);
+        assert_eq!(o.controlword.0 & 0x10, 0x10);
+        assert!(!fb.done);
+        let (_, fb) = ex(&mut a, &tpdo(0x1027, 990, 1), d);
+        assert!(fb.done);
+        assert_eq!(fb.state, AxisState::Moving);
+    }
+}

@@ -6,7 +6,23 @@
 //! changes); the axis turns it into this cycle's output image (the RPDO or Modbus register
 //! bytes) from the input image that arrived (TPDO or Modbus registers), and reports a
 //! [`Feedback`]. The codecs are the drivers' (`drivers::fhpp`, `drivers::cia402`), the same the
-//! simulators use. Everything here is `no_std`, allocation-free and bounded.
+//! simulators use. Everything here is `no_std`, allocation-free and bounded: [`DriveAxis::exchange`]
+//! may be called from the cycle step.
+//!
+//! [`pdo_mapping`] says which PDOs the boot configures for each drive (and so which images
+//! [`DriveAxis::exchange`] reads and writes); `config::axis_pdos` budgets the same lengths.
+//!
+//! ```
+//! use coordinator::axis::{Demand, DeviceKind, DriveAxis, Image, Profile};
+//! let mut axis = DriveAxis::new(DeviceKind::MtrDci, Profile::Fhpp, 2_000_000).unwrap();
+//! let mut out = Image::default();
+//! // The drive's power-on image (drive blocked, load voltage, MC): the axis enables it.
+//! let fb = axis
+//!     .exchange(Some(&[0x10, 0x04, 0, 0, 0, 0, 0, 0]), &Demand::Standstill, &mut out)
+//!     .unwrap();
+//! assert_eq!(out.bytes()[..2], [0x23, 0x01]); // CCON ENABLE | STOP | LOCK, CPOS HALT
+//! assert!(!fb.done);
+//! ```
 
 pub mod cia402;
 pub mod fhpp;
@@ -164,6 +180,10 @@ pub struct Feedback {
     /// The last demand has been carried out (enable reached, homing done, record done, teach
     /// taken, acknowledge done), so the cycle may move on.
     pub done: bool,
+    /// The last demand failed and will not complete by itself (the drive refused or faulted
+    /// during a handshake, homing ended with an error, a phase timed out). Cleared when the
+    /// demand changes.
+    pub failed: bool,
 }
 
 /// Why an input image could not be used.
@@ -180,6 +200,10 @@ pub enum AxisError {
     /// The demand cannot be carried out by this drive (for example force on a CiA 402 drive).
     #[error("the drive cannot do {0}")]
     Unsupported(&'static str),
+    /// The image has the right length but cannot be decoded (an FHPP reserved operating mode,
+    /// an undefined CiA 402 statusword pattern); the last feedback is kept.
+    #[error("input image not decodable: {0}")]
+    Decode(&'static str),
 }
 
 /// One axis's drive on the master side: the profile's state machine behind one interface.
@@ -189,4 +213,186 @@ pub enum DriveAxis {
     Fhpp(fhpp::FhppAxis),
     /// A CiA 402 drive.
     Cia402(cia402::Cia402Axis),
+}
+
+impl DriveAxis {
+    /// The master side for a `kind` drive spoken to in `profile`, exchanged every `cycle_ns`
+    /// nanoseconds (used to extrapolate streamed targets and to integrate jog positions).
+    /// Refuses a combination no simulator or manual offers: the TLC5xx in FHPP, the CMMO-ST
+    /// in CiA 402, and the EMCA in CiA 402 (its 402 firmware is not modelled), and a zero cycle.
+    pub fn new(kind: DeviceKind, profile: Profile, cycle_ns: u32) -> Result<DriveAxis, AxisError> {
+        use drivers::fhpp::Variant;
+        if cycle_ns == 0 {
+            return Err(AxisError::Unsupported("a cycle of 0 ns"));
+        }
+        match (kind, profile) {
+            (DeviceKind::MtrDci, Profile::Fhpp) => Ok(DriveAxis::Fhpp(fhpp::FhppAxis::new(
+                Variant::MtrDci,
+                cycle_ns,
+            ))),
+            (DeviceKind::Emca, Profile::Fhpp) => Ok(DriveAxis::Fhpp(fhpp::FhppAxis::new(
+                Variant::Emca,
+                cycle_ns,
+            ))),
+            (DeviceKind::CmmoSt, Profile::Fhpp) => Ok(DriveAxis::Fhpp(fhpp::FhppAxis::new(
+                Variant::CmmoSt,
+                cycle_ns,
+            ))),
+            (DeviceKind::Tlc5xx, Profile::Cia402) => Ok(DriveAxis::Cia402(
+                cia402::Cia402Axis::new(cia402::Layout::Tlc5xx, cycle_ns),
+            )),
+            (DeviceKind::MtrDci, Profile::Cia402) => Ok(DriveAxis::Cia402(
+                cia402::Cia402Axis::new(cia402::Layout::MtrDci, cycle_ns),
+            )),
+            (DeviceKind::Tlc5xx, Profile::Fhpp) => Err(AxisError::Unsupported("FHPP on a TLC5xx")),
+            (DeviceKind::CmmoSt, Profile::Cia402) => {
+                Err(AxisError::Unsupported("CiA 402 on a CMMO-ST"))
+            }
+            (DeviceKind::Emca, Profile::Cia402) => {
+                Err(AxisError::Unsupported("CiA 402 on an EMCA (not modelled)"))
+            }
+        }
+    }
+
+    /// One cycle: `input` is this cycle's image from the drive (`None` if none arrived: the
+    /// last feedback is kept and `out` still written), `demand` what the cycle wants, `out`
+    /// receives the bytes to send. On an error `out` holds a safe image (halt / hold).
+    pub fn exchange(
+        &mut self,
+        input: Option<&[u8]>,
+        demand: &Demand,
+        out: &mut Image,
+    ) -> Result<Feedback, AxisError> {
+        match self {
+            DriveAxis::Fhpp(a) => a.exchange(input, demand, out),
+            DriveAxis::Cia402(a) => a.exchange(input, demand, out),
+        }
+    }
+
+    /// Bytes of the input image (TPDO / Modbus input registers) the axis expects.
+    pub fn rx_len(&self) -> usize {
+        match self {
+            DriveAxis::Fhpp(_) => fhpp::IMAGE_LEN,
+            DriveAxis::Cia402(a) => a.layout().rx_len(),
+        }
+    }
+
+    /// Bytes of the output image (RPDO / Modbus output registers) the axis writes.
+    pub fn tx_len(&self) -> usize {
+        match self {
+            DriveAxis::Fhpp(_) => fhpp::IMAGE_LEN,
+            DriveAxis::Cia402(a) => a.layout().tx_len(),
+        }
+    }
+
+    /// The same axis streaming `Follow` in cyclic synchronous position (CiA 402 mode 8) for a
+    /// drive that offers it; an FHPP axis is returned unchanged.
+    pub fn with_csp(self) -> DriveAxis {
+        match self {
+            DriveAxis::Cia402(a) => DriveAxis::Cia402(a.with_csp()),
+            f => f,
+        }
+    }
+
+    /// Forgets everything learnt from the drive (after a drive reset or a lost connection):
+    /// the axis is offline until the next image.
+    pub fn reset(&mut self) {
+        match self {
+            DriveAxis::Fhpp(a) => a.reset(),
+            DriveAxis::Cia402(a) => a.reset(),
+        }
+    }
+}
+
+/// One PDO the coordinator configures at boot for an axis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PdoSpec {
+    /// The PDO number, 1..=4 (communication object 1400h/1800h + number − 1).
+    pub number: u8,
+    /// The COB-ID function (`Rpdo(n)` / `Tpdo(n)`); the COB-ID is its base + node-ID.
+    pub function: drivers::canopen::FunctionCode,
+    /// The mapping entries in order (index << 16 | sub << 8 | bits), as 1600h/1A00h hold them.
+    pub mapping: &'static [u32],
+    /// Whether the device lets the master write the mapping. `false`: static mapping (Festo
+    /// §5.4.4): the boot only reads it back and compares.
+    pub remappable: bool,
+    /// The transmission type to write (1 = synchronous, every SYNC).
+    pub transmission: u8,
+}
+
+impl PdoSpec {
+    /// Data bytes of the mapped objects.
+    pub fn len(&self) -> usize {
+        self.mapping.iter().map(|m| usize::from(*m as u8) / 8).sum()
+    }
+    /// Whether nothing is mapped.
+    pub fn is_empty(&self) -> bool {
+        self.mapping.is_empty()
+    }
+}
+
+/// The cyclic PDOs of one axis, each way; both `None` for a Modbus drive (the CMMO-ST's image
+/// is registers 0..3 / 4..7, not PDOs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PdoMap {
+    /// Master → drive (the output image).
+    pub rpdo: Option<PdoSpec>,
+    /// Drive → master (the input image).
+    pub tpdo: Option<PdoSpec>,
+}
+
+/// The Festo FHPP objects on PDO1 (MTR-DCI §7.4, EMCA §5.1; `sim::mtr_dci`): CCON, CPOS,
+/// CDIR/record, value 1, value 2.
+const FHPP_RPDO1: &[u32] = &[
+    0x3000_0008,
+    0x3001_0008,
+    0x3002_0008,
+    0x3003_0008,
+    0x3004_0020,
+];
+/// SCON, SPOS, SDIR/record, RSB/value 1, value 2.
+const FHPP_TPDO1: &[u32] = &[
+    0x3020_0008,
+    0x3021_0008,
+    0x3022_0008,
+    0x3023_0008,
+    0x3024_0020,
+];
+/// MTR-DCI CiA 402 static PDO1 (§7.4): controlword, record number 2032h:01, 6060h, 607Ah.
+const MTR_402_RPDO1: &[u32] = &[0x6040_0010, 0x2032_0108, 0x6060_0008, 0x607A_0020];
+/// Statusword, record number, 6061h, 6064h.
+const MTR_402_TPDO1: &[u32] = &[0x6041_0010, 0x2032_0108, 0x6061_0008, 0x6064_0020];
+/// TLC5xx RPDO1 as the coordinator maps it (7 bytes): controlword, target position 607Ah,
+/// modes of operation 6060h.
+pub const TLC_RPDO1: &[u32] = &[0x6040_0010, 0x607A_0020, 0x6060_0008];
+/// TLC5xx TPDO1 (7 bytes): statusword, position actual value 6064h, modes display 6061h.
+pub const TLC_TPDO1: &[u32] = &[0x6041_0010, 0x6064_0020, 0x6061_0008];
+
+/// The cyclic PDOs the coordinator configures for a `kind` drive in `profile` (see
+/// [`DriveAxis::rx_len`] for the image lengths they produce). Combinations
+/// [`DriveAxis::new`] refuses get no PDOs.
+pub fn pdo_mapping(kind: DeviceKind, profile: Profile) -> PdoMap {
+    use drivers::canopen::FunctionCode;
+    let pdo = |function, mapping, remappable| PdoSpec {
+        number: 1,
+        function,
+        mapping,
+        remappable,
+        transmission: 1,
+    };
+    let pair = |r, t, remappable| PdoMap {
+        rpdo: Some(pdo(FunctionCode::Rpdo(1), r, remappable)),
+        tpdo: Some(pdo(FunctionCode::Tpdo(1), t, remappable)),
+    };
+    match (kind, profile) {
+        (DeviceKind::MtrDci | DeviceKind::Emca, Profile::Fhpp) => {
+            pair(FHPP_RPDO1, FHPP_TPDO1, false)
+        }
+        (DeviceKind::MtrDci, Profile::Cia402) => pair(MTR_402_RPDO1, MTR_402_TPDO1, false),
+        (DeviceKind::Tlc5xx, Profile::Cia402) => pair(TLC_RPDO1, TLC_TPDO1, true),
+        _ => PdoMap {
+            rpdo: None,
+            tpdo: None,
+        },
+    }
 }
