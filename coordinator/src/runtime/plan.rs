@@ -15,6 +15,7 @@ use crate::profile::{AxisLimits, Shape};
 use crate::records::RecordTable;
 use crate::runtime::boot::{self, BootPlan, SupervisionPlan};
 
+
 /// Axes a configured machine may have (the runtime's capacity; the cycle is generic).
 pub const MAX_AXES: usize = 128;
 /// Groups a configured machine may have.
@@ -95,6 +96,25 @@ fn limits(a: &AxisConfig) -> AxisLimits {
     )
 }
 
+/// Increments per motor revolution of the TLC5xx (AC motor with Sincoder, manual §6.3): its
+/// profile velocity is in rpm and its accelerations in rpm/s.
+pub const TLC_INCREMENTS_PER_REV: u64 = 16384;
+
+/// The TLC5xx parameters the coordinator's use needs: homing method 35 (the current position is
+/// the reference: the embedded machine has no switches) and a profile velocity and
+/// acceleration a quarter above the axis's limits, so that the profile-position set-points the
+/// coordinator streams are reached before the next one arrives.
+fn tlc_parameters(l: &AxisLimits) -> Vec<(drivers::canopen::Address, u32, u8)> {
+    use drivers::canopen::Address;
+    let rpm = |inc_per_s: u64| inc_per_s.saturating_mul(60 * 5 / 4) / TLC_INCREMENTS_PER_REV;
+    vec![
+        (Address::new(0x6098, 0), 35, 1),
+        (Address::new(0x6081, 0), rpm(l.velocity).clamp(1, 3000) as u32, 4),
+        (Address::new(0x6083, 0), rpm(l.acceleration).clamp(60, 2_000_000) as u32, 4),
+        (Address::new(0x6084, 0), rpm(l.deceleration).clamp(60, 2_000_000) as u32, 4),
+    ]
+}
+
 /// Turns a configuration that passed [`Config::check`] into a machine plan.
 pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     let report = cfg.check();
@@ -165,9 +185,12 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             };
             let node = NodeId::new(n).ok_or_else(|| format!("axes.{}.node: {n} is not 1..=127", a.name))?;
             let map = axis::pdo_mapping(k, p);
-            let mut bp = boot::plan_for(node, k, map.rpdo, map.tpdo, sp)
+            let entries = |s: Option<axis::PdoSpec>| s.map_or(&[][..], |s| s.mapping);
+            let mut bp = boot::plan_for(node, k, entries(map.rpdo), entries(map.tpdo), sp)
                 .map_err(|e| format!("axes.{}: {e}", a.name))?;
-            bp.writes.extend_from_slice(map.boot_writes);
+            if k == DeviceKind::Tlc5xx {
+                bp.parameters = tlc_parameters(&lim);
+            }
             (Transport::Can { node: n }, sup, Some(bp))
         };
         // The default following-error limit: the distance covered in 50 ms at full speed,
