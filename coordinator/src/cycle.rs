@@ -234,6 +234,8 @@ struct AxisRt {
     /// The solo move is dropped once stopped (Stop, as opposed to Hold).
     solo_stop: bool,
     group: Option<GroupId>,
+    /// A velocity or force record of the group drives this axis directly.
+    special: Option<Demand>,
     last_state: AxisState,
     out: Image,
 }
@@ -246,9 +248,9 @@ struct GroupRt<'t> {
     motion: Option<Group<MAX_GROUP_AXES>>,
     /// The move is to be dropped once stopped (Stop, as opposed to Hold).
     stop_pending: bool,
-    /// The record whose motion is running (for chain "reached").
     override_percent: u16,
-    reached: Option<u16>,
+    /// The cycle a velocity or force record started in (its members run on `special`).
+    special_since: Option<u64>,
 }
 
 /// Published state of one axis.
@@ -352,6 +354,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     solo: None,
                     solo_stop: false,
                     group: None,
+                    special: None,
                     last_state: AxisState::Offline,
                     out: Image::default(),
                 })
@@ -374,7 +377,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     motion: None,
                     stop_pending: false,
                     override_percent: 100,
-                    reached: None,
+                    special_since: None,
                 })
                 .map_err(|_| SetupError::Capacity(G))?;
         }
@@ -560,9 +563,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             }
             Command::Disable(t) => {
                 let (g0, g1) = self.groups_of(t)?;
-                for g in &mut self.groups[g0..g1] {
-                    g.motion = None;
-                    g.chain.abort(self.now);
+                for gi in g0..g1 {
+                    self.groups[gi].motion = None;
+                    self.abort_chain(gi);
                 }
                 self.for_target(t, |a| {
                     a.mode = Mode::Off;
@@ -572,12 +575,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 })
             }
             Command::Acknowledge(t) => {
-                let now = self.now;
                 let (g0, g1) = self.groups_of(t)?;
-                for g in &mut self.groups[g0..g1] {
-                    g.motion = None;
-                    g.stop_pending = false;
-                    g.chain.abort(now);
+                for gi in g0..g1 {
+                    self.groups[gi].motion = None;
+                    self.groups[gi].stop_pending = false;
+                    self.abort_chain(gi);
                 }
                 self.for_target(t, |a| {
                     let enable_after = !matches!(a.mode, Mode::Off);
@@ -730,10 +732,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 })
             }
             Command::Stop(t) => {
-                let now = self.now;
                 let (g0, g1) = self.groups_of(t)?;
-                for g in &mut self.groups[g0..g1] {
-                    g.chain.abort(now);
+                for gi in g0..g1 {
+                    self.abort_chain(gi);
+                    let g = &mut self.groups[gi];
                     if let Some(m) = &mut g.motion {
                         m.hold();
                         g.stop_pending = true;
@@ -752,11 +754,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 })
             }
             Command::QuickStop(t) => {
-                let now = self.now;
                 let (g0, g1) = self.groups_of(t)?;
-                for g in &mut self.groups[g0..g1] {
-                    g.chain.abort(now);
-                    g.motion = None;
+                for gi in g0..g1 {
+                    self.abort_chain(gi);
+                    self.groups[gi].motion = None;
                 }
                 self.for_target(t, |a| {
                     a.solo = None;
@@ -995,12 +996,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             reason,
         });
         let Some(g) = group else { return };
-        let now = self.now;
+        self.abort_chain(usize::from(g));
         let gr = &mut self.groups[usize::from(g)];
         let reaction = gr.setup.reaction;
-        if gr.chain.status().active.is_some() {
-            gr.chain.abort(now);
-        }
         match reaction {
             Reaction::AxisOnly => {}
             Reaction::QuickStopGroup => {
@@ -1027,7 +1025,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     fn run_groups(&mut self, now: Instant) {
         let mut reached = [None::<u16>; G];
         for (i, g) in self.groups.iter().enumerate() {
-            reached[i] = g.reached;
+            reached[i] = g.chain.status().reached;
         }
         for gi in 0..self.groups.len() {
             // Actual values of this cycle, group order.
@@ -1043,9 +1041,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 force[i] = a.feedback.force;
                 all_mc &= a.feedback.motion_complete;
             }
-            let motion_done = match &self.groups[gi].motion {
-                None => all_mc,
-                Some(m) => m.state() == GroupState::Done && all_mc,
+            let motion_done = match (&self.groups[gi].motion, self.groups[gi].special_since) {
+                // A velocity or force record "arrives" when the drives report it (speed or
+                // force reached), not before they have seen it.
+                (_, Some(since)) => all_mc && self.cycle > since + 2,
+                (None, None) => all_mc,
+                (Some(m), None) => m.state() == GroupState::Done && all_mc,
             };
             let ngroups = self.groups.len();
             let g = &mut self.groups[gi];
@@ -1067,14 +1068,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 let cycle = self.cycle;
                 let group = gi as GroupId;
                 match act {
-                    ChainAction::None => {}
                     ChainAction::StartMotion { record } => {
                         let Some(r) = self.groups[gi].table.get(record).copied() else {
                             continue;
                         };
+                        self.end_special(gi);
                         if r.mode != RecordMode::Position {
-                            // Velocity and force records need drive support the host path
-                            // does not stream; they are refused at configuration time.
+                            self.start_special(gi, &r);
                             continue;
                         }
                         // A finished move is dropped before the next one is planned.
@@ -1095,36 +1095,17 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                             )
                             .is_err()
                         {
-                            self.groups[gi].chain.abort(now);
-                            self.emit(Event::ChainAborted {
-                                cycle,
-                                group,
-                                record,
-                            });
+                            self.abort_chain(gi);
+                            let _ = record;
                         }
                     }
-                    ChainAction::Reached { record } => {
-                        self.groups[gi].reached = Some(record);
-                        self.emit(Event::RecordReached {
-                            cycle,
-                            group,
-                            record,
-                        });
-                    }
-                    ChainAction::Complete { record } => {
-                        self.groups[gi].reached = Some(record);
-                        self.emit(Event::ChainComplete {
-                            cycle,
-                            group,
-                            record,
-                        });
-                    }
-                    ChainAction::Aborted { record, .. } => {
-                        self.emit(Event::ChainAborted {
-                            cycle,
-                            group,
-                            record,
-                        });
+                    other => {
+                        if matches!(other, ChainAction::Complete { .. }) {
+                            self.end_special(gi);
+                        }
+                        if let Some(e) = other.event(cycle, group) {
+                            self.emit(e);
+                        }
                     }
                 }
             }
@@ -1150,6 +1131,65 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     g.stop_pending = false;
                 }
             }
+        }
+    }
+
+    /// Starts a velocity or force record: each member with a target runs on its own demand
+    /// (direction from the sign of its target) until the chain moves on.
+    fn start_special(&mut self, gi: usize, r: &crate::records::Record) {
+        let cycle = self.cycle;
+        let members = self.groups[gi].setup.axes.clone();
+        self.groups[gi].motion = None;
+        self.groups[gi].special_since = Some(cycle);
+        for (i, &m) in members.iter().enumerate() {
+            let a = &mut self.axes[usize::from(m)];
+            let sign = match r.targets[i] {
+                AxisTarget::Keep => 0,
+                AxisTarget::Absolute(p) => (p - a.setpoint).signum(),
+                AxisTarget::Relative(d) => d.signum(),
+            };
+            let v = a.setup.limits.velocity as i64 * i64::from(r.velocity_percent) / 100;
+            a.special = match (r.mode, sign) {
+                (_, 0) => None,
+                (RecordMode::Velocity, s) => Some(Demand::Velocity { velocity: s * v }),
+                (RecordMode::Force, s) => Some(Demand::Force {
+                    permille: s as i32 * r.force_permille,
+                    velocity_limit: v,
+                }),
+                (RecordMode::Position, _) => None,
+            };
+            a.following = false;
+            a.solo = None;
+        }
+    }
+
+    /// Ends a velocity or force record: the members stand where they are.
+    fn end_special(&mut self, gi: usize) {
+        if self.groups[gi].special_since.take().is_none() {
+            return;
+        }
+        let members = self.groups[gi].setup.axes.clone();
+        for m in members {
+            let a = &mut self.axes[usize::from(m)];
+            a.special = None;
+            a.setpoint = a.feedback.position;
+        }
+    }
+
+    /// Aborts a group's chain (if it runs) and reports it.
+    fn abort_chain(&mut self, gi: usize) {
+        let now = self.now;
+        let cycle = self.cycle;
+        if gi >= self.groups.len() {
+            return;
+        }
+        self.end_special(gi);
+        let g = &mut self.groups[gi];
+        if !g.chain.is_running() {
+            return;
+        }
+        if let Some(e) = g.chain.abort(now).and_then(|a| a.event(cycle, gi as GroupId)) {
+            self.emit(e);
         }
     }
 
@@ -1193,6 +1233,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         Demand::Jog { positive, velocity }
                     }
                 }
+                Mode::On if a.special.is_some() => a.special.unwrap_or(Demand::Standstill),
                 Mode::On if a.following => Demand::Follow {
                     position: a.setpoint,
                     velocity: a.setpoint_velocity,
@@ -1222,6 +1263,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     });
                 }
                 Mode::Jog { .. } | Mode::Homing | Mode::QuickStopped | Mode::Off => {
+                    self.axes[i].setpoint = fb.position;
+                }
+                Mode::On if a.special.is_some() => {
                     self.axes[i].setpoint = fb.position;
                 }
                 _ => {}
