@@ -276,6 +276,9 @@ pub struct AxisConfig {
     pub increments_per_unit: f64,
     /// Motion limits.
     pub limits: Limits,
+    /// Largest |setpoint - actual| while following a path, in units, before the axis faults;
+    /// default: the distance covered in 50 ms at the velocity limit.
+    pub following_error: Option<f64>,
 }
 
 fn default_unit() -> String {
@@ -1749,6 +1752,9 @@ fn target(rc: &GroupRecordConfig, axis: &AxisConfig, v: f64) -> Result<AxisTarge
 /// Checks the scaling and the limits of one axis, in units and in increments.
 fn check_scaling(key: &str, a: &AxisConfig, err: &mut Errors) {
     let scale_ok = err.positive(&format!("{key}.increments_per_unit"), a.increments_per_unit);
+    if let Some(fe) = a.following_error {
+        err.positive(&format!("{key}.following_error"), fe);
+    }
     let l = &a.limits;
     let lk = format!("{key}.limits");
     let scaled = |v: f64| v * a.increments_per_unit;

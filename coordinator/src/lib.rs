@@ -2,14 +2,13 @@
 //! values, advances every axis, evaluates comparators and record chains, computes synchronised
 //! multi-axis setpoints in fixed point and writes them back.
 //!
-//! This crate will hold (see `docs/architecture.md`): `units` (fixed-point conversions),
-//! `profile` (trapezoidal and jerk-limited profiles), `axis` (FHPP and CiA 402 master-side state
-//! machines), `comparator`, `records`, `budget` (bus admission), `cycle` (the pure step),
-//! `config` and `runtime` (the real-time thread, the executor, shared-memory publishing).
-//! So far: [`budget`] (the bus-load admission check) and [`profile`] (trapezoidal and
-//! jerk-limited profiles, time-synchronised group moves), both `no_std`. Until the cycle
-//! exists, `demo` (with the `std` feature) is what `coordinator run` does: a CANopen master driving simulated
-//! devices over the virtual bus.
+//! The `no_std` core: [`axis`] (FHPP and CiA 402 master-side state machines), [`profile`]
+//! (trapezoidal and jerk-limited profiles, time-synchronised group moves, fixed point),
+//! [`comparator`] and [`records`] (host-side record chains across axes), [`budget`] (the
+//! bus-load admission check), [`command`], [`event`] and [`fault`] (what goes in and out of
+//! the cycle) and [`cycle`] (the pure step that ties them together). With the `std` feature:
+//! `config` (TOML) and `runtime` (the real-time thread, the services, the simulated machine and
+//! `coordinator run`). `docs/architecture.md` and `docs/motion.md` explain the whole.
 //!
 //! ```
 //! assert_eq!(coordinator::drivers::can::bit_timing::worst_case_bits(false, 8), 135);
@@ -23,8 +22,7 @@ pub mod command;
 pub mod comparator;
 #[cfg(feature = "std")]
 pub mod config;
-#[cfg(feature = "std")]
-pub mod demo;
+pub mod cycle;
 pub mod event;
 pub mod fault;
 pub mod profile;

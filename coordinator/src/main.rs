@@ -4,7 +4,8 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::{Parser, Subcommand};
-use coordinator::demo::{DemoConfig, run};
+use coordinator::runtime::run::{RunOptions, run};
+use coordinator::runtime::script::ScriptOptions;
 
 /// The real-time motion coordinator.
 #[derive(Parser)]
@@ -16,25 +17,25 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run the embedded default machine: simulated drives on the virtual CAN bus.
+    /// Run a machine: the embedded default (four simulated drives of four kinds on the virtual
+    /// CAN bus and Modbus TCP, homed, then a demonstration record chain), or `--config FILE`.
     Run {
-        /// Stop after this many seconds of bus time (the cyclic phase).
-        #[arg(long, default_value_t = 5.0)]
-        duration: f64,
-        /// Run as fast as the machine allows (virtual time) instead of in real time.
+        /// The machine's TOML configuration (default: the embedded example, see
+        /// `config-example`).
+        #[arg(long)]
+        config: Option<std::path::PathBuf>,
+        /// End after this many seconds of machine time (then stop and disable the drives);
+        /// without it the run lasts until Ctrl-C.
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Run as fast as the machine allows (virtual time, deterministic) instead of in real
+        /// time.
         #[arg(long)]
         virtual_time: bool,
-        /// Number of simulated drives (node-IDs 1..=N).
-        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u8).range(1..=16))]
-        nodes: u8,
-        /// Cycle (SYNC) period in microseconds. 4 drives with one 6-byte PDO each way need
-        /// about 1 ms of a 1 Mbit/s bus per cycle (worst-case stuffing), hence 2 ms.
-        #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u32).range(250..=100_000))]
-        cycle_us: u32,
-        /// Bus bitrate in bit/s (20000..=1000000).
-        #[arg(long, default_value_t = 1_000_000)]
-        bitrate: u32,
-        /// No live status lines, only the summary.
+        /// Only boot, enable and home; do not run the record chains.
+        #[arg(long)]
+        no_chains: bool,
+        /// No live status lines, only events and the summary.
         #[arg(long)]
         quiet: bool,
     },
@@ -57,43 +58,57 @@ fn main() -> ExitCode {
         }
         Command::Check { file } => check(&file),
         Command::Run {
+            config,
             duration,
             virtual_time,
-            nodes,
-            cycle_us,
-            bitrate,
+            no_chains,
             quiet,
         } => {
-            if !(duration.is_finite() && duration > 0.0 && duration <= 86_400.0) {
-                eprintln!("error: --duration must be between 0 and 86400 seconds, not {duration}");
+            if let Some(d) = duration
+                && !(d.is_finite() && d > 0.0 && d <= 31_536_000.0)
+            {
+                eprintln!("error: --duration must be between 0 and 31536000 seconds, not {d}");
                 return ExitCode::FAILURE;
             }
-            let cfg = DemoConfig {
-                nodes,
-                cycle: Duration::from_micros(cycle_us as u64),
-                duration: Duration::from_secs_f64(duration),
+            if duration.is_none() && virtual_time {
+                eprintln!("error: --virtual-time needs --duration (it would run flat out forever)");
+                return ExitCode::FAILURE;
+            }
+            let text = match &config {
+                Some(f) => match std::fs::read_to_string(f) {
+                    Ok(t) => t,
+                    Err(e) => {
+                        eprintln!("error: {}: {e}", f.display());
+                        return ExitCode::FAILURE;
+                    }
+                },
+                None => coordinator::config::EXAMPLE.to_string(),
+            };
+            let cfg = match coordinator::config::Config::parse(&text) {
+                Ok(c) => c,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
+            let opts = RunOptions {
+                duration: duration.map(Duration::from_secs_f64),
                 virtual_time,
-                bitrate,
                 status_every: (!quiet).then_some(Duration::from_millis(500)),
+                script: ScriptOptions {
+                    chains: !no_chains,
+                    home: true,
+                },
             };
             let mut stdout = std::io::stdout();
-            match run(&cfg, &mut stdout) {
+            match run(&cfg, &opts, &mut stdout) {
                 Ok(s) => {
-                    println!(
-                        "summary: {} cycles, {} frames, bus load {:.1} %, {} TPDOs received ({} malformed), \
-                         final max |target - actual| {} increments, {} supervision events, \
-                         {:.3} s of bus time in {:.3} s of wall time",
-                        s.cycles,
-                        s.frames,
-                        s.bus_load_percent,
-                        s.tpdos_received,
-                        s.bad_tpdos,
-                        s.final_max_error,
-                        s.supervision_events,
-                        s.bus_time.as_secs_f64(),
-                        s.wall.as_secs_f64()
-                    );
-                    ExitCode::SUCCESS
+                    println!("{s}");
+                    if s.boot_failures.is_empty() && s.faults.is_empty() {
+                        ExitCode::SUCCESS
+                    } else {
+                        ExitCode::from(2)
+                    }
                 }
                 Err(e) => {
                     eprintln!("error: {e}");

@@ -551,7 +551,7 @@ fn axis_rate(delta: i64, q: i128, cycle_ns: u32, power: u32) -> i64 {
 }
 
 /// What a group is doing.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum GroupState {
     /// Following the move (possibly resumed).
     Moving,

@@ -1,5 +1,21 @@
-//! The coordinator's run time around the cycle: booting the drives and the non-real-time
-//! services that talk to the cycle thread through lock-free queues.
+//! The runtime (std): what runs the cycle on a real machine or in virtual time.
+//!
+//! - [`plan`]: configuration → cycle setups, record tables, boot plans;
+//! - [`sim`]: the simulated drives behind a plan;
+//! - [`script`]: the built-in demonstration client;
+//! - [`run`]: `coordinator run` in virtual time, and the cycle iteration shared with
+//! - [`realtime`]: the real-time threads;
+//! - [`rt`]: absolute-deadline wake-ups, SCHED_FIFO, mlockall, Ctrl-C;
+//! - [`modbus`]: the CMMO-ST exchange off the cycle thread;
+//! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy.
 
 pub mod boot;
+pub mod modbus;
+pub mod plan;
+pub mod realtime;
+pub mod rt;
+pub mod run;
+pub mod script;
 pub mod services;
+pub mod sim;
+pub mod synthetic;

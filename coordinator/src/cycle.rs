@@ -1,0 +1,1387 @@
+//! The cycle step: one pure function of the inputs of a cycle and the coordinator's state.
+//!
+//! Once per SYNC the runtime hands [`Cycle::step`] what arrived since the last one (CAN frames:
+//! TPDOs, heartbeats, guarding replies, EMCYs; Modbus process images) and the time of this
+//! cycle's SYNC. The step then, in this order:
+//!
+//! 1. decodes the frames into each axis's input image and supervision state;
+//! 2. detects faults (heartbeat or guarding loss, EMCY, drive fault, following error, Modbus
+//!    timeout, late TPDO) and applies each group's reaction in this same cycle;
+//! 3. steps each group's record chain (comparators on this cycle's actual values) and motion
+//!    (time-synchronised profiles, override, hold, quick stop);
+//! 4. runs every axis's master-side state machine with its demand, producing its output image;
+//! 5. writes the frames to send in the fixed order SYNC, every RPDO, then guarding polls.
+//!
+//! Commands ([`Cycle::command`]) are applied between steps and answered at once: accepted with
+//! the cycle whose SYNC latches them, or rejected with a reason. A multi-axis command changes
+//! every axis's demand inside one call, so all of them appear in the RPDOs of the same cycle.
+//!
+//! Same inputs, same outputs, bit for bit: no clock is read, nothing is allocated (capacities
+//! are const generics: `A` axes, `G` groups), no lock is taken, nothing is logged, and the work
+//! per step is bounded by the axis and group counts.
+
+use drivers::can::Frame;
+use drivers::canopen::emcy::EmcyMessage;
+use drivers::canopen::guarding::{GuardingEvent, GuardingMaster};
+use drivers::canopen::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
+use drivers::canopen::{FunctionCode, NodeId};
+use drivers::time::Instant;
+use heapless::{Deque, Vec};
+
+use crate::axis::{AxisError, AxisState, DeviceKind, Demand, DriveAxis, Feedback, Image, Profile};
+use crate::command::{AxisId, Command, GroupId, Rejected, Reply, Target};
+use crate::event::Event;
+use crate::fault::{FaultReason, Reaction};
+use crate::profile::{AxisLimits, Group, GroupState, Shape, Target as PathTarget};
+use crate::records::{
+    AxisTarget, Chain, ChainAction, ChainInputs, ChainStatus, MAX_GROUP_AXES, RecordMode,
+    RecordTable,
+};
+
+/// Events the cycle can hold before the services take them; more are counted and dropped.
+pub const EVENT_CAPACITY: usize = 256;
+
+/// How an axis is reached.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Transport {
+    /// CANopen: TPDO1/RPDO1 of this node on the cycle's bus.
+    Can {
+        /// Node-ID 1..=127.
+        node: u8,
+    },
+    /// Modbus TCP: the process image in this slot of [`CycleInput::modbus`].
+    Modbus {
+        /// Slot index.
+        slot: u8,
+    },
+}
+
+/// How a drive is supervised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Supervision {
+    /// Not supervised (besides late process images).
+    None,
+    /// Heartbeat consumer with this consumer time, ms.
+    Heartbeat {
+        /// Consumer time, ms (typically 1.5 to 2 producer periods).
+        consumer_ms: u16,
+    },
+    /// Node guarding by the coordinator: a poll every `guard_ms`, lost after `life_factor` polls.
+    Guarding {
+        /// Guard time 100Ch, ms.
+        guard_ms: u16,
+        /// Life time factor 100Dh.
+        life_factor: u8,
+    },
+}
+
+/// One axis, as the cycle needs it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AxisSetup {
+    /// The drive.
+    pub kind: DeviceKind,
+    /// Its profile.
+    pub profile: Profile,
+    /// How it is reached.
+    pub transport: Transport,
+    /// Supervision.
+    pub supervision: Supervision,
+    /// Motion limits, increments.
+    pub limits: AxisLimits,
+    /// Lowest position, increments.
+    pub position_min: i64,
+    /// Highest position, increments.
+    pub position_max: i64,
+    /// Largest |setpoint - actual| while following a path, increments (0: not monitored).
+    pub following_error: i64,
+    /// A fault after this many cycles in a row without an input image (0: not monitored).
+    pub late_cycles: u16,
+}
+
+/// One group, as the cycle needs it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GroupSetup {
+    /// Member axes, in group order.
+    pub axes: Vec<AxisId, MAX_GROUP_AXES>,
+    /// Profile shape of the group's moves.
+    pub shape: Shape,
+    /// What the group does when one of its axes faults.
+    pub reaction: Reaction,
+}
+
+/// Whole-machine settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CycleSetup {
+    /// Cycle period, ns.
+    pub cycle_ns: u32,
+    /// Send SYNC (producer) or follow one (consumer: no SYNC in the output).
+    pub sync_producer: bool,
+}
+
+/// Why a machine could not be set up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SetupError {
+    /// More axes or groups than the cycle's capacity.
+    #[error("more than {0} axes or groups")]
+    Capacity(usize),
+    /// An axis's drive/profile pair is not supported.
+    #[error("axis {0}: {1}")]
+    Axis(AxisId, AxisError),
+    /// Two axes share a node-ID, or a node-ID is outside 1..=127.
+    #[error("axis {0}: node-ID in use or invalid")]
+    Node(AxisId),
+    /// A group names an axis that does not exist or is already in another group.
+    #[error("group {0}: bad member")]
+    Member(GroupId),
+}
+
+/// One Modbus process image handed to the cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct ModbusInput {
+    /// The status bytes.
+    pub image: Image,
+    /// A new answer arrived since the last cycle.
+    pub fresh: bool,
+    /// How many cycles late that answer is (0: it answered the last cycle's output).
+    pub late_cycles: u32,
+    /// The exchange timed out or the connection is down.
+    pub lost: bool,
+}
+
+/// What arrived for one cycle.
+#[derive(Clone, Copy, Debug)]
+pub struct CycleInput<'a> {
+    /// The time of this cycle's SYNC.
+    pub now: Instant,
+    /// CAN frames received since the previous step, in arrival order.
+    pub frames: &'a [Frame],
+    /// Modbus images, by slot.
+    pub modbus: &'a [ModbusInput],
+}
+
+/// Where the step writes what to send.
+#[derive(Debug)]
+pub struct CycleOutput<'a> {
+    /// CAN frames in transmit order; the step fills `frames[..len]`.
+    pub frames: &'a mut [Frame],
+    /// Frames written.
+    pub len: usize,
+    /// Frames that did not fit `frames` (a configuration error: the budget check prevents it).
+    pub overflow: u32,
+    /// Modbus output images, by slot.
+    pub modbus: &'a mut [Image],
+}
+
+impl CycleOutput<'_> {
+    fn push(&mut self, f: Frame) {
+        match self.frames.get_mut(self.len) {
+            Some(slot) => {
+                *slot = f;
+                self.len += 1;
+            }
+            None => self.overflow += 1,
+        }
+    }
+    /// The frames written.
+    pub fn sent(&self) -> &[Frame] {
+        &self.frames[..self.len.min(self.frames.len())]
+    }
+}
+
+/// What the operator (or a fault) asked of one axis, published as the axis's mode.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Mode {
+    /// Power off.
+    #[default]
+    Off,
+    /// Enabled and standing (or following the group's / own move).
+    On,
+    /// Homing running.
+    Homing,
+    /// Jogging.
+    Jog {
+        /// Direction.
+        positive: bool,
+        /// Speed, inc/s.
+        velocity: i64,
+    },
+    /// Stopped by a quick stop (command or fault reaction) until acknowledged / re-enabled.
+    QuickStopped,
+    /// Acknowledging a fault; then enabled again or off.
+    Acknowledging {
+        /// Enabled after the acknowledge (it was enabled before the fault).
+        enable_after: bool,
+    },
+}
+
+#[derive(Clone, Debug)]
+struct AxisRt {
+    setup: AxisSetup,
+    drive: DriveAxis,
+    mode: Mode,
+    online: bool,
+    feedback: Feedback,
+    input: Option<Image>,
+    missed: u16,
+    /// The setpoint the coordinator last commanded (the start of the next move).
+    setpoint: i64,
+    setpoint_velocity: i64,
+    following: bool,
+    fault: FaultReason,
+    /// The drive's own fault already turned into `fault`, so it is raised once.
+    drive_fault_seen: bool,
+    solo: Option<Group<1>>,
+    /// The solo move is dropped once stopped (Stop, as opposed to Hold).
+    solo_stop: bool,
+    group: Option<GroupId>,
+    /// A velocity or force record of the group drives this axis directly.
+    special: Option<Demand>,
+    last_state: AxisState,
+    out: Image,
+}
+
+#[derive(Clone, Debug)]
+struct GroupRt<'t> {
+    setup: GroupSetup,
+    table: &'t RecordTable,
+    chain: Chain,
+    motion: Option<Group<MAX_GROUP_AXES>>,
+    /// The move is to be dropped once stopped (Stop, as opposed to Hold).
+    stop_pending: bool,
+    override_percent: u16,
+    /// The cycle a velocity or force record started in (its members run on `special`).
+    special_since: Option<u64>,
+}
+
+/// Published state of one axis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct AxisStatus {
+    /// The last feedback.
+    pub feedback: Feedback,
+    /// The setpoint commanded, increments.
+    pub setpoint: i64,
+    /// The coordinator's fault reason (None when clear).
+    pub fault: FaultReason,
+    /// The drive is booted and in the cycle.
+    pub online: bool,
+    /// The axis is enabled (or being enabled) by command.
+    pub enabled: bool,
+    /// What the axis is doing by command.
+    pub mode: Mode,
+    /// A single-axis move is running.
+    pub moving: bool,
+}
+
+/// Published state of one group.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct GroupStatus {
+    /// The chain.
+    pub chain: ChainStatus,
+    /// The group's move, if one runs.
+    pub motion: Option<GroupState>,
+    /// Feed override, %.
+    pub override_percent: u16,
+}
+
+/// The coordinator's cycle for up to `A` axes and `G` groups.
+#[derive(Debug)]
+pub struct Cycle<'t, const A: usize, const G: usize> {
+    setup: CycleSetup,
+    axes: Vec<AxisRt, A>,
+    groups: Vec<GroupRt<'t>, G>,
+    heartbeat: HeartbeatConsumer<A, 32>,
+    guarding: GuardingMaster<A, 32>,
+    /// Node-ID → axis.
+    by_node: [Option<AxisId>; 128],
+    events: Deque<Event, EVENT_CAPACITY>,
+    dropped_events: u64,
+    cycle: u64,
+    now: Instant,
+    inputs: u32,
+    previous_inputs: u32,
+}
+
+fn node(n: u8) -> Option<NodeId> {
+    NodeId::new(n)
+}
+
+impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
+    /// A machine of `axes` and `groups` (each group with its record table), all offline.
+    pub fn new(
+        setup: CycleSetup,
+        axes: &[AxisSetup],
+        groups: &[(GroupSetup, &'t RecordTable)],
+    ) -> Result<Self, SetupError> {
+        let mut c = Cycle {
+            setup,
+            axes: Vec::new(),
+            groups: Vec::new(),
+            heartbeat: HeartbeatConsumer::new(),
+            guarding: GuardingMaster::new(),
+            by_node: [None; 128],
+            events: Deque::new(),
+            dropped_events: 0,
+            cycle: 0,
+            now: Instant::ZERO,
+            inputs: 0,
+            previous_inputs: 0,
+        };
+        for (i, s) in axes.iter().enumerate() {
+            let id = i as AxisId;
+            if let Transport::Can { node: n } = s.transport {
+                let slot = c.by_node.get_mut(usize::from(n)).ok_or(SetupError::Node(id))?;
+                if n == 0 || slot.is_some() {
+                    return Err(SetupError::Node(id));
+                }
+                *slot = Some(id);
+            }
+            let drive = DriveAxis::new(s.kind, s.profile, setup.cycle_ns)
+                .map_err(|e| SetupError::Axis(id, e))?;
+            c.axes
+                .push(AxisRt {
+                    setup: *s,
+                    drive,
+                    mode: Mode::Off,
+                    online: false,
+                    feedback: Feedback::default(),
+                    input: None,
+                    missed: 0,
+                    setpoint: 0,
+                    setpoint_velocity: 0,
+                    following: false,
+                    fault: FaultReason::None,
+                    drive_fault_seen: false,
+                    solo: None,
+                    solo_stop: false,
+                    group: None,
+                    special: None,
+                    last_state: AxisState::Offline,
+                    out: Image::default(),
+                })
+                .map_err(|_| SetupError::Capacity(A))?;
+        }
+        for (gi, (g, table)) in groups.iter().enumerate() {
+            let gid = gi as GroupId;
+            for &a in &g.axes {
+                let ax = c.axes.get_mut(usize::from(a)).ok_or(SetupError::Member(gid))?;
+                if ax.group.is_some() {
+                    return Err(SetupError::Member(gid));
+                }
+                ax.group = Some(gid);
+            }
+            c.groups
+                .push(GroupRt {
+                    setup: g.clone(),
+                    table,
+                    chain: Chain::new(),
+                    motion: None,
+                    stop_pending: false,
+                    override_percent: 100,
+                    special_since: None,
+                })
+                .map_err(|_| SetupError::Capacity(G))?;
+        }
+        Ok(c)
+    }
+
+    /// The number of the next step (the first is 0).
+    pub fn cycle(&self) -> u64 {
+        self.cycle
+    }
+
+    /// The axes.
+    pub fn axis_count(&self) -> usize {
+        self.axes.len()
+    }
+
+    /// The groups.
+    pub fn group_count(&self) -> usize {
+        self.groups.len()
+    }
+
+    /// The published state of an axis.
+    pub fn axis_status(&self, axis: AxisId) -> Option<AxisStatus> {
+        let a = self.axes.get(usize::from(axis))?;
+        Some(AxisStatus {
+            feedback: a.feedback,
+            setpoint: a.setpoint,
+            fault: a.fault,
+            online: a.online,
+            enabled: !matches!(a.mode, Mode::Off),
+            mode: a.mode,
+            moving: a.following,
+        })
+    }
+
+    /// The published state of a group.
+    pub fn group_status(&self, group: GroupId) -> Option<GroupStatus> {
+        let g = self.groups.get(usize::from(group))?;
+        Some(GroupStatus {
+            chain: g.chain.status(),
+            motion: g.motion.as_ref().map(|m| m.state()),
+            override_percent: g.override_percent,
+        })
+    }
+
+    /// The lowest record number of a group's table.
+    pub fn first_record(&self, group: GroupId) -> Option<u16> {
+        self.groups.get(usize::from(group))?.table.iter().next().map(|(n, _)| n)
+    }
+
+    /// The machine's digital input word.
+    pub fn inputs(&self) -> u32 {
+        self.inputs
+    }
+
+    /// Takes the oldest event.
+    pub fn poll_event(&mut self) -> Option<Event> {
+        self.events.pop_front()
+    }
+
+    /// Events dropped because the queue was full.
+    pub fn dropped_events(&self) -> u64 {
+        self.dropped_events
+    }
+
+    fn emit(&mut self, e: Event) {
+        if self.events.push_back(e).is_err() {
+            self.dropped_events += 1;
+        }
+    }
+
+    /// Brings a booted axis into the cycle (its supervision starts now), or takes one out
+    /// (boot failed: the axis is faulted with [`FaultReason::BootFailed`]).
+    pub fn set_online(&mut self, axis: AxisId, online: bool, now: Instant) {
+        let Some(a) = self.axes.get_mut(usize::from(axis)) else {
+            return;
+        };
+        a.online = online;
+        a.missed = 0;
+        if !online {
+            a.fault = FaultReason::BootFailed;
+            return;
+        }
+        if let Transport::Can { node: n } = a.setup.transport
+            && let Some(id) = node(n)
+        {
+            match a.setup.supervision {
+                Supervision::Heartbeat { consumer_ms } => {
+                    let _ = self
+                        .heartbeat
+                        .monitor(id, core::time::Duration::from_millis(consumer_ms.into()));
+                }
+                Supervision::Guarding {
+                    guard_ms,
+                    life_factor,
+                } => {
+                    let _ = self.guarding.add_node(id, guard_ms, life_factor, now);
+                }
+                Supervision::None => {}
+            }
+        }
+    }
+
+    /// Applies a command; its effect goes out with the next step, whose SYNC latches it.
+    pub fn command(&mut self, c: &Command) -> Reply {
+        match self.apply(c) {
+            Ok(()) => Reply::Latched {
+                cycle: self.cycle + 1,
+            },
+            Err(r) => Reply::Rejected(r),
+        }
+    }
+
+    fn axes_of(&self, t: Target) -> Result<(usize, usize, Option<GroupId>), Rejected> {
+        match t {
+            Target::Axis(a) if usize::from(a) < self.axes.len() => {
+                Ok((usize::from(a), usize::from(a) + 1, None))
+            }
+            Target::Axis(a) => Err(Rejected::UnknownAxis(a)),
+            Target::Group(g) if usize::from(g) < self.groups.len() => Ok((0, 0, Some(g))),
+            Target::Group(g) => Err(Rejected::UnknownGroup(g)),
+            Target::All => Ok((0, self.axes.len(), None)),
+        }
+    }
+
+    /// Calls `f` on every axis a target addresses.
+    fn for_target(
+        &mut self,
+        t: Target,
+        mut f: impl FnMut(&mut AxisRt) -> Result<(), Rejected>,
+    ) -> Result<(), Rejected> {
+        let (from, to, group) = self.axes_of(t)?;
+        if let Some(g) = group {
+            let members = self.groups[usize::from(g)].setup.axes.clone();
+            for m in members {
+                if let Some(a) = self.axes.get_mut(usize::from(m)) {
+                    f(a)?;
+                }
+            }
+            return Ok(());
+        }
+        for a in &mut self.axes[from..to] {
+            f(a)?;
+        }
+        Ok(())
+    }
+
+    fn groups_of(&self, t: Target) -> Result<(usize, usize), Rejected> {
+        Ok(match t {
+            Target::Group(g) if usize::from(g) < self.groups.len() => {
+                (usize::from(g), usize::from(g) + 1)
+            }
+            Target::Group(g) => return Err(Rejected::UnknownGroup(g)),
+            Target::Axis(a) => match self.axes.get(usize::from(a)) {
+                Some(ax) => match ax.group {
+                    Some(g) => (usize::from(g), usize::from(g) + 1),
+                    None => (0, 0),
+                },
+                None => return Err(Rejected::UnknownAxis(a)),
+            },
+            Target::All => (0, self.groups.len()),
+        })
+    }
+
+    fn apply(&mut self, c: &Command) -> Result<(), Rejected> {
+        match *c {
+            Command::Enable(t) => {
+                // Check first, so that a group is enabled whole or not at all.
+                self.for_target(t, |a| match a.fault {
+                    FaultReason::None => Ok(()),
+                    _ => Err(Rejected::Faulted),
+                })?;
+                self.for_target(t, |a| {
+                    if !a.online {
+                        return Err(Rejected::WrongState("drive not booted"));
+                    }
+                    if matches!(a.mode, Mode::Off | Mode::QuickStopped) {
+                        a.mode = Mode::On;
+                        a.setpoint = a.feedback.position;
+                    }
+                    Ok(())
+                })
+            }
+            Command::Disable(t) => {
+                let (g0, g1) = self.groups_of(t)?;
+                for gi in g0..g1 {
+                    self.groups[gi].motion = None;
+                    self.abort_chain(gi);
+                }
+                self.for_target(t, |a| {
+                    a.mode = Mode::Off;
+                    a.solo = None;
+                    a.following = false;
+                    Ok(())
+                })
+            }
+            Command::Acknowledge(t) => {
+                let (g0, g1) = self.groups_of(t)?;
+                for gi in g0..g1 {
+                    self.groups[gi].motion = None;
+                    self.groups[gi].stop_pending = false;
+                    self.abort_chain(gi);
+                }
+                self.for_target(t, |a| {
+                    let enable_after = !matches!(a.mode, Mode::Off);
+                    if a.fault != FaultReason::None || a.feedback.state == AxisState::Fault {
+                        a.fault = FaultReason::None;
+                        a.drive_fault_seen = false;
+                        a.missed = 0;
+                        a.solo = None;
+                        a.following = false;
+                        a.mode = Mode::Acknowledging { enable_after };
+                    } else if a.mode == Mode::QuickStopped {
+                        a.mode = Mode::On;
+                        a.setpoint = a.feedback.position;
+                    }
+                    Ok(())
+                })
+            }
+            Command::Home(t) => {
+                self.for_target(t, |a| ready(a).map(|_| ()))?;
+                self.for_target(t, |a| {
+                    a.mode = Mode::Homing;
+                    a.solo = None;
+                    Ok(())
+                })
+            }
+            Command::Jog { axis, permille } => {
+                let a = self
+                    .axes
+                    .get_mut(usize::from(axis))
+                    .ok_or(Rejected::UnknownAxis(axis))?;
+                if permille == 0 {
+                    if matches!(a.mode, Mode::Jog { .. }) {
+                        a.mode = Mode::On;
+                        a.setpoint = a.feedback.position;
+                    }
+                    return Ok(());
+                }
+                if !(-1000..=1000).contains(&permille) {
+                    return Err(Rejected::OutOfRange {
+                        axis,
+                        value: permille.into(),
+                        min: -1000,
+                        max: 1000,
+                    });
+                }
+                ready(a)?;
+                let v = a.setup.limits.velocity as i64 * i64::from(permille.unsigned_abs()) / 1000;
+                a.mode = Mode::Jog {
+                    positive: permille > 0,
+                    velocity: v,
+                };
+                Ok(())
+            }
+            Command::MoveAxis {
+                axis,
+                position,
+                velocity_percent,
+            } => {
+                let cycle_ns = self.setup.cycle_ns;
+                let a = self
+                    .axes
+                    .get_mut(usize::from(axis))
+                    .ok_or(Rejected::UnknownAxis(axis))?;
+                in_range(axis, position, a.setup.position_min, a.setup.position_max)?;
+                percent(axis, velocity_percent)?;
+                ready(a)?;
+                if let Some(g) = a.group
+                    && self.groups[usize::from(g)].motion.is_some()
+                {
+                    return Err(Rejected::Busy);
+                }
+                let limits = scale(&a.setup.limits, velocity_percent, 100, 100);
+                let m = Group::plan(
+                    [a.setpoint],
+                    PathTarget::Absolute([position]),
+                    &[limits],
+                    Shape::SCurve,
+                    cycle_ns,
+                )
+                .map_err(|_| Rejected::Plan)?;
+                a.solo = Some(m);
+                a.solo_stop = false;
+                Ok(())
+            }
+            Command::MoveGroup {
+                group,
+                positions,
+                velocity_percent,
+            } => {
+                let g = self
+                    .groups
+                    .get(usize::from(group))
+                    .ok_or(Rejected::UnknownGroup(group))?;
+                percent(group, velocity_percent)?;
+                let mut targets = [AxisTarget::Keep; MAX_GROUP_AXES];
+                for (i, &m) in g.setup.axes.iter().enumerate() {
+                    let a = &self.axes[usize::from(m)];
+                    in_range(m, positions[i], a.setup.position_min, a.setup.position_max)?;
+                    targets[i] = AxisTarget::Absolute(positions[i]);
+                }
+                if g.motion.is_some() {
+                    return Err(Rejected::Busy);
+                }
+                self.start_group_move(usize::from(group), &targets, velocity_percent, 100, 100)
+            }
+            Command::StartChain { group, record } => {
+                let gi = usize::from(group);
+                let g = self.groups.get(gi).ok_or(Rejected::UnknownGroup(group))?;
+                if g.table.get(record).is_none() {
+                    return Err(Rejected::UnknownRecord(record));
+                }
+                if g.motion.is_some() {
+                    return Err(Rejected::Busy);
+                }
+                for &m in &g.setup.axes {
+                    ready(&self.axes[usize::from(m)])?;
+                }
+                let now = self.now;
+                let g = &mut self.groups[gi];
+                g.chain
+                    .start(g.table, record, now)
+                    .map_err(|_| Rejected::UnknownRecord(record))
+            }
+            Command::Hold(t) => {
+                let (g0, g1) = self.groups_of(t)?;
+                for g in &mut self.groups[g0..g1] {
+                    if let Some(m) = &mut g.motion {
+                        m.hold();
+                    }
+                }
+                self.for_target(t, |a| {
+                    if let Some(m) = &mut a.solo {
+                        m.hold();
+                    }
+                    Ok(())
+                })
+            }
+            Command::Resume(t) => {
+                let (g0, g1) = self.groups_of(t)?;
+                for g in &mut self.groups[g0..g1] {
+                    if let Some(m) = &mut g.motion {
+                        let _ = m.resume();
+                    }
+                }
+                self.for_target(t, |a| {
+                    if let Some(m) = &mut a.solo {
+                        let _ = m.resume();
+                    }
+                    Ok(())
+                })
+            }
+            Command::Stop(t) => {
+                let (g0, g1) = self.groups_of(t)?;
+                for gi in g0..g1 {
+                    self.abort_chain(gi);
+                    let g = &mut self.groups[gi];
+                    if let Some(m) = &mut g.motion {
+                        m.hold();
+                        g.stop_pending = true;
+                    }
+                }
+                self.for_target(t, |a| {
+                    if let Some(m) = &mut a.solo {
+                        m.hold();
+                        a.solo_stop = true;
+                    }
+                    if matches!(a.mode, Mode::Jog { .. } | Mode::Homing) {
+                        a.mode = Mode::On;
+                        a.setpoint = a.feedback.position;
+                    }
+                    Ok(())
+                })
+            }
+            Command::QuickStop(t) => {
+                let (g0, g1) = self.groups_of(t)?;
+                for gi in g0..g1 {
+                    self.abort_chain(gi);
+                    self.groups[gi].motion = None;
+                }
+                self.for_target(t, |a| {
+                    a.solo = None;
+                    a.following = false;
+                    if !matches!(a.mode, Mode::Off) {
+                        a.mode = Mode::QuickStopped;
+                    }
+                    Ok(())
+                })
+            }
+            Command::SetOverride { group, percent } => {
+                let g = self
+                    .groups
+                    .get_mut(usize::from(group))
+                    .ok_or(Rejected::UnknownGroup(group))?;
+                if percent > crate::profile::MAX_OVERRIDE {
+                    return Err(Rejected::OutOfRange {
+                        axis: group,
+                        value: percent.into(),
+                        min: 0,
+                        max: crate::profile::MAX_OVERRIDE.into(),
+                    });
+                }
+                g.override_percent = percent;
+                if let Some(m) = &mut g.motion {
+                    let _ = m.set_override(percent);
+                }
+                Ok(())
+            }
+            Command::SetInput { bit, value } => {
+                if bit >= 32 {
+                    return Err(Rejected::OutOfRange {
+                        axis: 0,
+                        value: bit.into(),
+                        min: 0,
+                        max: 31,
+                    });
+                }
+                if value {
+                    self.inputs |= 1 << bit;
+                } else {
+                    self.inputs &= !(1 << bit);
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Plans a group move from the members' setpoints; every member's demand becomes a path
+    /// sample from the next step on, so all of them start at the same SYNC.
+    fn start_group_move(
+        &mut self,
+        gi: usize,
+        targets: &[AxisTarget; MAX_GROUP_AXES],
+        velocity_percent: u8,
+        acceleration_percent: u8,
+        jerk_percent: u8,
+    ) -> Result<(), Rejected> {
+        let g = &self.groups[gi];
+        let mut start = [0i64; MAX_GROUP_AXES];
+        let mut end = [0i64; MAX_GROUP_AXES];
+        let first = g.setup.axes.first().map_or(0, |&m| usize::from(m));
+        let mut limits = [scale(
+            &self.axes[first].setup.limits,
+            velocity_percent,
+            acceleration_percent,
+            jerk_percent,
+        ); MAX_GROUP_AXES];
+        for (i, &m) in g.setup.axes.iter().enumerate() {
+            let a = &self.axes[usize::from(m)];
+            if a.fault != FaultReason::None {
+                return Err(Rejected::Faulted);
+            }
+            if a.mode != Mode::On || a.solo.is_some() {
+                return Err(Rejected::WrongState("axis not enabled and standing"));
+            }
+            start[i] = a.setpoint;
+            end[i] = match targets[i] {
+                AxisTarget::Keep => a.setpoint,
+                AxisTarget::Absolute(p) => p,
+                AxisTarget::Relative(d) => a.setpoint.saturating_add(d),
+            };
+            in_range(m, end[i], a.setup.position_min, a.setup.position_max)?;
+            limits[i] = scale(
+                &a.setup.limits,
+                velocity_percent,
+                acceleration_percent,
+                jerk_percent,
+            );
+        }
+        for i in g.setup.axes.len()..MAX_GROUP_AXES {
+            start[i] = 0;
+            end[i] = 0;
+        }
+        let mut m = Group::plan(
+            start,
+            PathTarget::Absolute(end),
+            &limits,
+            g.setup.shape,
+            self.setup.cycle_ns,
+        )
+        .map_err(|_| Rejected::Plan)?;
+        let g = &mut self.groups[gi];
+        let _ = m.set_override(g.override_percent);
+        g.motion = Some(m);
+        g.stop_pending = false;
+        Ok(())
+    }
+
+    /// One cycle. `input.now` must not go backwards.
+    pub fn step(&mut self, input: &CycleInput<'_>, out: &mut CycleOutput<'_>) {
+        self.now = input.now;
+        let now = input.now;
+        for a in self.axes.iter_mut() {
+            a.input = None;
+        }
+        self.receive(input);
+        self.supervise(now);
+        self.run_groups(now);
+        self.run_axes();
+        self.transmit(now, out);
+        self.previous_inputs = self.inputs;
+        self.cycle += 1;
+    }
+
+    fn receive(&mut self, input: &CycleInput<'_>) {
+        for f in input.frames {
+            let Some(cob) = f.cob_id() else { continue };
+            let Some((fc, n)) = FunctionCode::split(cob) else {
+                continue;
+            };
+            let Some(axis) = self.by_node.get(usize::from(n)).copied().flatten() else {
+                continue;
+            };
+            match fc {
+                FunctionCode::Tpdo(1) if !f.is_remote() => {
+                    if let Some(img) = Image::from_slice(f.data()) {
+                        self.axes[usize::from(axis)].input = Some(img);
+                    }
+                }
+                FunctionCode::NmtErrorControl => {
+                    let _ = self.heartbeat.handle_frame(f, f.timestamp());
+                    let _ = self.guarding.handle_frame(f, f.timestamp());
+                }
+                FunctionCode::SyncEmcy => {
+                    if let Ok(m) = EmcyMessage::from_frame(f)
+                        && m.code != 0
+                    {
+                        self.raise(axis, FaultReason::Emcy(m.code));
+                    }
+                }
+                _ => {}
+            }
+        }
+        for i in 0..self.axes.len() {
+            if let Transport::Modbus { slot } = self.axes[i].setup.transport {
+                let Some(m) = input.modbus.get(usize::from(slot)).copied() else {
+                    continue;
+                };
+                if !self.axes[i].online {
+                    continue;
+                }
+                if m.lost {
+                    self.raise(i as AxisId, FaultReason::ModbusTimeout);
+                }
+                if m.fresh {
+                    self.axes[i].input = Some(m.image);
+                    if m.late_cycles > 0 {
+                        let cycle = self.cycle;
+                        self.emit(Event::LateModbus {
+                            cycle,
+                            axis: i as AxisId,
+                            cycles: m.late_cycles,
+                        });
+                    }
+                }
+            }
+        }
+    }
+
+    fn supervise(&mut self, now: Instant) {
+        let _ = self.heartbeat.handle_timeout(now);
+        let _ = self.guarding.handle_timeout(now);
+        while let Some(e) = self.heartbeat.poll_event() {
+            if let HeartbeatEvent::Lost { node } = e
+                && let Some(a) = self.by_node[usize::from(node.get())]
+            {
+                self.raise(a, FaultReason::HeartbeatLost);
+            }
+        }
+        while let Some(e) = self.guarding.poll_event() {
+            let n = match e {
+                GuardingEvent::Lost { node } | GuardingEvent::ToggleError { node, .. } => node,
+                _ => continue,
+            };
+            if let Some(a) = self.by_node[usize::from(n.get())] {
+                self.raise(a, FaultReason::GuardingLost);
+            }
+        }
+        for i in 0..self.axes.len() {
+            let a = &mut self.axes[i];
+            if !a.online {
+                continue;
+            }
+            if a.input.is_some() {
+                a.missed = 0;
+            } else {
+                a.missed = a.missed.saturating_add(1);
+                let limit = a.setup.late_cycles;
+                if limit != 0 && a.missed == limit {
+                    self.raise(i as AxisId, FaultReason::LateTpdo(limit));
+                }
+            }
+        }
+    }
+
+    /// Marks an axis faulted (once) and applies its group's reaction in this cycle.
+    fn raise(&mut self, axis: AxisId, reason: FaultReason) {
+        let Some(a) = self.axes.get_mut(usize::from(axis)) else {
+            return;
+        };
+        if a.fault != FaultReason::None || !a.online {
+            return;
+        }
+        a.fault = reason;
+        a.solo = None;
+        a.following = false;
+        if !matches!(a.mode, Mode::Off) {
+            a.mode = Mode::QuickStopped;
+        }
+        let group = a.group;
+        let cycle = self.cycle;
+        self.emit(Event::Fault {
+            cycle,
+            axis,
+            reason,
+        });
+        let Some(g) = group else { return };
+        self.abort_chain(usize::from(g));
+        let gr = &mut self.groups[usize::from(g)];
+        let reaction = gr.setup.reaction;
+        match reaction {
+            Reaction::AxisOnly => {}
+            Reaction::QuickStopGroup => {
+                gr.motion = None;
+                let members = gr.setup.axes.clone();
+                for m in members {
+                    let a = &mut self.axes[usize::from(m)];
+                    a.solo = None;
+                    a.following = false;
+                    if !matches!(a.mode, Mode::Off) {
+                        a.mode = Mode::QuickStopped;
+                    }
+                }
+            }
+            Reaction::HaltGroup => {
+                if let Some(m) = &mut gr.motion {
+                    m.hold();
+                    gr.stop_pending = true;
+                }
+            }
+        }
+    }
+
+    fn run_groups(&mut self, now: Instant) {
+        let mut reached = [None::<u16>; G];
+        for (i, g) in self.groups.iter().enumerate() {
+            reached[i] = g.chain.status().reached;
+        }
+        for gi in 0..self.groups.len() {
+            // Actual values of this cycle, group order.
+            let mut pos = [0i64; MAX_GROUP_AXES];
+            let mut vel = [0i64; MAX_GROUP_AXES];
+            let mut force = [0i32; MAX_GROUP_AXES];
+            let n = self.groups[gi].setup.axes.len();
+            let mut all_mc = true;
+            for (i, &m) in self.groups[gi].setup.axes.iter().enumerate() {
+                let a = &self.axes[usize::from(m)];
+                pos[i] = a.feedback.position;
+                vel[i] = a.feedback.velocity;
+                force[i] = a.feedback.force;
+                all_mc &= a.feedback.motion_complete;
+            }
+            let motion_done = match (&self.groups[gi].motion, self.groups[gi].special_since) {
+                // A velocity or force record "arrives" when the drives report it (speed or
+                // force reached), not before they have seen it.
+                (_, Some(since)) => all_mc && self.cycle > since + 2,
+                (None, None) => all_mc,
+                (Some(m), None) => m.state() == GroupState::Done && all_mc,
+            };
+            let ngroups = self.groups.len();
+            let g = &mut self.groups[gi];
+            let actions = g.chain.step(
+                g.table,
+                &ChainInputs {
+                    now,
+                    cycle: self.cycle,
+                    motion_done,
+                    positions: &pos[..n],
+                    velocities: &vel[..n],
+                    forces: &force[..n],
+                    inputs: self.inputs,
+                    previous_inputs: self.previous_inputs,
+                    reached: &reached[..ngroups],
+                },
+            );
+            for act in actions {
+                let cycle = self.cycle;
+                let group = gi as GroupId;
+                match act {
+                    ChainAction::StartMotion { record } => {
+                        let Some(r) = self.groups[gi].table.get(record).copied() else {
+                            continue;
+                        };
+                        self.end_special(gi);
+                        if r.mode != RecordMode::Position {
+                            self.start_special(gi, &r);
+                            continue;
+                        }
+                        // A finished move is dropped before the next one is planned.
+                        if self.groups[gi]
+                            .motion
+                            .as_ref()
+                            .is_some_and(|m| m.state() == GroupState::Done)
+                        {
+                            self.finish_group_move(gi);
+                        }
+                        if self
+                            .start_group_move(
+                                gi,
+                                &r.targets,
+                                r.velocity_percent,
+                                r.acceleration_percent,
+                                r.jerk_percent,
+                            )
+                            .is_err()
+                        {
+                            self.abort_chain(gi);
+                            let _ = record;
+                        }
+                    }
+                    other => {
+                        if matches!(other, ChainAction::Complete { .. }) {
+                            self.end_special(gi);
+                        }
+                        if let Some(e) = other.event(cycle, group) {
+                            self.emit(e);
+                        }
+                    }
+                }
+            }
+            // Motion: one sample per member per cycle.
+            let g = &mut self.groups[gi];
+            if let Some(m) = &mut g.motion {
+                let samples = m.step();
+                let state = m.state();
+                for (i, &mm) in g.setup.axes.iter().enumerate() {
+                    let a = &mut self.axes[usize::from(mm)];
+                    a.setpoint = samples[i].position;
+                    a.setpoint_velocity = samples[i].velocity;
+                    a.following = true;
+                }
+                let arrived = state == GroupState::Done
+                    && g
+                        .setup
+                        .axes
+                        .iter()
+                        .all(|&mm| self.axes[usize::from(mm)].feedback.motion_complete);
+                if (state == GroupState::Stopped && g.stop_pending) || arrived {
+                    g.motion = None;
+                    g.stop_pending = false;
+                }
+            }
+        }
+    }
+
+    /// Starts a velocity or force record: each member with a target runs on its own demand
+    /// (direction from the sign of its target) until the chain moves on.
+    fn start_special(&mut self, gi: usize, r: &crate::records::Record) {
+        let cycle = self.cycle;
+        let members = self.groups[gi].setup.axes.clone();
+        self.groups[gi].motion = None;
+        self.groups[gi].special_since = Some(cycle);
+        for (i, &m) in members.iter().enumerate() {
+            let a = &mut self.axes[usize::from(m)];
+            let sign = match r.targets[i] {
+                AxisTarget::Keep => 0,
+                AxisTarget::Absolute(p) => (p - a.setpoint).signum(),
+                AxisTarget::Relative(d) => d.signum(),
+            };
+            let v = a.setup.limits.velocity as i64 * i64::from(r.velocity_percent) / 100;
+            a.special = match (r.mode, sign) {
+                (_, 0) => None,
+                (RecordMode::Velocity, s) => Some(Demand::Velocity { velocity: s * v }),
+                (RecordMode::Force, s) => Some(Demand::Force {
+                    permille: s as i32 * r.force_permille,
+                    velocity_limit: v,
+                }),
+                (RecordMode::Position, _) => None,
+            };
+            a.following = false;
+            a.solo = None;
+        }
+    }
+
+    /// Ends a velocity or force record: the members stand where they are.
+    fn end_special(&mut self, gi: usize) {
+        if self.groups[gi].special_since.take().is_none() {
+            return;
+        }
+        let members = self.groups[gi].setup.axes.clone();
+        for m in members {
+            let a = &mut self.axes[usize::from(m)];
+            a.special = None;
+            a.setpoint = a.feedback.position;
+        }
+    }
+
+    /// Aborts a group's chain (if it runs) and reports it.
+    fn abort_chain(&mut self, gi: usize) {
+        let now = self.now;
+        let cycle = self.cycle;
+        if gi >= self.groups.len() {
+            return;
+        }
+        self.end_special(gi);
+        let g = &mut self.groups[gi];
+        if !g.chain.is_running() {
+            return;
+        }
+        if let Some(e) = g.chain.abort(now).and_then(|a| a.event(cycle, gi as GroupId)) {
+            self.emit(e);
+        }
+    }
+
+    fn finish_group_move(&mut self, gi: usize) {
+        self.groups[gi].motion = None;
+        self.groups[gi].stop_pending = false;
+    }
+
+    fn run_axes(&mut self) {
+        let cycle = self.cycle;
+        for i in 0..self.axes.len() {
+            let a = &mut self.axes[i];
+            if let Some(m) = &mut a.solo {
+                let s = m.step()[0];
+                a.setpoint = s.position;
+                a.setpoint_velocity = s.velocity;
+                a.following = true;
+                let arrived = m.state() == GroupState::Done && a.feedback.motion_complete;
+                let stopped = m.state() == GroupState::Stopped && a.solo_stop;
+                if arrived || stopped {
+                    a.solo = None;
+                    a.solo_stop = false;
+                }
+            }
+            let demand = match a.mode {
+                _ if !a.online => Demand::Disable,
+                Mode::Off => Demand::Disable,
+                Mode::QuickStopped => Demand::QuickStop,
+                Mode::Acknowledging { .. } => Demand::Acknowledge,
+                Mode::Homing => Demand::Home,
+                Mode::Jog { positive, velocity } => {
+                    let p = a.feedback.position;
+                    let at_limit = if positive {
+                        p >= a.setup.position_max
+                    } else {
+                        p <= a.setup.position_min
+                    };
+                    if at_limit {
+                        Demand::Halt
+                    } else {
+                        Demand::Jog { positive, velocity }
+                    }
+                }
+                Mode::On if a.special.is_some() => a.special.unwrap_or(Demand::Standstill),
+                Mode::On if a.following => Demand::Follow {
+                    position: a.setpoint,
+                    velocity: a.setpoint_velocity,
+                },
+                Mode::On => Demand::Standstill,
+            };
+            let input = a.input.as_ref().map(|i| i.bytes());
+            let mut out = Image::default();
+            let fb = a.drive.exchange(input, &demand, &mut out);
+            a.out = out;
+            if let Ok(fb) = fb {
+                a.feedback = fb;
+            }
+            let fb = a.feedback;
+            // Mode transitions on completion.
+            match a.mode {
+                Mode::Homing if fb.done && fb.homed => {
+                    a.mode = Mode::On;
+                    a.setpoint = fb.position;
+                }
+                Mode::Acknowledging { enable_after } if fb.done => {
+                    a.mode = if enable_after { Mode::On } else { Mode::Off };
+                    a.setpoint = fb.position;
+                    self.emit(Event::Acknowledged {
+                        cycle,
+                        axis: i as AxisId,
+                    });
+                }
+                Mode::Jog { .. } | Mode::Homing | Mode::QuickStopped | Mode::Off => {
+                    self.axes[i].setpoint = fb.position;
+                }
+                Mode::On if a.special.is_some() => {
+                    self.axes[i].setpoint = fb.position;
+                }
+                _ => {}
+            }
+            let a = &mut self.axes[i];
+            if a.solo.is_none() && a.group.is_none_or(|g| self.groups[usize::from(g)].motion.is_none()) {
+                a.following = false;
+            }
+            // Faults seen in the drive's own status.
+            let a = &self.axes[i];
+            if a.online && fb.state == AxisState::Fault && !a.drive_fault_seen {
+                let code = fb.fault_code;
+                if a.fault == FaultReason::None && !matches!(a.mode, Mode::Acknowledging { .. }) {
+                    self.raise(i as AxisId, FaultReason::DriveFault(code));
+                }
+                self.axes[i].drive_fault_seen = true;
+            }
+            let a = &self.axes[i];
+            if a.following && a.setup.following_error > 0 && a.input.is_some() {
+                let e = (a.setpoint - fb.position).abs();
+                if e > a.setup.following_error {
+                    let limit = a.setup.following_error;
+                    self.raise(i as AxisId, FaultReason::FollowingError { error: e, limit });
+                }
+            }
+            let a = &mut self.axes[i];
+            if fb.state != a.last_state {
+                a.last_state = fb.state;
+                self.emit(Event::AxisState {
+                    cycle,
+                    axis: i as AxisId,
+                    state: fb.state,
+                });
+            }
+        }
+    }
+
+    fn transmit(&mut self, now: Instant, out: &mut CycleOutput<'_>) {
+        if self.setup.sync_producer {
+            out.push(drivers::canopen::sync::encode_sync(0x080, None));
+        }
+        for a in &self.axes {
+            if !a.online {
+                continue;
+            }
+            match a.setup.transport {
+                Transport::Can { node: n } => {
+                    if let Some(id) = node(n)
+                        && let Ok(f) = Frame::new_std(FunctionCode::Rpdo(1).cob_id(id), a.out.bytes())
+                    {
+                        out.push(f);
+                    }
+                }
+                Transport::Modbus { slot } => {
+                    if let Some(m) = out.modbus.get_mut(usize::from(slot)) {
+                        *m = a.out;
+                    }
+                }
+            }
+        }
+        while let Some(f) = self.guarding.poll_transmit(now) {
+            out.push(f);
+        }
+    }
+}
+
+fn ready(a: &AxisRt) -> Result<(), Rejected> {
+    if a.fault != FaultReason::None {
+        return Err(Rejected::Faulted);
+    }
+    if !a.online {
+        return Err(Rejected::WrongState("drive not booted"));
+    }
+    match a.mode {
+        Mode::On if a.solo.is_none() => Ok(()),
+        Mode::On => Err(Rejected::Busy),
+        Mode::Off | Mode::QuickStopped => Err(Rejected::WrongState("axis not enabled")),
+        Mode::Homing | Mode::Jog { .. } | Mode::Acknowledging { .. } => Err(Rejected::Busy),
+    }
+}
+
+fn in_range(axis: u16, v: i64, min: i64, max: i64) -> Result<(), Rejected> {
+    if (min..=max).contains(&v) {
+        Ok(())
+    } else {
+        Err(Rejected::OutOfRange {
+            axis,
+            value: v,
+            min,
+            max,
+        })
+    }
+}
+
+fn percent(axis: u16, p: u8) -> Result<(), Rejected> {
+    if (1..=100).contains(&p) {
+        Ok(())
+    } else {
+        Err(Rejected::OutOfRange {
+            axis,
+            value: p.into(),
+            min: 1,
+            max: 100,
+        })
+    }
+}
+
+/// Limits scaled by a record's percentages (at least 1 where the limit is non-zero).
+fn scale(l: &AxisLimits, v: u8, acc: u8, jerk: u8) -> AxisLimits {
+    let s = |x: u64, p: u8| (x.saturating_mul(u64::from(p)) / 100).max(u64::from(x > 0));
+    AxisLimits {
+        velocity: s(l.velocity, v),
+        acceleration: s(l.acceleration, acc),
+        deceleration: s(l.deceleration, acc),
+        jerk: s(l.jerk, jerk),
+        quick_stop_deceleration: l.quick_stop_deceleration,
+        quick_stop_jerk: l.quick_stop_jerk,
+    }
+}

@@ -1,0 +1,257 @@
+//! From a checked configuration to what the cycle and the boot need: axis and group setups in
+//! increments, record tables, boot plans. Floating point (user units) ends here; the cycle sees
+//! integers only.
+
+use std::time::Duration;
+
+use drivers::canopen::NodeId;
+
+use crate::axis::{self, DeviceKind, Profile};
+use crate::budget::Supervision as BusSupervision;
+use crate::config::{self, AxisConfig, BusKind, Config, SyncMode};
+use crate::cycle::{AxisSetup, CycleSetup, GroupSetup, Supervision, Transport};
+use crate::fault::Reaction;
+use crate::profile::{AxisLimits, Shape};
+use crate::records::RecordTable;
+use crate::runtime::boot::{self, BootPlan, SupervisionPlan};
+
+
+/// Axes a configured machine may have (the runtime's capacity; the cycle is generic).
+pub const MAX_AXES: usize = 128;
+/// Groups a configured machine may have.
+pub const MAX_GROUPS: usize = 16;
+
+/// One axis, with what the runtime needs beside the cycle's setup.
+#[derive(Clone, Debug)]
+pub struct AxisPlan {
+    /// The name.
+    pub name: String,
+    /// The user unit.
+    pub unit: String,
+    /// Increments per unit.
+    pub scale: f64,
+    /// The cycle's setup.
+    pub setup: AxisSetup,
+    /// The boot plan (CANopen axes).
+    pub boot: Option<BootPlan>,
+    /// The Modbus address (Modbus axes).
+    pub modbus: Option<String>,
+}
+
+/// A machine, ready to run.
+#[derive(Debug)]
+pub struct MachinePlan {
+    /// Cycle settings.
+    pub cycle: CycleSetup,
+    /// The cycle period.
+    pub period: Duration,
+    /// The CAN bus (name, kind, bitrate), if any axis is on one.
+    pub bus: Option<(String, BusKind, u32)>,
+    /// The axes, in configuration order.
+    pub axes: Vec<AxisPlan>,
+    /// The groups: name, setup, record table.
+    pub groups: Vec<(String, GroupSetup, Box<RecordTable>)>,
+}
+
+impl MachinePlan {
+    /// The axis index of a name.
+    pub fn axis(&self, name: &str) -> Option<usize> {
+        self.axes.iter().position(|a| a.name == name)
+    }
+    /// The group index of a name.
+    pub fn group(&self, name: &str) -> Option<usize> {
+        self.groups.iter().position(|g| g.0 == name)
+    }
+}
+
+fn kind(k: config::DeviceKind) -> DeviceKind {
+    match k {
+        config::DeviceKind::MtrDci => DeviceKind::MtrDci,
+        config::DeviceKind::Emca => DeviceKind::Emca,
+        config::DeviceKind::CmmoSt => DeviceKind::CmmoSt,
+        config::DeviceKind::Tlc5xx => DeviceKind::Tlc5xx,
+    }
+}
+
+fn profile(p: config::Profile) -> Profile {
+    match p {
+        config::Profile::Fhpp => Profile::Fhpp,
+        config::Profile::Cia402 => Profile::Cia402,
+    }
+}
+
+fn inc(v: f64, scale: f64) -> u64 {
+    (v * scale).round().clamp(0.0, u64::MAX as f64) as u64
+}
+
+fn limits(a: &AxisConfig) -> AxisLimits {
+    let s = a.increments_per_unit;
+    let l = &a.limits;
+    // Without a jerk limit the group is trapezoidal and the jerk is unused; keep it non-zero.
+    let jerk = l.jerk.map_or(u64::MAX >> 8, |j| inc(j, s).max(1));
+    AxisLimits::new(
+        inc(l.velocity, s).max(1),
+        inc(l.acceleration, s).max(1),
+        jerk,
+    )
+}
+
+/// Increments per motor revolution of the TLC5xx (AC motor with Sincoder, manual §6.3): its
+/// profile velocity is in rpm and its accelerations in rpm/s.
+pub const TLC_INCREMENTS_PER_REV: u64 = 16384;
+
+/// The TLC5xx parameters the coordinator's use needs: homing method 35 (the current position is
+/// the reference: the embedded machine has no switches) and a profile velocity and
+/// acceleration a quarter above the axis's limits, so that the profile-position set-points the
+/// coordinator streams are reached before the next one arrives.
+fn tlc_parameters(l: &AxisLimits) -> Vec<(drivers::canopen::Address, u32, u8)> {
+    use drivers::canopen::Address;
+    let rpm = |inc_per_s: u64| inc_per_s.saturating_mul(60 * 5 / 4) / TLC_INCREMENTS_PER_REV;
+    vec![
+        (Address::new(0x6098, 0), 35, 1),
+        (Address::new(0x6081, 0), rpm(l.velocity).clamp(1, 3000) as u32, 4),
+        (Address::new(0x6083, 0), rpm(l.acceleration).clamp(60, 2_000_000) as u32, 4),
+        (Address::new(0x6084, 0), rpm(l.deceleration).clamp(60, 2_000_000) as u32, 4),
+    ]
+}
+
+/// Turns a configuration that passed [`Config::check`] into a machine plan.
+pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
+    let report = cfg.check();
+    if !report.is_ok() {
+        return Err(report.to_string());
+    }
+    if cfg.axes.len() > MAX_AXES {
+        return Err(format!("{} axes: at most {MAX_AXES} per coordinator", cfg.axes.len()));
+    }
+    if cfg.groups.len() > MAX_GROUPS {
+        return Err(format!("{} groups: at most {MAX_GROUPS}", cfg.groups.len()));
+    }
+    let used: Vec<&str> = cfg.axes.iter().filter_map(|a| a.bus.as_deref()).collect();
+    let bus_cfg = cfg.buses.iter().find(|b| used.contains(&b.name.as_str()));
+    if let Some(extra) = cfg
+        .buses
+        .iter()
+        .find(|b| used.contains(&b.name.as_str()) && Some(b.name.as_str()) != bus_cfg.map(|b| b.name.as_str()))
+    {
+        return Err(format!(
+            "buses.{}: one coordinator drives one CAN bus; run one coordinator per bus",
+            extra.name
+        ));
+    }
+    let cycle_us = bus_cfg.and_then(|b| b.cycle_us).unwrap_or(cfg.cycle_us);
+    let period = Duration::from_micros(cycle_us.into());
+    let setup = CycleSetup {
+        cycle_ns: cycle_us * 1000,
+        sync_producer: bus_cfg.is_none_or(|b| b.sync == SyncMode::Producer),
+    };
+    let mut axes = Vec::new();
+    let mut modbus_slot = 0u8;
+    for a in &cfg.axes {
+        let s = a.increments_per_unit;
+        let k = kind(a.device);
+        let p = profile(a.profile());
+        let lim = limits(a);
+        let (transport, sup, boot) = if a.device.is_modbus() {
+            let slot = modbus_slot;
+            modbus_slot += 1;
+            (Transport::Modbus { slot }, Supervision::None, None)
+        } else {
+            let n = a.node.unwrap_or(0) as u8;
+            let (sup, sp) = match a.supervision() {
+                BusSupervision::Heartbeat { period } if !period.is_zero() => {
+                    let ms = period.as_millis().min(u16::MAX as u128 / 2) as u16;
+                    (
+                        Supervision::Heartbeat {
+                            consumer_ms: ms.saturating_mul(2),
+                        },
+                        SupervisionPlan::Heartbeat { producer_ms: ms },
+                    )
+                }
+                BusSupervision::Guarding { guard_time } if !guard_time.is_zero() => {
+                    let ms = guard_time.as_millis().min(u16::MAX as u128) as u16;
+                    (
+                        Supervision::Guarding {
+                            guard_ms: ms,
+                            life_factor: 3,
+                        },
+                        SupervisionPlan::Guarding {
+                            guard_ms: ms,
+                            life_factor: 3,
+                        },
+                    )
+                }
+                _ => (Supervision::None, SupervisionPlan::None),
+            };
+            let node = NodeId::new(n).ok_or_else(|| format!("axes.{}.node: {n} is not 1..=127", a.name))?;
+            let map = axis::pdo_mapping(k, p);
+            let entries = |s: Option<axis::PdoSpec>| s.map_or(&[][..], |s| s.mapping);
+            let mut bp = boot::plan_for(node, k, entries(map.rpdo), entries(map.tpdo), sp)
+                .map_err(|e| format!("axes.{}: {e}", a.name))?;
+            if k == DeviceKind::Tlc5xx {
+                bp.parameters = tlc_parameters(&lim);
+            }
+            (Transport::Can { node: n }, sup, Some(bp))
+        };
+        // The default following-error limit: the distance covered in 50 ms at full speed,
+        // which the streamed setpoints (a new one every second cycle) never lag by.
+        let fe = a
+            .following_error
+            .map_or(lim.velocity / 20, |e| inc(e, s))
+            .max(1) as i64;
+        axes.push(AxisPlan {
+            name: a.name.clone(),
+            unit: a.unit.clone(),
+            scale: s,
+            setup: AxisSetup {
+                kind: k,
+                profile: p,
+                transport,
+                supervision: sup,
+                limits: lim,
+                position_min: (a.limits.position_min * s).round() as i64,
+                position_max: (a.limits.position_max * s).round() as i64,
+                following_error: fe,
+                late_cycles: if a.device.is_modbus() { 0 } else { 3 },
+            },
+            boot,
+            modbus: a.modbus.clone(),
+        });
+    }
+    let mut tables = cfg.group_tables().map_err(|e| e.to_string())?;
+    let mut groups = Vec::new();
+    for g in &cfg.groups {
+        let mut members = heapless::Vec::new();
+        let mut jerk = true;
+        for name in &g.axes {
+            let i = axes
+                .iter()
+                .position(|a: &AxisPlan| &a.name == name)
+                .ok_or_else(|| format!("groups.{}: unknown axis {name}", g.name))?;
+            jerk &= cfg.axes[i].limits.jerk.is_some();
+            members
+                .push(i as u16)
+                .map_err(|_| format!("groups.{}: more than 8 axes", g.name))?;
+        }
+        let table = match tables.iter().position(|(n, _)| n == &g.name) {
+            Some(i) => tables.swap_remove(i).1,
+            None => Box::new(RecordTable::new()),
+        };
+        groups.push((
+            g.name.clone(),
+            GroupSetup {
+                axes: members,
+                shape: if jerk { Shape::SCurve } else { Shape::Trapezoid },
+                reaction: Reaction::QuickStopGroup,
+            },
+            table,
+        ));
+    }
+    Ok(MachinePlan {
+        cycle: setup,
+        period,
+        bus: bus_cfg.map(|b| (b.name.clone(), b.kind, b.bitrate)),
+        axes,
+        groups,
+    })
+}

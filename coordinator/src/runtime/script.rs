@@ -1,0 +1,184 @@
+//! The demonstration script of the embedded default machine, a built-in client: boot, enable,
+//! home every axis, then run each group's record chain from its first record, over and over;
+//! at the end (duration or Ctrl-C) stop, then disable. It reads the cycle's published status
+//! and sends commands; it allocates nothing, so it may run on the cycle thread.
+
+use drivers::time::Instant;
+
+use crate::axis::AxisState;
+use crate::command::{Command, GroupId, Reply, Target};
+use crate::cycle::{Cycle, Mode};
+use crate::records::ChainState;
+
+/// Where the script is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Waiting for the drives to boot.
+    Boot,
+    /// Enable sent; waiting for operation enabled.
+    Enabling,
+    /// Homing.
+    Homing,
+    /// The chains run.
+    Running,
+    /// Stop sent; waiting for standstill.
+    Stopping,
+    /// Disable sent; waiting for the power stages to go off.
+    Disabling,
+    /// Everything is off.
+    Done,
+}
+
+/// What the script does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ScriptOptions {
+    /// Run the chains (the demo); without, the script only enables and homes.
+    pub chains: bool,
+    /// Home the axes after enabling.
+    pub home: bool,
+}
+
+/// The script's state.
+#[derive(Clone, Debug)]
+pub struct Script {
+    opts: ScriptOptions,
+    phase: Phase,
+    since: Instant,
+    /// Chain laps completed (all groups' chains finished once).
+    pub laps: u64,
+    /// Commands the cycle refused (the script logs none: it counts).
+    pub refused: u64,
+    /// Set when the user or the duration asked for the end.
+    shutdown: bool,
+}
+
+/// How long a phase may wait before the script gives up on it and moves on.
+const PHASE_TIMEOUT: core::time::Duration = core::time::Duration::from_secs(30);
+/// The stop phases wait at most this long.
+const STOP_TIMEOUT: core::time::Duration = core::time::Duration::from_secs(3);
+
+impl Script {
+    /// A script at its start.
+    pub fn new(opts: ScriptOptions, now: Instant) -> Script {
+        Script {
+            opts,
+            phase: Phase::Boot,
+            since: now,
+            laps: 0,
+            refused: 0,
+            shutdown: false,
+        }
+    }
+
+    /// The phase.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Asks for the orderly end: stop, then disable.
+    pub fn shut_down(&mut self) {
+        self.shutdown = true;
+    }
+
+    fn go(&mut self, p: Phase, now: Instant) {
+        self.phase = p;
+        self.since = now;
+    }
+
+    fn send<const A: usize, const G: usize>(&mut self, c: &mut Cycle<'_, A, G>, cmd: Command) {
+        if let Reply::Rejected(_) = c.command(&cmd) {
+            self.refused += 1;
+        }
+    }
+
+    /// Called once per cycle before the step; `all_booted` once the boot is over.
+    pub fn poll<const A: usize, const G: usize>(
+        &mut self,
+        c: &mut Cycle<'_, A, G>,
+        all_booted: bool,
+        now: Instant,
+    ) {
+        let waited = now.saturating_duration_since(self.since);
+        let axes = c.axis_count() as u16;
+        let online = |c: &Cycle<'_, A, G>| {
+            (0..axes).filter_map(|a| c.axis_status(a)).filter(|s| s.online && s.fault == crate::fault::FaultReason::None)
+        };
+        if self.shutdown && !matches!(self.phase, Phase::Stopping | Phase::Disabling | Phase::Done) {
+            self.send(c, Command::Stop(Target::All));
+            self.go(Phase::Stopping, now);
+            return;
+        }
+        match self.phase {
+            Phase::Boot => {
+                if all_booted {
+                    self.send(c, Command::Enable(Target::All));
+                    self.go(Phase::Enabling, now);
+                }
+            }
+            Phase::Enabling => {
+                let ready = online(c).all(|s| s.feedback.state == AxisState::Ready);
+                if ready || waited > PHASE_TIMEOUT {
+                    if self.opts.home {
+                        self.send(c, Command::Home(Target::All));
+                        self.go(Phase::Homing, now);
+                    } else {
+                        self.go(Phase::Running, now);
+                    }
+                }
+            }
+            Phase::Homing => {
+                let done = online(c).all(|s| s.mode != Mode::Homing);
+                if done || waited > PHASE_TIMEOUT {
+                    self.go(Phase::Running, now);
+                    self.start_chains(c);
+                }
+            }
+            Phase::Running => {
+                if !self.opts.chains {
+                    return;
+                }
+                let groups = c.group_count() as GroupId;
+                let idle = (0..groups).filter_map(|g| c.group_status(g)).all(|g| {
+                    g.motion.is_none()
+                        && !matches!(
+                            g.chain.state,
+                            ChainState::Delay | ChainState::Moving | ChainState::Waiting
+                        )
+                });
+                if idle && waited.as_millis() > 100 {
+                    self.laps += 1;
+                    self.since = now;
+                    self.start_chains(c);
+                }
+            }
+            Phase::Stopping => {
+                let still = online(c).all(|s| !s.moving);
+                if still || waited > STOP_TIMEOUT {
+                    self.send(c, Command::Disable(Target::All));
+                    self.go(Phase::Disabling, now);
+                }
+            }
+            Phase::Disabling => {
+                let off = (0..axes)
+                    .filter_map(|a| c.axis_status(a))
+                    .filter(|s| s.online)
+                    .all(|s| matches!(s.feedback.state, AxisState::Disabled | AxisState::Offline | AxisState::Fault));
+                if off || waited > STOP_TIMEOUT {
+                    self.go(Phase::Done, now);
+                }
+            }
+            Phase::Done => {}
+        }
+    }
+
+    fn start_chains<const A: usize, const G: usize>(&mut self, c: &mut Cycle<'_, A, G>) {
+        if !self.opts.chains {
+            return;
+        }
+        for g in 0..c.group_count() as GroupId {
+            if let Some(first) = c.first_record(g) {
+                self.send(c, Command::StartChain { group: g, record: first });
+            }
+        }
+    }
+}

@@ -1,0 +1,212 @@
+//! The simulated drives behind a machine plan: every CANopen axis gets its device's simulator
+//! on the virtual bus, every Modbus axis a simulated CMMO-ST (in memory in virtual time, a
+//! Modbus TCP server on loopback in real time). The coordinator talks to them exactly as it
+//! would to the real drives: frames on the bus, Modbus ADUs.
+
+use std::sync::{Arc, Mutex};
+
+use drivers::can::station::{self, Station, Steppable};
+use drivers::can::{PortId, VirtualBus, VirtualPort};
+use drivers::canopen::NodeId;
+use drivers::modbus::client::Client;
+use drivers::sim::cmmo_st::mbap::MAX_ADU;
+use drivers::sim::cmmo_st::{self, Server, ServerConfig, Session};
+use drivers::sim::emca::Emca;
+use drivers::sim::fhpp_drive::FhppDrive;
+use drivers::sim::mtr_dci::MtrDci;
+use drivers::sim::tlc5xx::{TlcConfig, Tlc5xx};
+use drivers::time::Instant;
+
+use crate::axis::{DeviceKind, Profile};
+use crate::cycle::Transport;
+use crate::runtime::plan::MachinePlan;
+
+/// A simulated CANopen drive on its bus port.
+#[derive(Debug)]
+pub enum SimDrive {
+    /// Festo MTR-DCI.
+    MtrDci(Station<VirtualPort, MtrDci>),
+    /// Festo EMCA.
+    Emca(Station<VirtualPort, Emca>),
+    /// Schneider TLC5xx.
+    Tlc5xx(Station<VirtualPort, Tlc5xx>),
+}
+
+impl SimDrive {
+    fn steppable(&mut self) -> &mut dyn Steppable {
+        match self {
+            SimDrive::MtrDci(s) => s,
+            SimDrive::Emca(s) => s,
+            SimDrive::Tlc5xx(s) => s,
+        }
+    }
+    /// The drive's bus port (to disconnect it in a test).
+    pub fn port(&self) -> PortId {
+        match self {
+            SimDrive::MtrDci(s) => s.bus.id(),
+            SimDrive::Emca(s) => s.bus.id(),
+            SimDrive::Tlc5xx(s) => s.bus.id(),
+        }
+    }
+    /// The FHPP behaviour of a Festo drive.
+    pub fn fhpp_mut(&mut self) -> Option<&mut FhppDrive> {
+        match self {
+            SimDrive::MtrDci(s) => Some(s.endpoint.drive_mut()),
+            SimDrive::Emca(s) => Some(s.endpoint.drive_mut()),
+            SimDrive::Tlc5xx(_) => None,
+        }
+    }
+    /// The TLC5xx simulator.
+    pub fn tlc_mut(&mut self) -> Option<&mut Tlc5xx> {
+        match self {
+            SimDrive::Tlc5xx(s) => Some(&mut s.endpoint),
+            _ => None,
+        }
+    }
+}
+
+/// The simulated CANopen drives.
+#[derive(Debug)]
+pub struct SimBus {
+    /// One drive per CANopen axis: the axis name and the drive.
+    pub drives: Vec<(String, SimDrive)>,
+}
+
+impl SimBus {
+    /// Builds a simulator for every CANopen axis of `plan` on `bus`, powered on at `now`.
+    pub fn build(bus: &VirtualBus, plan: &MachinePlan, now: Instant) -> Result<SimBus, String> {
+        let mut drives = Vec::new();
+        for a in &plan.axes {
+            let Transport::Can { node } = a.setup.transport else {
+                continue;
+            };
+            let id = NodeId::new(node).ok_or_else(|| format!("node {node}"))?;
+            let port = bus.attach(&format!("sim-{}", a.name));
+            let err = |e: &dyn std::fmt::Display| format!("simulator of {}: {e}", a.name);
+            let d = match (a.setup.kind, a.setup.profile) {
+                (DeviceKind::MtrDci, p) => {
+                    let p = match p {
+                        Profile::Fhpp => drivers::sim::mtr_dci::Profile::Fhpp,
+                        Profile::Cia402 => drivers::sim::mtr_dci::Profile::Cia402,
+                    };
+                    SimDrive::MtrDci(Station::new(
+                        port,
+                        MtrDci::new(id, p, now).map_err(|e| err(&e))?,
+                    ))
+                }
+                (DeviceKind::Emca, _) => {
+                    SimDrive::Emca(Station::new(port, Emca::new(id, now).map_err(|e| err(&e))?))
+                }
+                (DeviceKind::Tlc5xx, _) => SimDrive::Tlc5xx(Station::new(
+                    port,
+                    Tlc5xx::new(TlcConfig::new(id), now).map_err(|e| err(&e))?,
+                )),
+                (DeviceKind::CmmoSt, _) => continue,
+            };
+            drives.push((a.name.clone(), d));
+        }
+        Ok(SimBus { drives })
+    }
+
+    /// The drive of an axis.
+    pub fn drive_mut(&mut self, axis: &str) -> Option<&mut SimDrive> {
+        self.drives.iter_mut().find(|(n, _)| n == axis).map(|(_, d)| d)
+    }
+
+    fn refs(&mut self) -> Vec<&mut dyn Steppable> {
+        self.drives.iter_mut().map(|(_, d)| d.steppable()).collect()
+    }
+
+    /// Runs the drives on a virtual-time bus up to `until`.
+    pub fn run_until(&mut self, bus: &VirtualBus, until: Instant) {
+        let mut refs = self.refs();
+        station::run_until(bus, &mut refs, until);
+    }
+
+    /// Real time: lets the drives act on what arrived and returns their next deadline.
+    pub fn settle(&mut self) -> Option<Instant> {
+        let mut refs = self.refs();
+        station::settle(&mut refs);
+        refs.iter().filter_map(|s| s.next_deadline()).min()
+    }
+}
+
+/// A simulated CMMO-ST reached in memory: the same Modbus ADUs as over TCP, handed to the
+/// device's session directly so that virtual time stays deterministic.
+pub struct InMemoryCmmo {
+    session: Session,
+    drive: FhppDrive,
+    client: Client,
+    buf: [u8; MAX_ADU],
+    silent: bool,
+}
+
+impl std::fmt::Debug for InMemoryCmmo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("InMemoryCmmo")
+    }
+}
+
+impl InMemoryCmmo {
+    /// A powered-on CMMO-ST with the factory interface settings, connected.
+    pub fn new(now: Instant) -> Result<InMemoryCmmo, String> {
+        let mut session =
+            Session::new(cmmo_st::Config::default()).map_err(|e| format!("CMMO-ST: {e}"))?;
+        let mut drive = cmmo_st::new_drive().map_err(|e| format!("CMMO-ST: {e}"))?;
+        session.connect(&mut drive, now);
+        Ok(InMemoryCmmo {
+            session,
+            drive,
+            client: Client::default(),
+            buf: [0; MAX_ADU],
+            silent: false,
+        })
+    }
+
+    /// One FC 0x17 exchange at `now`: writes `output`, returns the status image (`None` if
+    /// the device did not answer or answered with an exception).
+    pub fn exchange(&mut self, output: &[u8; 8], now: Instant) -> Option<[u8; 8]> {
+        if self.silent {
+            self.step_to(now);
+            return None;
+        }
+        let mut req = [0u8; MAX_ADU];
+        let n = self.client.exchange_image(output, &mut req).ok()?;
+        let len = self
+            .session
+            .handle_frame(&req[..n], &mut self.drive, now, &mut self.buf)
+            .ok()??;
+        self.client
+            .handle_response(&self.buf[..len])
+            .ok()
+            .and_then(|r| r.image())
+    }
+
+    /// Stops (or resumes) answering, as a device whose network went away.
+    pub fn set_silent(&mut self, silent: bool) {
+        self.silent = silent;
+    }
+
+    /// The simulated drive.
+    pub fn drive_mut(&mut self) -> &mut FhppDrive {
+        &mut self.drive
+    }
+
+    /// Advances the drive to `now` without an exchange.
+    pub fn step_to(&mut self, now: Instant) {
+        use drivers::sim::cmmo_st::FhppDevice;
+        self.drive.step_to(now);
+    }
+}
+
+/// Starts a simulated CMMO-ST Modbus TCP server on 127.0.0.1 (an OS-chosen port).
+pub fn spawn_cmmo_server() -> Result<Server, String> {
+    let drive = cmmo_st::new_drive().map_err(|e| format!("CMMO-ST: {e}"))?;
+    Server::spawn(ServerConfig::loopback(0), Arc::new(Mutex::new(drive)))
+        .map_err(|e| format!("CMMO-ST server: {e}"))
+}
+
+/// The port the coordinator uses on a virtual bus.
+pub fn coordinator_port(bus: &VirtualBus) -> VirtualPort {
+    bus.attach("coordinator")
+}

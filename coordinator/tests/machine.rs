@@ -1,0 +1,338 @@
+//! The whole coordinator in virtual time: the embedded default machine (MTR-DCI, EMCA, TLC5xx on
+//! the virtual CAN bus, CMMO-ST over Modbus), booted over SDO, enabled, homed; group moves,
+//! chains, every fault reaction, determinism.
+
+use std::time::Duration;
+
+use coordinator::axis::AxisState;
+use coordinator::command::{Command, Reply, Rejected, Target};
+use coordinator::config::{Config, EXAMPLE};
+use coordinator::cycle::Mode;
+use coordinator::fault::FaultReason;
+use coordinator::records::MAX_GROUP_AXES;
+use coordinator::runtime::plan::{MachinePlan, plan};
+use coordinator::runtime::run::{RunOptions, VirtualRun, run_virtual};
+use coordinator::runtime::script::{Phase, ScriptOptions};
+use drivers::can::fault::{FaultRule, IdMatch};
+
+fn example() -> MachinePlan {
+    plan(&Config::parse(EXAMPLE).expect("example parses")).expect("example plans")
+}
+
+fn quiet(chains: bool) -> RunOptions {
+    RunOptions {
+        duration: None,
+        virtual_time: true,
+        status_every: None,
+        script: ScriptOptions { chains, home: true },
+    }
+}
+
+/// Runs until the script has enabled and homed every axis (chains off).
+fn ready(plan: &MachinePlan) -> VirtualRun<'_> {
+    let mut run = VirtualRun::new(plan, &quiet(false)).expect("machine builds");
+    let mut out = Vec::new();
+    while run.script.phase() != Phase::Running {
+        run.step(&mut out);
+        assert!(
+            run.elapsed() < Duration::from_secs(60),
+            "not homed after 60 s: {}",
+            String::from_utf8_lossy(&out)
+        );
+    }
+    // A few cycles for the last homing's MC to settle.
+    for _ in 0..10 {
+        run.step(&mut out);
+    }
+    let text = String::from_utf8_lossy(&out);
+    assert!(run.summary.boot_failures.is_empty(), "{text}");
+    assert!(run.summary.faults.is_empty(), "{text}");
+    for a in 0..plan.axes.len() {
+        let s = run.core.cycle.axis_status(a as u16).unwrap();
+        assert_eq!(s.feedback.state, AxisState::Ready, "axis {a}: {s:?}\n{text}");
+        assert!(s.feedback.homed, "axis {a} homed: {s:?}\n{text}");
+        assert_eq!(s.mode, Mode::On, "axis {a}");
+    }
+    run
+}
+
+fn steps(run: &mut VirtualRun<'_>, n: usize) {
+    let mut out = Vec::new();
+    for _ in 0..n {
+        run.step(&mut out);
+    }
+}
+
+fn latched(r: Reply) -> u64 {
+    match r {
+        Reply::Latched { cycle } => cycle,
+        Reply::Rejected(e) => panic!("rejected: {e}"),
+    }
+}
+
+#[test]
+fn the_default_machine_boots_every_drive_and_homes_every_axis() {
+    let plan = example();
+    let run = ready(&plan);
+    // Four kinds: MTR-DCI (guarded), EMCA (guarded), TLC5xx (heartbeat), CMMO-ST (Modbus).
+    assert_eq!(plan.axes.len(), 4);
+    assert!(run.booted());
+}
+
+#[test]
+fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
+    let plan = example();
+    let mut run = ready(&plan);
+    let g = plan.group("gantry").unwrap() as u16;
+    let x = plan.axis("x").unwrap();
+    let y = plan.axis("y").unwrap();
+    let tx = (150.0 * plan.axes[x].scale) as i64;
+    let ty = (120.0 * plan.axes[y].scale) as i64;
+    let mut positions = [0i64; MAX_GROUP_AXES];
+    positions[0] = tx;
+    positions[1] = ty;
+    let sx0 = run.core.cycle.axis_status(x as u16).unwrap().setpoint;
+    let sy0 = run.core.cycle.axis_status(y as u16).unwrap().setpoint;
+    let at = latched(run.core.cycle.command(&Command::MoveGroup {
+        group: g,
+        positions,
+        velocity_percent: 100,
+    }));
+    let mut started = [None, None];
+    let mut arrived = [None, None];
+    let mut out = Vec::new();
+    for _ in 0..5000 {
+        let c = run.core.cycle.cycle();
+        run.step(&mut out);
+        for (i, (axis, start, target)) in [(x, sx0, tx), (y, sy0, ty)].into_iter().enumerate() {
+            let s = run.core.cycle.axis_status(axis as u16).unwrap();
+            if started[i].is_none() && s.setpoint != start {
+                started[i] = Some(c);
+            }
+            if arrived[i].is_none() && s.setpoint == target {
+                arrived[i] = Some(c);
+            }
+        }
+        if arrived.iter().all(Option::is_some)
+            && run.core.cycle.group_status(g).unwrap().motion.is_none()
+        {
+            break;
+        }
+    }
+    assert_eq!(started[0], started[1], "both start in the same cycle");
+    assert_eq!(started[0], Some(at - 1), "the first setpoint goes out in the latching step");
+    assert_eq!(arrived[0], arrived[1], "both arrive in the same cycle");
+    assert!(arrived[0].is_some());
+    // The drives got there too, and report motion complete.
+    steps(&mut run, 50);
+    for (axis, target) in [(x, tx), (y, ty)] {
+        let s = run.core.cycle.axis_status(axis as u16).unwrap();
+        assert!(s.feedback.motion_complete, "{s:?}");
+        assert!((s.feedback.position - target).abs() <= 2, "{s:?} vs {target}");
+    }
+    assert!(run.summary.faults.is_empty(), "{:?}", run.summary.faults);
+}
+
+#[test]
+fn a_bad_group_move_is_refused_whole_and_nothing_moves() {
+    let plan = example();
+    let mut run = ready(&plan);
+    let g = plan.group("gantry").unwrap() as u16;
+    let x = plan.axis("x").unwrap() as u16;
+    let before = run.core.cycle.axis_status(x).unwrap().setpoint;
+    let mut positions = [0i64; MAX_GROUP_AXES];
+    positions[0] = (100.0 * plan.axes[x as usize].scale) as i64;
+    positions[1] = 10_000_000; // y far beyond its 250 mm
+    let r = run.core.cycle.command(&Command::MoveGroup {
+        group: g,
+        positions,
+        velocity_percent: 50,
+    });
+    assert!(
+        matches!(r, Reply::Rejected(Rejected::OutOfRange { value: 10_000_000, .. })),
+        "{r:?}"
+    );
+    steps(&mut run, 20);
+    assert_eq!(run.core.cycle.axis_status(x).unwrap().setpoint, before);
+    assert!(matches!(
+        run.core.cycle.command(&Command::MoveGroup { group: 9, positions, velocity_percent: 50 }),
+        Reply::Rejected(Rejected::UnknownGroup(9))
+    ));
+}
+
+/// Starts a gantry move, runs a few cycles, then lets `inject` break something and checks the
+/// reaction: the fault `expect`ed on `axis`, every gantry member quick-stopped in the fault's
+/// cycle, moves refused until the acknowledge, and back to normal afterwards (`heal` first).
+fn fault_reaction(
+    axis: &str,
+    inject: impl FnOnce(&mut VirtualRun<'_>),
+    heal: impl FnOnce(&mut VirtualRun<'_>),
+    expect: impl Fn(FaultReason) -> bool,
+) {
+    let plan = example();
+    let mut run = ready(&plan);
+    let g = plan.group("gantry").unwrap() as u16;
+    let mut positions = [0i64; MAX_GROUP_AXES];
+    positions[0] = (300.0 * plan.axes[plan.axis("x").unwrap()].scale) as i64;
+    positions[1] = (200.0 * plan.axes[plan.axis("y").unwrap()].scale) as i64;
+    latched(run.core.cycle.command(&Command::MoveGroup {
+        group: g,
+        positions,
+        velocity_percent: 50,
+    }));
+    steps(&mut run, 30);
+    inject(&mut run);
+    let a = plan.axis(axis).unwrap() as u16;
+    let mut out = Vec::new();
+    for _ in 0..2000 {
+        run.step(&mut out);
+        if run.core.cycle.axis_status(a).unwrap().fault != FaultReason::None {
+            break;
+        }
+    }
+    let text = String::from_utf8_lossy(&out).to_string();
+    let st = run.core.cycle.axis_status(a).unwrap();
+    assert!(expect(st.fault), "{axis}: {:?}\n{text}", st.fault);
+    // Same cycle: the whole group is quick-stopped and its move dropped.
+    if let Some(gi) = plan.groups.iter().position(|(_, gs, _)| gs.axes.contains(&a)) {
+        for &m in &plan.groups[gi].1.axes {
+            assert_eq!(run.core.cycle.axis_status(m).unwrap().mode, Mode::QuickStopped, "member {m}");
+        }
+        assert!(run.core.cycle.group_status(gi as u16).unwrap().motion.is_none());
+        assert!(matches!(
+            run.core.cycle.command(&Command::MoveGroup {
+                group: gi as u16,
+                positions,
+                velocity_percent: 50
+            }),
+            Reply::Rejected(_)
+        ));
+    }
+    assert!(text.contains("FAULT"), "{text}");
+    heal(&mut run);
+    steps(&mut run, 200);
+    latched(run.core.cycle.command(&Command::Acknowledge(Target::All)));
+    steps(&mut run, 300);
+    let st = run.core.cycle.axis_status(a).unwrap();
+    assert_eq!(st.fault, FaultReason::None, "{st:?}");
+    assert_eq!(st.mode, Mode::On, "{st:?}");
+    latched(run.core.cycle.command(&Command::Enable(Target::All)));
+}
+
+#[test]
+fn guarding_loss_quick_stops_the_group_until_acknowledged() {
+    fault_reaction(
+        "x",
+        |run| {
+            let port = run.sims.drive_mut("x").unwrap().port();
+            run.bus.set_disconnected(port, true);
+        },
+        |run| {
+            let port = run.sims.drive_mut("x").unwrap().port();
+            run.bus.set_disconnected(port, false);
+        },
+        |r| matches!(r, FaultReason::GuardingLost | FaultReason::LateTpdo(_)),
+    );
+}
+
+#[test]
+fn a_late_tpdo_faults_the_axis() {
+    fault_reaction(
+        "y",
+        |run| {
+            // EMCA node 2: drop its TPDO1 (182h).
+            run.bus.add_fault(FaultRule::drop(IdMatch::Exact(0x182)));
+        },
+        |run| run.bus.clear_faults(),
+        |r| r == FaultReason::LateTpdo(3),
+    );
+}
+
+#[test]
+fn heartbeat_loss_faults_the_tlc5xx() {
+    fault_reaction(
+        "z",
+        |run| {
+            // Heartbeats only (703h): the TPDOs still arrive.
+            run.bus.add_fault(FaultRule::drop(IdMatch::Exact(0x703)));
+        },
+        |run| run.bus.clear_faults(),
+        |r| r == FaultReason::HeartbeatLost,
+    );
+}
+
+#[test]
+fn a_drive_fault_and_its_emcy_fault_the_axis() {
+    fault_reaction(
+        "y",
+        |run| {
+            let d = run.sims.drive_mut("y").unwrap().fhpp_mut().unwrap();
+            d.inject(drivers::sim::fhpp_drive::Injection::OverTemperature, true);
+        },
+        |run| {
+            let d = run.sims.drive_mut("y").unwrap().fhpp_mut().unwrap();
+            d.inject(drivers::sim::fhpp_drive::Injection::OverTemperature, false);
+        },
+        |r| matches!(r, FaultReason::Emcy(_) | FaultReason::DriveFault(_)),
+    );
+}
+
+#[test]
+fn a_following_error_faults_the_axis() {
+    fault_reaction(
+        "x",
+        |run| {
+            let d = run.sims.drive_mut("x").unwrap().fhpp_mut().unwrap();
+            d.inject(drivers::sim::fhpp_drive::Injection::Block, true);
+        },
+        |run| {
+            let d = run.sims.drive_mut("x").unwrap().fhpp_mut().unwrap();
+            d.inject(drivers::sim::fhpp_drive::Injection::Block, false);
+        },
+        |r| matches!(r, FaultReason::FollowingError { .. } | FaultReason::DriveFault(_) | FaultReason::Emcy(_)),
+    );
+}
+
+#[test]
+fn a_modbus_timeout_faults_the_cmmo_st() {
+    fault_reaction(
+        "gripper",
+        |run| run.cmmo[0].1.set_silent(true),
+        |run| run.cmmo[0].1.set_silent(false),
+        |r| r == FaultReason::ModbusTimeout,
+    );
+}
+
+#[test]
+fn two_runs_of_the_demo_send_the_same_frames() {
+    let plan = example();
+    let opts = RunOptions {
+        duration: Some(Duration::from_secs(8)),
+        ..quiet(true)
+    };
+    let a = run_virtual(&plan, &opts, &mut Vec::new()).unwrap();
+    let b = run_virtual(&plan, &opts, &mut Vec::new()).unwrap();
+    assert_eq!(a.frame_hash, b.frame_hash);
+    assert_eq!(a.frames_on_bus, b.frames_on_bus);
+    assert!(a.frames_on_bus > 1000, "{a}");
+}
+
+#[test]
+fn the_demo_runs_its_chain_and_ends_with_the_drives_disabled() {
+    let plan = example();
+    let opts = RunOptions {
+        duration: Some(Duration::from_secs(30)),
+        ..quiet(true)
+    };
+    let mut out = Vec::new();
+    let s = run_virtual(&plan, &opts, &mut out).unwrap();
+    let text = String::from_utf8_lossy(&out);
+    assert!(s.boot_failures.is_empty(), "{s}\n{text}");
+    assert!(s.faults.is_empty(), "{s}\n{text}");
+    assert!(s.laps >= 1, "{s}\n{text}");
+    assert!(s.records_reached >= 3, "{s}\n{text}");
+    assert_eq!(s.phase, Some(Phase::Done));
+    for (name, _, _, state) in &s.axes {
+        assert_eq!(*state, AxisState::Disabled, "{name}: {s}");
+    }
+}
