@@ -277,7 +277,7 @@ pub struct AxisConfig {
     /// Motion limits.
     pub limits: Limits,
     /// Largest |setpoint - actual| while following a path, in units, before the axis faults;
-    /// default: the distance covered in 50 ms at the velocity limit.
+    /// default: the distance covered at the velocity limit in 100 ms plus 6 cycles.
     pub following_error: Option<f64>,
 }
 

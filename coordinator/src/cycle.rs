@@ -249,6 +249,8 @@ struct GroupRt<'t> {
     /// The move is to be dropped once stopped (Stop, as opposed to Hold).
     stop_pending: bool,
     override_percent: u16,
+    /// A record to start once the running move has stopped (a step on the fly).
+    pending: Option<u16>,
     /// The cycle a velocity or force record started in (its members run on `special`).
     special_since: Option<u64>,
 }
@@ -260,6 +262,8 @@ pub struct AxisStatus {
     pub feedback: Feedback,
     /// The setpoint commanded, increments.
     pub setpoint: i64,
+    /// The setpoint's velocity, inc/s (0 at standstill).
+    pub setpoint_velocity: i64,
     /// The coordinator's fault reason (None when clear).
     pub fault: FaultReason,
     /// The drive is booted and in the cycle.
@@ -377,6 +381,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     motion: None,
                     stop_pending: false,
                     override_percent: 100,
+                    pending: None,
                     special_since: None,
                 })
                 .map_err(|_| SetupError::Capacity(G))?;
@@ -405,6 +410,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         Some(AxisStatus {
             feedback: a.feedback,
             setpoint: a.setpoint,
+            setpoint_velocity: if a.following { a.setpoint_velocity } else { 0 },
             fault: a.fault,
             online: a.online,
             enabled: !matches!(a.mode, Mode::Off),
@@ -1069,34 +1075,20 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 let group = gi as GroupId;
                 match act {
                     ChainAction::StartMotion { record } => {
-                        let Some(r) = self.groups[gi].table.get(record).copied() else {
-                            continue;
-                        };
-                        self.end_special(gi);
-                        if r.mode != RecordMode::Position {
-                            self.start_special(gi, &r);
-                            continue;
-                        }
-                        // A finished move is dropped before the next one is planned.
-                        if self.groups[gi]
+                        let moving = self.groups[gi]
                             .motion
                             .as_ref()
-                            .is_some_and(|m| m.state() == GroupState::Done)
-                        {
-                            self.finish_group_move(gi);
-                        }
-                        if self
-                            .start_group_move(
-                                gi,
-                                &r.targets,
-                                r.velocity_percent,
-                                r.acceleration_percent,
-                                r.jerk_percent,
-                            )
-                            .is_err()
-                        {
-                            self.abort_chain(gi);
-                            let _ = record;
+                            .is_some_and(|m| !matches!(m.state(), GroupState::Done | GroupState::Stopped));
+                        if moving {
+                            // On the fly: no blending. The running move decelerates along its
+                            // path and the record starts from there, so the setpoints stay
+                            // continuous.
+                            if let Some(m) = &mut self.groups[gi].motion {
+                                m.hold();
+                            }
+                            self.groups[gi].pending = Some(record);
+                        } else {
+                            self.start_record(gi, record);
                         }
                     }
                     other => {
@@ -1108,6 +1100,16 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         }
                     }
                 }
+            }
+            // A record waiting for the previous move to stop starts now.
+            if let Some(record) = self.groups[gi].pending
+                && self.groups[gi]
+                    .motion
+                    .as_ref()
+                    .is_none_or(|m| matches!(m.state(), GroupState::Done | GroupState::Stopped))
+            {
+                self.groups[gi].pending = None;
+                self.start_record(gi, record);
             }
             // Motion: one sample per member per cycle.
             let g = &mut self.groups[gi];
@@ -1126,11 +1128,31 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         .axes
                         .iter()
                         .all(|&mm| self.axes[usize::from(mm)].feedback.motion_complete);
-                if (state == GroupState::Stopped && g.stop_pending) || arrived {
+                if (state == GroupState::Stopped && g.stop_pending) || (arrived && g.pending.is_none()) {
                     g.motion = None;
                     g.stop_pending = false;
                 }
             }
+        }
+    }
+
+    /// Starts a record's motion from the members' setpoints (the previous move is over).
+    fn start_record(&mut self, gi: usize, record: u16) {
+        let Some(r) = self.groups[gi].table.get(record).copied() else {
+            self.abort_chain(gi);
+            return;
+        };
+        self.end_special(gi);
+        self.groups[gi].motion = None;
+        if r.mode != RecordMode::Position {
+            self.start_special(gi, &r);
+            return;
+        }
+        if self
+            .start_group_move(gi, &r.targets, r.velocity_percent, r.acceleration_percent, r.jerk_percent)
+            .is_err()
+        {
+            self.abort_chain(gi);
         }
     }
 
@@ -1185,17 +1207,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         }
         self.end_special(gi);
         let g = &mut self.groups[gi];
+        g.pending = None;
         if !g.chain.is_running() {
             return;
         }
         if let Some(e) = g.chain.abort(now).and_then(|a| a.event(cycle, gi as GroupId)) {
             self.emit(e);
         }
-    }
-
-    fn finish_group_move(&mut self, gi: usize) {
-        self.groups[gi].motion = None;
-        self.groups[gi].stop_pending = false;
     }
 
     fn run_axes(&mut self) {

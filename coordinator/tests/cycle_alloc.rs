@@ -7,7 +7,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::time::Duration;
 
-use coordinator::command::{Command, GroupId};
+use coordinator::command::{Command, GroupId, Reply};
 use coordinator::config::Config;
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::plan;
@@ -75,6 +75,10 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         run.step(&mut out);
         assert!(run.elapsed() < Duration::from_secs(120), "{}", String::from_utf8_lossy(&out));
     }
+    for a in 0..plan.axes.len() {
+        let s = run.core.cycle.axis_status(a as u16).unwrap();
+        assert_eq!(s.mode, coordinator::cycle::Mode::On, "axis {a}: {s:?}\n{}", String::from_utf8_lossy(&out));
+    }
     // Group moves: every group to the middle of its members' ranges and back.
     for round in 0..2 {
         for (g, (_, gs, _)) in plan.groups.iter().enumerate() {
@@ -84,15 +88,22 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
                 positions[i] = if round == 0 { (s.position_min + s.position_max) / 2 } else { s.position_min + 100 };
             }
             probe(true);
-            let _ = run.core.cycle.command(&Command::MoveGroup {
+            let reply = run.core.cycle.command(&Command::MoveGroup {
                 group: g as GroupId,
                 positions,
                 velocity_percent: 100,
             });
             probe(false);
+            // The moves run, so the steps counted below do the real work.
+            assert!(matches!(reply, Reply::Latched { .. }), "round {round} group {g}: {reply:?}\n{}", String::from_utf8_lossy(&out));
         }
-        for _ in 0..300 {
+        // Until every group's move has arrived (at most 60 s of machine time).
+        let t = run.elapsed();
+        while (0..plan.groups.len()).any(|g| {
+            run.core.cycle.group_status(g as GroupId).is_some_and(|s| s.motion.is_some())
+        }) {
             run.step(&mut out);
+            assert!(run.elapsed() - t < Duration::from_secs(60), "moves do not arrive");
         }
     }
     run.shut_down();

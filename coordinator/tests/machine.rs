@@ -106,10 +106,13 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
         run.step(&mut out);
         for (i, (axis, start, target)) in [(x, sx0, tx), (y, sy0, ty)].into_iter().enumerate() {
             let s = run.core.cycle.axis_status(axis as u16).unwrap();
-            if started[i].is_none() && s.setpoint != start {
+            let _ = start;
+            if started[i].is_none() && s.setpoint_velocity != 0 {
                 started[i] = Some(c);
             }
-            if arrived[i].is_none() && s.setpoint == target {
+            // Arrived: on the target with the path at rest (a setpoint can round to the target
+            // a cycle early while the path still moves).
+            if arrived[i].is_none() && s.setpoint == target && s.setpoint_velocity == 0 {
                 arrived[i] = Some(c);
             }
         }

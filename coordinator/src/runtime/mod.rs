@@ -10,10 +10,10 @@
 //! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy.
 
 pub mod boot;
-pub mod modbus;
+//TEMP pub mod modbus;
 pub mod plan;
-pub mod realtime;
-pub mod rt;
+//TEMP pub mod realtime;
+//TEMP pub mod rt;
 pub mod run;
 pub mod script;
 pub mod services;

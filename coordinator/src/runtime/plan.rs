@@ -115,6 +115,14 @@ fn tlc_parameters(l: &AxisLimits) -> Vec<(drivers::canopen::Address, u32, u8)> {
     ]
 }
 
+/// The EMCA's PNU 583 "direct start condition" = 1 (interrupt), over SDO 2000h + PNU: its
+/// default 0 ignores a START while moving, and the coordinator's streamed targets are STARTs
+/// while moving (EMCA manual, PNU 583). The CMMO-ST has the same parameter but no parameter
+/// channel in the 8-byte Modbus profile: it is commissioned so (see `runtime::sim`).
+fn emca_start_interrupts() -> (drivers::canopen::Address, u32, u8) {
+    (drivers::canopen::Address::new(0x2000 + 583, 1), 1, 1)
+}
+
 /// Turns a configuration that passed [`Config::check`] into a machine plan.
 pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     let report = cfg.check();
@@ -191,13 +199,18 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             if k == DeviceKind::Tlc5xx {
                 bp.parameters = tlc_parameters(&lim);
             }
+            if k == DeviceKind::Emca && p == Profile::Fhpp {
+                bp.parameters = vec![emca_start_interrupts()];
+            }
             (Transport::Can { node: n }, sup, Some(bp))
         };
-        // The default following-error limit: the distance covered in 50 ms at full speed,
-        // which the streamed setpoints (a new one every second cycle) never lag by.
+        // The default following-error limit: the distance covered at full speed in 100 ms plus
+        // 6 cycles. Streamed setpoints lag by a few cycles (FHPP takes one every second cycle,
+        // the TLC5xx's PP handshake one every fourth) plus the drive's own loop.
+        let lag_ms = 100 + 6 * u64::from(cycle_us) / 1000;
         let fe = a
             .following_error
-            .map_or(lim.velocity / 20, |e| inc(e, s))
+            .map_or(lim.velocity * lag_ms / 1000, |e| inc(e, s))
             .max(1) as i64;
         axes.push(AxisPlan {
             name: a.name.clone(),

@@ -100,9 +100,13 @@ impl Script {
     ) {
         let waited = now.saturating_duration_since(self.since);
         let axes = c.axis_count() as u16;
-        let online = |c: &Cycle<'_, A, G>| {
-            (0..axes).filter_map(|a| c.axis_status(a)).filter(|s| s.online && s.fault == crate::fault::FaultReason::None)
-        };
+        fn online<'c, const A: usize, const G: usize>(
+            c: &'c Cycle<'_, A, G>,
+        ) -> impl Iterator<Item = crate::cycle::AxisStatus> + 'c {
+            (0..c.axis_count() as u16)
+                .filter_map(|a| c.axis_status(a))
+                .filter(|s| s.online && s.fault == crate::fault::FaultReason::None)
+        }
         if self.shutdown && !matches!(self.phase, Phase::Stopping | Phase::Disabling | Phase::Done) {
             self.send(c, Command::Stop(Target::All));
             self.go(Phase::Stopping, now);

@@ -22,7 +22,6 @@ use crate::cycle::Transport;
 use crate::runtime::plan::MachinePlan;
 
 /// A simulated CANopen drive on its bus port.
-#[derive(Debug)]
 pub enum SimDrive {
     /// Festo MTR-DCI.
     MtrDci(Station<VirtualPort, MtrDci>),
@@ -30,6 +29,17 @@ pub enum SimDrive {
     Emca(Station<VirtualPort, Emca>),
     /// Schneider TLC5xx.
     Tlc5xx(Station<VirtualPort, Tlc5xx>),
+}
+
+impl std::fmt::Debug for SimDrive {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let kind = match self {
+            SimDrive::MtrDci(_) => "MTR-DCI",
+            SimDrive::Emca(_) => "EMCA",
+            SimDrive::Tlc5xx(_) => "TLC5xx",
+        };
+        write!(f, "SimDrive({kind})")
+    }
 }
 
 impl SimDrive {
@@ -152,12 +162,12 @@ impl InMemoryCmmo {
     pub fn new(now: Instant) -> Result<InMemoryCmmo, String> {
         let mut session =
             Session::new(cmmo_st::Config::default()).map_err(|e| format!("CMMO-ST: {e}"))?;
-        let mut drive = cmmo_st::new_drive().map_err(|e| format!("CMMO-ST: {e}"))?;
+        let mut drive = commissioned_cmmo()?;
         session.connect(&mut drive, now);
         Ok(InMemoryCmmo {
             session,
             drive,
-            client: Client::default(),
+            client: Client::new(0),
             buf: [0; MAX_ADU],
             silent: false,
         })
@@ -194,14 +204,25 @@ impl InMemoryCmmo {
 
     /// Advances the drive to `now` without an exchange.
     pub fn step_to(&mut self, now: Instant) {
-        use drivers::sim::cmmo_st::FhppDevice;
         self.drive.step_to(now);
     }
 }
 
+/// A CMMO-ST as commissioned for the coordinator (with FCT, before it goes on the network): PNU
+/// 583 "direct start condition" = 1, so that a START while moving takes the new target (the
+/// factory 0 ignores it, and the coordinator streams targets as STARTs while moving). The
+/// 8-byte Modbus profile has no parameter channel to set it from the coordinator.
+fn commissioned_cmmo() -> Result<FhppDrive, String> {
+    let mut drive = cmmo_st::drive::new_drive().map_err(|e| format!("CMMO-ST: {e}"))?;
+    drive
+        .set_pnu(583, 1, 1)
+        .map_err(|e| format!("CMMO-ST PNU 583: {e:?}"))?;
+    Ok(drive)
+}
+
 /// Starts a simulated CMMO-ST Modbus TCP server on 127.0.0.1 (an OS-chosen port).
 pub fn spawn_cmmo_server() -> Result<Server, String> {
-    let drive = cmmo_st::new_drive().map_err(|e| format!("CMMO-ST: {e}"))?;
+    let drive = commissioned_cmmo()?;
     Server::spawn(ServerConfig::loopback(0), Arc::new(Mutex::new(drive)))
         .map_err(|e| format!("CMMO-ST server: {e}"))
 }

@@ -7,10 +7,21 @@ use std::fmt::Write as _;
 /// CANopen nodes on one bus (node-IDs 1..=127).
 pub const MAX_CAN_AXES: usize = 127;
 
-/// The configuration text of a machine of `n` axes in groups of `group_size`, each group with a
-/// two-record chain (a synchronised move out and back). The cycle is the shortest multiple of
-/// 1 ms that keeps the bus under 80 %.
+/// The configuration text of a machine of `n` axes in groups of up to `group_size` (CANopen and
+/// Modbus axes in separate groups: Modbus has no SYNC). The cycle is the shortest whole number
+/// of milliseconds (at least 2) that `coordinator check` accepts.
 pub fn config(n: usize, group_size: usize) -> String {
+    for cycle_ms in 2..=100 {
+        let text = config_with_cycle(n, group_size, cycle_ms);
+        if crate::config::Config::parse(&text).is_ok_and(|c| c.check().is_ok()) {
+            return text;
+        }
+    }
+    config_with_cycle(n, group_size, 100)
+}
+
+/// As [`config`] with a given cycle, ms (which `check` may refuse).
+pub fn config_with_cycle(n: usize, group_size: usize, cycle_ms: usize) -> String {
     let group_size = group_size.clamp(1, 8);
     // Axes 4k+3 are CMMO-STs (Modbus) unless the bus is full, so every kind appears.
     let mut kinds = Vec::with_capacity(n);
@@ -32,10 +43,6 @@ pub fn config(n: usize, group_size: usize) -> String {
         }
         kinds.push(k);
     }
-    // Per CANopen axis: RPDO + TPDO (135 bits worst case each at 8 bytes) + a guarding pair
-    // every 100 ms; SYNC and SDO slots on top. 1 bit = 1 us at 1 Mbit/s.
-    let per_cycle_us = 65 + 2 * 135 + can * 270 + 4 * 135;
-    let cycle_ms = (per_cycle_us * 100 / 75).div_ceil(1000).clamp(2, 100);
     let mut s = String::new();
     let _ = writeln!(s, "cycle_us = {}", cycle_ms * 1000);
     let _ = writeln!(
@@ -62,9 +69,15 @@ pub fn config(n: usize, group_size: usize) -> String {
             "increments_per_unit = {ipu:.1}\nlimits = {{ position_min = 0.0, position_max = {max:.1}, velocity = {v:.1}, acceleration = {a:.1} }}"
         );
     }
-    for (g, chunk) in (0..n).collect::<Vec<_>>().chunks(group_size).enumerate() {
-        let names: Vec<String> = chunk.iter().map(|i| format!("\"a{i}\"")).collect();
-        let _ = writeln!(s, "\n[[groups]]\nname = \"g{g}\"\naxes = [{}]", names.join(", "));
+    let on_can: Vec<usize> = (0..n).filter(|&i| kinds[i] != "cmmo-st").collect();
+    let on_modbus: Vec<usize> = (0..n).filter(|&i| kinds[i] == "cmmo-st").collect();
+    let mut g = 0;
+    for members in [on_can, on_modbus] {
+        for chunk in members.chunks(group_size) {
+            let names: Vec<String> = chunk.iter().map(|i| format!("\"a{i}\"")).collect();
+            let _ = writeln!(s, "\n[[groups]]\nname = \"g{g}\"\naxes = [{}]", names.join(", "));
+            g += 1;
+        }
     }
     s
 }
