@@ -13,7 +13,7 @@ pub mod boot;
 //TEMP pub mod modbus;
 pub mod plan;
 //TEMP pub mod realtime;
-//TEMP pub mod rt;
+pub mod rt;
 pub mod run;
 pub mod script;
 pub mod services;

@@ -666,7 +666,7 @@ pub fn run_virtual(
     );
     loop {
         let over = opts.duration.is_some_and(|d| run.elapsed() >= d);
-        if (over || false) && !run.ending {
+        if (over || crate::runtime::rt::stop_flag().load(Ordering::Relaxed)) && !run.ending {
             run.shut_down();
         }
         run.step(out);
