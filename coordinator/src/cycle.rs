@@ -28,7 +28,7 @@ use drivers::canopen::{FunctionCode, NodeId};
 use drivers::time::Instant;
 use heapless::{Deque, Vec};
 
-use crate::axis::{AxisError, AxisState, DeviceKind, Demand, DriveAxis, Feedback, Image, Profile};
+use crate::axis::{AxisError, AxisState, Demand, DeviceKind, DriveAxis, Feedback, Image, Profile};
 use crate::command::{AxisId, Command, GroupId, Rejected, Reply, Target};
 use crate::event::Event;
 use crate::fault::{FaultReason, Reaction};
@@ -249,6 +249,10 @@ struct GroupRt<'t> {
     /// The move is to be dropped once stopped (Stop, as opposed to Hold).
     stop_pending: bool,
     override_percent: u16,
+    /// The highest override the running move can take without any member exceeding its
+    /// configured limits (time scaling multiplies velocity, acceleration and jerk by the
+    /// override's first, second and third power).
+    max_override: u16,
     /// A record to start once the running move has stopped (a step on the fly).
     pending: Option<u16>,
     /// The cycle a velocity or force record started in (its members run on `special`).
@@ -288,7 +292,7 @@ pub struct GroupStatus {
 }
 
 /// The coordinator's cycle for up to `A` axes and `G` groups.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Cycle<'t, const A: usize, const G: usize> {
     setup: CycleSetup,
     axes: Vec<AxisRt, A>,
@@ -333,7 +337,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         for (i, s) in axes.iter().enumerate() {
             let id = i as AxisId;
             if let Transport::Can { node: n } = s.transport {
-                let slot = c.by_node.get_mut(usize::from(n)).ok_or(SetupError::Node(id))?;
+                let slot = c
+                    .by_node
+                    .get_mut(usize::from(n))
+                    .ok_or(SetupError::Node(id))?;
                 if n == 0 || slot.is_some() {
                     return Err(SetupError::Node(id));
                 }
@@ -367,7 +374,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         for (gi, (g, table)) in groups.iter().enumerate() {
             let gid = gi as GroupId;
             for &a in &g.axes {
-                let ax = c.axes.get_mut(usize::from(a)).ok_or(SetupError::Member(gid))?;
+                let ax = c
+                    .axes
+                    .get_mut(usize::from(a))
+                    .ok_or(SetupError::Member(gid))?;
                 if ax.group.is_some() {
                     return Err(SetupError::Member(gid));
                 }
@@ -381,6 +391,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     motion: None,
                     stop_pending: false,
                     override_percent: 100,
+                    max_override: 100,
                     pending: None,
                     special_since: None,
                 })
@@ -431,7 +442,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
 
     /// The lowest record number of a group's table.
     pub fn first_record(&self, group: GroupId) -> Option<u16> {
-        self.groups.get(usize::from(group))?.table.iter().next().map(|(n, _)| n)
+        self.groups
+            .get(usize::from(group))?
+            .table
+            .iter()
+            .next()
+            .map(|(n, _)| n)
     }
 
     /// The machine's digital input word.
@@ -789,7 +805,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 g.override_percent = percent;
                 if let Some(m) = &mut g.motion {
-                    let _ = m.set_override(percent);
+                    let _ = m.set_override(percent.min(g.max_override));
                 }
                 Ok(())
             }
@@ -867,7 +883,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         )
         .map_err(|_| Rejected::Plan)?;
         let g = &mut self.groups[gi];
-        let _ = m.set_override(g.override_percent);
+        g.max_override = override_headroom(velocity_percent, acceleration_percent, jerk_percent);
+        let _ = m.set_override(g.override_percent.min(g.max_override));
         g.motion = Some(m);
         g.stop_pending = false;
         Ok(())
@@ -1075,10 +1092,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 let group = gi as GroupId;
                 match act {
                     ChainAction::StartMotion { record } => {
-                        let moving = self.groups[gi]
-                            .motion
-                            .as_ref()
-                            .is_some_and(|m| !matches!(m.state(), GroupState::Done | GroupState::Stopped));
+                        let moving = self.groups[gi].motion.as_ref().is_some_and(|m| {
+                            !matches!(m.state(), GroupState::Done | GroupState::Stopped)
+                        });
                         if moving {
                             // On the fly: no blending. The running move decelerates along its
                             // path and the record starts from there, so the setpoints stay
@@ -1123,12 +1139,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     a.following = true;
                 }
                 let arrived = state == GroupState::Done
-                    && g
-                        .setup
+                    && g.setup
                         .axes
                         .iter()
                         .all(|&mm| self.axes[usize::from(mm)].feedback.motion_complete);
-                if (state == GroupState::Stopped && g.stop_pending) || (arrived && g.pending.is_none()) {
+                if (state == GroupState::Stopped && g.stop_pending)
+                    || (arrived && g.pending.is_none())
+                {
                     g.motion = None;
                     g.stop_pending = false;
                 }
@@ -1149,7 +1166,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             return;
         }
         if self
-            .start_group_move(gi, &r.targets, r.velocity_percent, r.acceleration_percent, r.jerk_percent)
+            .start_group_move(
+                gi,
+                &r.targets,
+                r.velocity_percent,
+                r.acceleration_percent,
+                r.jerk_percent,
+            )
             .is_err()
         {
             self.abort_chain(gi);
@@ -1211,7 +1234,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         if !g.chain.is_running() {
             return;
         }
-        if let Some(e) = g.chain.abort(now).and_then(|a| a.event(cycle, gi as GroupId)) {
+        if let Some(e) = g
+            .chain
+            .abort(now)
+            .and_then(|a| a.event(cycle, gi as GroupId))
+        {
             self.emit(e);
         }
     }
@@ -1289,7 +1316,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 _ => {}
             }
             let a = &mut self.axes[i];
-            if a.solo.is_none() && a.group.is_none_or(|g| self.groups[usize::from(g)].motion.is_none()) {
+            if a.solo.is_none()
+                && a.group
+                    .is_none_or(|g| self.groups[usize::from(g)].motion.is_none())
+            {
                 a.following = false;
             }
             // Faults seen in the drive's own status.
@@ -1332,7 +1362,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             match a.setup.transport {
                 Transport::Can { node: n } => {
                     if let Some(id) = node(n)
-                        && let Ok(f) = Frame::new_std(FunctionCode::Rpdo(1).cob_id(id), a.out.bytes())
+                        && let Ok(f) =
+                            Frame::new_std(FunctionCode::Rpdo(1).cob_id(id), a.out.bytes())
                     {
                         out.push(f);
                     }
@@ -1391,6 +1422,21 @@ fn percent(axis: u16, p: u8) -> Result<(), Rejected> {
     }
 }
 
+/// The highest override (%, at most 200) under which a move planned at these shares of the
+/// limits stays within the limits: `o·v ≤ 100`, `o²·a ≤ 100²`, `o³·j ≤ 100³` (in %).
+fn override_headroom(v: u8, a: u8, j: u8) -> u16 {
+    let (v, a, j) = (
+        u64::from(v.max(1)),
+        u64::from(a.max(1)),
+        u64::from(j.max(1)),
+    );
+    let mut o = crate::profile::MAX_OVERRIDE as u64;
+    while o > 100 && (o * v > 10_000 || o * o * a > 1_000_000 || o * o * o * j > 100_000_000) {
+        o -= 1;
+    }
+    o as u16
+}
+
 /// Limits scaled by a record's percentages (at least 1 where the limit is non-zero).
 fn scale(l: &AxisLimits, v: u8, acc: u8, jerk: u8) -> AxisLimits {
     let s = |x: u64, p: u8| (x.saturating_mul(u64::from(p)) / 100).max(u64::from(x > 0));
@@ -1401,5 +1447,206 @@ fn scale(l: &AxisLimits, v: u8, acc: u8, jerk: u8) -> AxisLimits {
         jerk: s(l.jerk, jerk),
         quick_stop_deceleration: l.quick_stop_deceleration,
         quick_stop_jerk: l.quick_stop_jerk,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::records::{Record, RecordTable};
+
+    fn axis(node: u8) -> AxisSetup {
+        AxisSetup {
+            kind: DeviceKind::MtrDci,
+            profile: Profile::Fhpp,
+            transport: Transport::Can { node },
+            supervision: Supervision::None,
+            limits: AxisLimits::new(100_000, 400_000, 8_000_000),
+            position_min: 0,
+            position_max: 160_000,
+            following_error: 10_000,
+            late_cycles: 3,
+        }
+    }
+
+    const SETUP: CycleSetup = CycleSetup {
+        cycle_ns: 2_000_000,
+        sync_producer: true,
+    };
+
+    #[test]
+    fn override_headroom_keeps_every_limit() {
+        assert_eq!(override_headroom(100, 100, 100), 100);
+        // Half the velocity: velocity allows 200 %, but acceleration (o² · 100 ≤ 100²) only 100.
+        assert_eq!(override_headroom(50, 100, 100), 100);
+        // A quarter of the acceleration: o ≤ 200 by it; the jerk at 100 % caps at 100.
+        assert_eq!(override_headroom(50, 25, 100), 100);
+        assert_eq!(override_headroom(50, 25, 12), 200);
+        // o = 141: 141² · 50 = 994 050 ≤ 10^6; 142² · 50 > 10^6.
+        assert_eq!(override_headroom(50, 50, 10), 141);
+    }
+
+    #[test]
+    fn setup_refuses_shared_nodes_and_bad_members() {
+        let table = RecordTable::new();
+        let g = GroupSetup {
+            axes: Vec::from_slice(&[0, 1]).unwrap(),
+            shape: Shape::Trapezoid,
+            reaction: Reaction::QuickStopGroup,
+        };
+        assert_eq!(
+            Cycle::<4, 2>::new(SETUP, &[axis(1), axis(1)], &[]).err(),
+            Some(SetupError::Node(1))
+        );
+        assert_eq!(
+            Cycle::<4, 2>::new(SETUP, &[axis(1)], &[(g.clone(), &table)]).err(),
+            Some(SetupError::Member(0))
+        );
+        assert_eq!(
+            Cycle::<1, 2>::new(SETUP, &[axis(1), axis(2)], &[]).err(),
+            Some(SetupError::Capacity(1))
+        );
+        assert!(Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2)], &[(g, &table)]).is_ok());
+    }
+
+    #[test]
+    fn bad_commands_are_rejected_with_their_reason() {
+        let mut table = RecordTable::new();
+        table.insert(5, Record::default()).unwrap();
+        let g = GroupSetup {
+            axes: Vec::from_slice(&[0, 1]).unwrap(),
+            shape: Shape::Trapezoid,
+            reaction: Reaction::QuickStopGroup,
+        };
+        let mut c = Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2)], &[(g, &table)]).unwrap();
+        let rej = |r| Reply::Rejected(r);
+        assert_eq!(
+            c.command(&Command::Enable(Target::Axis(7))),
+            rej(Rejected::UnknownAxis(7))
+        );
+        assert_eq!(
+            c.command(&Command::Hold(Target::Group(3))),
+            rej(Rejected::UnknownGroup(3))
+        );
+        assert_eq!(
+            c.command(&Command::StartChain {
+                group: 0,
+                record: 6
+            }),
+            rej(Rejected::UnknownRecord(6))
+        );
+        // Not booted yet: enabling is the wrong state.
+        assert!(matches!(
+            c.command(&Command::Enable(Target::All)),
+            Reply::Rejected(Rejected::WrongState(_))
+        ));
+        assert_eq!(
+            c.command(&Command::MoveAxis {
+                axis: 0,
+                position: 200_000,
+                velocity_percent: 50
+            }),
+            rej(Rejected::OutOfRange {
+                axis: 0,
+                value: 200_000,
+                min: 0,
+                max: 160_000
+            })
+        );
+        assert_eq!(
+            c.command(&Command::SetOverride {
+                group: 0,
+                percent: 250
+            }),
+            rej(Rejected::OutOfRange {
+                axis: 0,
+                value: 250,
+                min: 0,
+                max: 200
+            })
+        );
+        assert!(matches!(
+            c.command(&Command::SetInput {
+                bit: 32,
+                value: true
+            }),
+            Reply::Rejected(Rejected::OutOfRange { .. })
+        ));
+        // Accepted commands latch at the next step's SYNC.
+        assert_eq!(
+            c.command(&Command::SetInput {
+                bit: 3,
+                value: true
+            }),
+            Reply::Latched { cycle: 1 }
+        );
+        assert_eq!(c.inputs(), 1 << 3);
+    }
+
+    #[test]
+    fn the_output_is_sync_then_the_rpdos_of_online_axes() {
+        let mut c = Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2), axis(3)], &[]).unwrap();
+        c.set_online(0, true, Instant::ZERO);
+        c.set_online(2, true, Instant::ZERO);
+        let mut frames = [Frame::std8(0, [0; 8]); 8];
+        let mut modbus = [Image::default(); 0];
+        let mut out = CycleOutput {
+            frames: &mut frames,
+            len: 0,
+            overflow: 0,
+            modbus: &mut modbus,
+        };
+        c.step(
+            &CycleInput {
+                now: Instant::ZERO,
+                frames: &[],
+                modbus: &[],
+            },
+            &mut out,
+        );
+        let ids: heapless::Vec<u16, 8> = out.sent().iter().filter_map(|f| f.cob_id()).collect();
+        assert_eq!(ids.as_slice(), &[0x080, 0x201, 0x203]);
+        assert_eq!(c.cycle(), 1);
+    }
+
+    #[test]
+    fn an_emcy_faults_its_axis_once_and_refuses_motion_until_acknowledged() {
+        let table = RecordTable::new();
+        let g = GroupSetup {
+            axes: Vec::from_slice(&[0, 1]).unwrap(),
+            shape: Shape::Trapezoid,
+            reaction: Reaction::QuickStopGroup,
+        };
+        let mut c = Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2)], &[(g, &table)]).unwrap();
+        c.set_online(0, true, Instant::ZERO);
+        c.set_online(1, true, Instant::ZERO);
+        let emcy = Frame::std8(0x082, [0x10, 0x42, 0x01, 0, 0, 0, 0, 0]);
+        let mut frames = [Frame::std8(0, [0; 8]); 8];
+        let mut modbus = [Image::default(); 0];
+        for _ in 0..2 {
+            let mut out = CycleOutput {
+                frames: &mut frames,
+                len: 0,
+                overflow: 0,
+                modbus: &mut modbus,
+            };
+            c.step(
+                &CycleInput {
+                    now: Instant::ZERO,
+                    frames: &[emcy],
+                    modbus: &[],
+                },
+                &mut out,
+            );
+        }
+        assert_eq!(c.axis_status(1).unwrap().fault, FaultReason::Emcy(0x4210));
+        let faults = core::iter::from_fn(|| c.poll_event())
+            .filter(|e| matches!(e, Event::Fault { .. }))
+            .count();
+        assert_eq!(faults, 1, "raised once");
+        assert!(matches!(
+            c.command(&Command::Home(Target::Axis(1))),
+            Reply::Rejected(Rejected::Faulted)
+        ));
     }
 }

@@ -65,7 +65,10 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         duration: None,
         virtual_time: true,
         status_every: None,
-        script: ScriptOptions { chains: false, home: true },
+        script: ScriptOptions {
+            chains: false,
+            home: true,
+        },
     };
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     run.probe = Some(probe);
@@ -73,11 +76,20 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
     let mut out = Vec::new();
     while run.script.phase() != Phase::Running {
         run.step(&mut out);
-        assert!(run.elapsed() < Duration::from_secs(120), "{}", String::from_utf8_lossy(&out));
+        assert!(
+            run.elapsed() < Duration::from_secs(120),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
     }
     for a in 0..plan.axes.len() {
         let s = run.core.cycle.axis_status(a as u16).unwrap();
-        assert_eq!(s.mode, coordinator::cycle::Mode::On, "axis {a}: {s:?}\n{}", String::from_utf8_lossy(&out));
+        assert_eq!(
+            s.mode,
+            coordinator::cycle::Mode::On,
+            "axis {a}: {s:?}\n{}",
+            String::from_utf8_lossy(&out)
+        );
     }
     // Group moves: every group to the middle of its members' ranges and back.
     for round in 0..2 {
@@ -85,7 +97,11 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
             let mut positions = [0i64; MAX_GROUP_AXES];
             for (i, &a) in gs.axes.iter().enumerate() {
                 let s = &plan.axes[usize::from(a)].setup;
-                positions[i] = if round == 0 { (s.position_min + s.position_max) / 2 } else { s.position_min + 100 };
+                positions[i] = if round == 0 {
+                    (s.position_min + s.position_max) / 2
+                } else {
+                    s.position_min + 100
+                };
             }
             probe(true);
             let reply = run.core.cycle.command(&Command::MoveGroup {
@@ -95,15 +111,25 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
             });
             probe(false);
             // The moves run, so the steps counted below do the real work.
-            assert!(matches!(reply, Reply::Latched { .. }), "round {round} group {g}: {reply:?}\n{}", String::from_utf8_lossy(&out));
+            assert!(
+                matches!(reply, Reply::Latched { .. }),
+                "round {round} group {g}: {reply:?}\n{}",
+                String::from_utf8_lossy(&out)
+            );
         }
         // Until every group's move has arrived (at most 60 s of machine time).
         let t = run.elapsed();
         while (0..plan.groups.len()).any(|g| {
-            run.core.cycle.group_status(g as GroupId).is_some_and(|s| s.motion.is_some())
+            run.core
+                .cycle
+                .group_status(g as GroupId)
+                .is_some_and(|s| s.motion.is_some())
         }) {
             run.step(&mut out);
-            assert!(run.elapsed() - t < Duration::from_secs(60), "moves do not arrive");
+            assert!(
+                run.elapsed() - t < Duration::from_secs(60),
+                "moves do not arrive"
+            );
         }
     }
     run.shut_down();

@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use coordinator::axis::AxisState;
-use coordinator::command::{Command, Reply, Rejected, Target};
+use coordinator::command::{Command, Rejected, Reply, Target};
 use coordinator::config::{Config, EXAMPLE};
 use coordinator::cycle::Mode;
 use coordinator::fault::FaultReason;
@@ -49,7 +49,11 @@ fn ready(plan: &MachinePlan) -> VirtualRun<'_> {
     assert!(run.summary.faults.is_empty(), "{text}");
     for a in 0..plan.axes.len() {
         let s = run.core.cycle.axis_status(a as u16).unwrap();
-        assert_eq!(s.feedback.state, AxisState::Ready, "axis {a}: {s:?}\n{text}");
+        assert_eq!(
+            s.feedback.state,
+            AxisState::Ready,
+            "axis {a}: {s:?}\n{text}"
+        );
         assert!(s.feedback.homed, "axis {a} homed: {s:?}\n{text}");
         assert_eq!(s.mode, Mode::On, "axis {a}");
     }
@@ -123,7 +127,11 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
         }
     }
     assert_eq!(started[0], started[1], "both start in the same cycle");
-    assert_eq!(started[0], Some(at - 1), "the first setpoint goes out in the latching step");
+    assert_eq!(
+        started[0],
+        Some(at - 1),
+        "the first setpoint goes out in the latching step"
+    );
     assert_eq!(arrived[0], arrived[1], "both arrive in the same cycle");
     assert!(arrived[0].is_some());
     // The drives got there too, and report motion complete.
@@ -131,7 +139,10 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
     for (axis, target) in [(x, tx), (y, ty)] {
         let s = run.core.cycle.axis_status(axis as u16).unwrap();
         assert!(s.feedback.motion_complete, "{s:?}");
-        assert!((s.feedback.position - target).abs() <= 2, "{s:?} vs {target}");
+        assert!(
+            (s.feedback.position - target).abs() <= 2,
+            "{s:?} vs {target}"
+        );
     }
     assert!(run.summary.faults.is_empty(), "{:?}", run.summary.faults);
 }
@@ -152,13 +163,23 @@ fn a_bad_group_move_is_refused_whole_and_nothing_moves() {
         velocity_percent: 50,
     });
     assert!(
-        matches!(r, Reply::Rejected(Rejected::OutOfRange { value: 10_000_000, .. })),
+        matches!(
+            r,
+            Reply::Rejected(Rejected::OutOfRange {
+                value: 10_000_000,
+                ..
+            })
+        ),
         "{r:?}"
     );
     steps(&mut run, 20);
     assert_eq!(run.core.cycle.axis_status(x).unwrap().setpoint, before);
     assert!(matches!(
-        run.core.cycle.command(&Command::MoveGroup { group: 9, positions, velocity_percent: 50 }),
+        run.core.cycle.command(&Command::MoveGroup {
+            group: 9,
+            positions,
+            velocity_percent: 50
+        }),
         Reply::Rejected(Rejected::UnknownGroup(9))
     ));
 }
@@ -197,11 +218,26 @@ fn fault_reaction(
     let st = run.core.cycle.axis_status(a).unwrap();
     assert!(expect(st.fault), "{axis}: {:?}\n{text}", st.fault);
     // Same cycle: the whole group is quick-stopped and its move dropped.
-    if let Some(gi) = plan.groups.iter().position(|(_, gs, _)| gs.axes.contains(&a)) {
+    if let Some(gi) = plan
+        .groups
+        .iter()
+        .position(|(_, gs, _)| gs.axes.contains(&a))
+    {
         for &m in &plan.groups[gi].1.axes {
-            assert_eq!(run.core.cycle.axis_status(m).unwrap().mode, Mode::QuickStopped, "member {m}");
+            assert_eq!(
+                run.core.cycle.axis_status(m).unwrap().mode,
+                Mode::QuickStopped,
+                "member {m}"
+            );
         }
-        assert!(run.core.cycle.group_status(gi as u16).unwrap().motion.is_none());
+        assert!(
+            run.core
+                .cycle
+                .group_status(gi as u16)
+                .unwrap()
+                .motion
+                .is_none()
+        );
         assert!(matches!(
             run.core.cycle.command(&Command::MoveGroup {
                 group: gi as u16,
@@ -292,7 +328,14 @@ fn a_following_error_faults_the_axis() {
             let d = run.sims.drive_mut("x").unwrap().fhpp_mut().unwrap();
             d.inject(drivers::sim::fhpp_drive::Injection::Block, false);
         },
-        |r| matches!(r, FaultReason::FollowingError { .. } | FaultReason::DriveFault(_) | FaultReason::Emcy(_)),
+        |r| {
+            matches!(
+                r,
+                FaultReason::FollowingError { .. }
+                    | FaultReason::DriveFault(_)
+                    | FaultReason::Emcy(_)
+            )
+        },
     );
 }
 
@@ -338,4 +381,266 @@ fn the_demo_runs_its_chain_and_ends_with_the_drives_disabled() {
     for (name, _, _, state) in &s.axes {
         assert_eq!(*state, AxisState::Disabled, "{name}: {s}");
     }
+}
+
+/// Runs until `pred` holds for an event, returning the event's cycle.
+fn until_event(
+    run: &mut VirtualRun<'_>,
+    max_cycles: usize,
+    pred: impl Fn(&coordinator::event::Event) -> bool,
+    events: &mut Vec<coordinator::event::Event>,
+) -> Option<u64> {
+    // The run drains the cycle's events into its summary; watch them through the core instead.
+    let mut out = Vec::new();
+    for _ in 0..max_cycles {
+        run.step_with_events(&mut out, events);
+        if let Some(e) = events.iter().find(|e| pred(e)) {
+            return Some(event_cycle(e));
+        }
+    }
+    None
+}
+
+fn event_cycle(e: &coordinator::event::Event) -> u64 {
+    use coordinator::event::Event as E;
+    match *e {
+        E::AxisState { cycle, .. }
+        | E::Fault { cycle, .. }
+        | E::Acknowledged { cycle, .. }
+        | E::RecordReached { cycle, .. }
+        | E::ChainComplete { cycle, .. }
+        | E::ChainAborted { cycle, .. }
+        | E::LateModbus { cycle, .. } => cycle,
+    }
+}
+
+#[test]
+fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
+    use coordinator::event::Event as E;
+    let plan = example();
+    let mut run = ready(&plan);
+    let gantry = plan.group("gantry").unwrap() as u16;
+    let lift = plan.group("lift").unwrap() as u16;
+    let x = plan.axis("x").unwrap();
+    latched(run.core.cycle.command(&Command::StartChain {
+        group: gantry,
+        record: 10,
+    }));
+    let mut events = Vec::new();
+    // Record 10 steps on the fly once x stayed in [150, 210] mm for 10 ms: before it arrives
+    // at 200 mm, so x is inside the window, short of 200, when record 11 begins.
+    let mut out = Vec::new();
+    let mut stepped_at = None;
+    for _ in 0..5000 {
+        run.step_with_events(&mut out, &mut events);
+        let st = run.core.cycle.group_status(gantry).unwrap();
+        if st.chain.record == Some(11) {
+            let pos = run
+                .core
+                .cycle
+                .axis_status(x as u16)
+                .unwrap()
+                .feedback
+                .position as f64
+                / plan.axes[x].scale;
+            stepped_at = Some(pos);
+            assert!(st.chain.rc1, "RC1 once the first step condition is met");
+            break;
+        }
+    }
+    let pos = stepped_at.expect("record 10 stepped to 11");
+    assert!(
+        (150.0..200.0).contains(&pos),
+        "x at {pos} mm when the comparator stepped"
+    );
+    // Record 12 waits at its target until the lift has reached its record 1.
+    let reached12 = until_event(
+        &mut run,
+        10_000,
+        |e| matches!(e, E::RecordReached { group, record: 12, .. } if *group == gantry),
+        &mut events,
+    );
+    assert!(
+        reached12.is_none()
+            || run.core.cycle.group_status(gantry).unwrap().chain.record == Some(12)
+    );
+    assert!(
+        run.core
+            .cycle
+            .group_status(gantry)
+            .unwrap()
+            .chain
+            .active
+            .is_some(),
+        "still waiting for the lift"
+    );
+    latched(run.core.cycle.command(&Command::StartChain {
+        group: lift,
+        record: 0,
+    }));
+    let lift_done = until_event(
+        &mut run,
+        20_000,
+        |e| matches!(e, E::ChainComplete { group, record: 1, .. } if *group == lift),
+        &mut events,
+    )
+    .expect("lift chain completes");
+    let gantry_done = until_event(
+        &mut run,
+        20_000,
+        |e| matches!(e, E::ChainComplete { group, record: 13, .. } if *group == gantry),
+        &mut events,
+    )
+    .expect("gantry chain completes at 13");
+    assert!(
+        gantry_done > lift_done,
+        "the gantry went on only after the lift reached record 1"
+    );
+    let st = run.core.cycle.group_status(gantry).unwrap();
+    assert!(st.chain.rcc && st.chain.rc1, "{st:?}");
+    assert!(run.summary.faults.is_empty(), "{:?}", run.summary.faults);
+}
+
+#[test]
+fn an_input_edge_takes_the_alternative_branch() {
+    use coordinator::event::Event as E;
+    let plan = example();
+    let mut run = ready(&plan);
+    let gantry = plan.group("gantry").unwrap() as u16;
+    latched(run.core.cycle.command(&Command::StartChain {
+        group: gantry,
+        record: 10,
+    }));
+    let mut events = Vec::new();
+    let mut out = Vec::new();
+    // Wait for record 11, then raise input 0 during its move: the alternative (13) wins over
+    // the primary (12, at MC).
+    for _ in 0..5000 {
+        run.step_with_events(&mut out, &mut events);
+        if run.core.cycle.group_status(gantry).unwrap().chain.record == Some(11) {
+            break;
+        }
+    }
+    steps(&mut run, 40);
+    latched(run.core.cycle.command(&Command::SetInput {
+        bit: 0,
+        value: true,
+    }));
+    let mut seen = Vec::new();
+    for _ in 0..20_000 {
+        run.step_with_events(&mut out, &mut events);
+        let r = run.core.cycle.group_status(gantry).unwrap().chain.record;
+        if seen.last() != Some(&r) {
+            seen.push(r);
+        }
+        if events
+            .iter()
+            .any(|e| matches!(e, E::ChainComplete { group, .. } if *group == gantry))
+        {
+            break;
+        }
+    }
+    assert!(seen.contains(&Some(13)), "{seen:?}");
+    assert!(
+        !seen.contains(&Some(12)),
+        "the primary branch was not taken: {seen:?}"
+    );
+}
+
+#[test]
+fn stop_aborts_the_chain_and_the_axes_stand() {
+    use coordinator::event::Event as E;
+    let plan = example();
+    let mut run = ready(&plan);
+    let gantry = plan.group("gantry").unwrap() as u16;
+    latched(run.core.cycle.command(&Command::StartChain {
+        group: gantry,
+        record: 10,
+    }));
+    steps(&mut run, 100);
+    let mut events = Vec::new();
+    latched(
+        run.core
+            .cycle
+            .command(&Command::Stop(Target::Group(gantry))),
+    );
+    let aborted = until_event(
+        &mut run,
+        10,
+        |e| matches!(e, E::ChainAborted { group, record: 10, .. } if *group == gantry),
+        &mut events,
+    );
+    assert!(aborted.is_some(), "{events:?}");
+    // The move decelerates on its path and is dropped; the setpoints then stay put.
+    steps(&mut run, 1000);
+    let st = run.core.cycle.group_status(gantry).unwrap();
+    assert!(
+        st.motion.is_none() && st.chain.active.is_none() && !st.chain.rcc,
+        "{st:?}"
+    );
+    let x = plan.axis("x").unwrap() as u16;
+    let before = run.core.cycle.axis_status(x).unwrap().setpoint;
+    steps(&mut run, 100);
+    assert_eq!(run.core.cycle.axis_status(x).unwrap().setpoint, before);
+    // Restart from any record: 13 directly.
+    latched(run.core.cycle.command(&Command::StartChain {
+        group: gantry,
+        record: 13,
+    }));
+    let done = until_event(
+        &mut run,
+        20_000,
+        |e| matches!(e, E::ChainComplete { group, record: 13, .. } if *group == gantry),
+        &mut events,
+    );
+    assert!(done.is_some());
+}
+
+#[test]
+fn hold_and_resume_continue_the_move_to_its_target() {
+    let plan = example();
+    let mut run = ready(&plan);
+    let g = plan.group("gantry").unwrap() as u16;
+    let x = plan.axis("x").unwrap();
+    let mut positions = [0i64; MAX_GROUP_AXES];
+    positions[0] = (350.0 * plan.axes[x].scale) as i64;
+    positions[1] = (200.0 * plan.axes[plan.axis("y").unwrap()].scale) as i64;
+    latched(run.core.cycle.command(&Command::MoveGroup {
+        group: g,
+        positions,
+        velocity_percent: 100,
+    }));
+    steps(&mut run, 300);
+    latched(run.core.cycle.command(&Command::Hold(Target::Group(g))));
+    steps(&mut run, 400);
+    let held = run.core.cycle.axis_status(x as u16).unwrap();
+    assert_eq!(held.setpoint_velocity, 0, "stopped on the path: {held:?}");
+    assert!(held.setpoint < positions[0]);
+    steps(&mut run, 100);
+    assert_eq!(
+        run.core.cycle.axis_status(x as u16).unwrap().setpoint,
+        held.setpoint
+    );
+    latched(run.core.cycle.command(&Command::SetOverride {
+        group: g,
+        percent: 150,
+    }));
+    latched(run.core.cycle.command(&Command::Resume(Target::Group(g))));
+    let mut out = Vec::new();
+    for _ in 0..10_000 {
+        run.step(&mut out);
+        if run.core.cycle.group_status(g).unwrap().motion.is_none() {
+            break;
+        }
+    }
+    let s = run.core.cycle.axis_status(x as u16).unwrap();
+    assert_eq!(s.setpoint, positions[0]);
+    assert!(run.summary.faults.is_empty(), "{:?}", run.summary.faults);
+    assert!(matches!(
+        run.core.cycle.command(&Command::SetOverride {
+            group: g,
+            percent: 201
+        }),
+        Reply::Rejected(Rejected::OutOfRange { max: 200, .. })
+    ));
 }

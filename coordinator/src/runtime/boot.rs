@@ -582,7 +582,11 @@ fn build_ops(plan: &BootPlan) -> Result<(Vec<Op>, Vec<ConfigPlan>), BootFailure>
             size,
         });
         // Read back what a device of this size returns (sign bits beyond `size` dropped).
-        let mask = if size >= 4 { u32::MAX } else { (1u32 << (8 * u32::from(size))) - 1 };
+        let mask = if size >= 4 {
+            u32::MAX
+        } else {
+            (1u32 << (8 * u32::from(size))) - 1
+        };
         ops.push(Op::Read {
             step: BootStep::Parameters,
             addr,

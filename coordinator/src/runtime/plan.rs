@@ -15,7 +15,6 @@ use crate::profile::{AxisLimits, Shape};
 use crate::records::RecordTable;
 use crate::runtime::boot::{self, BootPlan, SupervisionPlan};
 
-
 /// Axes a configured machine may have (the runtime's capacity; the cycle is generic).
 pub const MAX_AXES: usize = 128;
 /// Groups a configured machine may have.
@@ -109,9 +108,21 @@ fn tlc_parameters(l: &AxisLimits) -> Vec<(drivers::canopen::Address, u32, u8)> {
     let rpm = |inc_per_s: u64| inc_per_s.saturating_mul(60 * 5 / 4) / TLC_INCREMENTS_PER_REV;
     vec![
         (Address::new(0x6098, 0), 35, 1),
-        (Address::new(0x6081, 0), rpm(l.velocity).clamp(1, 3000) as u32, 4),
-        (Address::new(0x6083, 0), rpm(l.acceleration).clamp(60, 2_000_000) as u32, 4),
-        (Address::new(0x6084, 0), rpm(l.deceleration).clamp(60, 2_000_000) as u32, 4),
+        (
+            Address::new(0x6081, 0),
+            rpm(l.velocity).clamp(1, 3000) as u32,
+            4,
+        ),
+        (
+            Address::new(0x6083, 0),
+            rpm(l.acceleration).clamp(60, 2_000_000) as u32,
+            4,
+        ),
+        (
+            Address::new(0x6084, 0),
+            rpm(l.deceleration).clamp(60, 2_000_000) as u32,
+            4,
+        ),
     ]
 }
 
@@ -130,18 +141,19 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
         return Err(report.to_string());
     }
     if cfg.axes.len() > MAX_AXES {
-        return Err(format!("{} axes: at most {MAX_AXES} per coordinator", cfg.axes.len()));
+        return Err(format!(
+            "{} axes: at most {MAX_AXES} per coordinator",
+            cfg.axes.len()
+        ));
     }
     if cfg.groups.len() > MAX_GROUPS {
         return Err(format!("{} groups: at most {MAX_GROUPS}", cfg.groups.len()));
     }
     let used: Vec<&str> = cfg.axes.iter().filter_map(|a| a.bus.as_deref()).collect();
     let bus_cfg = cfg.buses.iter().find(|b| used.contains(&b.name.as_str()));
-    if let Some(extra) = cfg
-        .buses
-        .iter()
-        .find(|b| used.contains(&b.name.as_str()) && Some(b.name.as_str()) != bus_cfg.map(|b| b.name.as_str()))
-    {
+    if let Some(extra) = cfg.buses.iter().find(|b| {
+        used.contains(&b.name.as_str()) && Some(b.name.as_str()) != bus_cfg.map(|b| b.name.as_str())
+    }) {
         return Err(format!(
             "buses.{}: one coordinator drives one CAN bus; run one coordinator per bus",
             extra.name
@@ -191,7 +203,8 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 }
                 _ => (Supervision::None, SupervisionPlan::None),
             };
-            let node = NodeId::new(n).ok_or_else(|| format!("axes.{}.node: {n} is not 1..=127", a.name))?;
+            let node = NodeId::new(n)
+                .ok_or_else(|| format!("axes.{}.node: {n} is not 1..=127", a.name))?;
             let map = axis::pdo_mapping(k, p);
             let entries = |s: Option<axis::PdoSpec>| s.map_or(&[][..], |s| s.mapping);
             let mut bp = boot::plan_for(node, k, entries(map.rpdo), entries(map.tpdo), sp)
@@ -254,7 +267,11 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             g.name.clone(),
             GroupSetup {
                 axes: members,
-                shape: if jerk { Shape::SCurve } else { Shape::Trapezoid },
+                shape: if jerk {
+                    Shape::SCurve
+                } else {
+                    Shape::Trapezoid
+                },
                 reaction: Reaction::QuickStopGroup,
             },
             table,

@@ -21,7 +21,9 @@ use hdrhistogram::Histogram;
 use crate::axis::{AxisState, Image};
 use crate::command::{AxisId, GroupId};
 use crate::config::{BusKind, Config};
-use crate::cycle::{AxisStatus, Cycle, CycleInput, CycleOutput, GroupStatus, ModbusInput, Transport};
+use crate::cycle::{
+    AxisStatus, Cycle, CycleInput, CycleOutput, GroupStatus, ModbusInput, Transport,
+};
 use crate::event::Event;
 use crate::fault::FaultReason;
 use crate::runtime::boot::{BootReport, BootSequencer};
@@ -291,6 +293,19 @@ pub fn status_lines(plan: &MachinePlan, snap: &Snapshot) -> String {
     s
 }
 
+/// A cycle and the inputs of one of its steps, for replay (benchmarks, determinism checks).
+#[derive(Clone, Debug)]
+pub struct Captured<'t> {
+    /// The cycle before the step.
+    pub cycle: Box<MachineCycle<'t>>,
+    /// The frames received for the step.
+    pub frames: Vec<Frame>,
+    /// The Modbus images for the step.
+    pub modbus: Vec<ModbusInput>,
+    /// The step's SYNC time.
+    pub now: Instant,
+}
+
 /// The per-cycle work shared by both clocks: everything the cycle thread does between
 /// receiving and sending. Allocation-free after [`CycleCore::new`].
 pub struct CycleCore<'t> {
@@ -342,6 +357,16 @@ impl<'t> CycleCore<'t> {
             frames_sent: 0,
             rx_dropped: 0,
         })
+    }
+
+    /// A copy of the cycle and of the inputs of its next step.
+    pub fn capture(&self, now: Instant) -> Captured<'t> {
+        Captured {
+            cycle: self.cycle.clone(),
+            frames: self.rx.clone(),
+            modbus: self.modbus_in.clone(),
+            now,
+        }
     }
 
     /// Takes a received frame for the next step.
@@ -396,11 +421,7 @@ impl<'t> CycleCore<'t> {
     /// Step time: median, p99, max, ns.
     pub fn step_figures(&self) -> (u64, u64, u64) {
         let h = &self.step_ns;
-        (
-            h.value_at_quantile(0.5),
-            h.value_at_quantile(0.99),
-            h.max(),
-        )
+        (h.value_at_quantile(0.5), h.value_at_quantile(0.99), h.max())
     }
 }
 
@@ -426,7 +447,7 @@ pub fn run(cfg: &Config, opts: &RunOptions, out: &mut dyn Write) -> Result<Summa
     if opts.virtual_time {
         run_virtual(&plan, opts, out)
     } else {
-        return Err(RunError::Io("TEMP".into()))
+        return Err(RunError::Io("TEMP".into()));
     }
 }
 
@@ -461,6 +482,13 @@ pub struct VirtualRun<'p> {
     status_every: Option<Duration>,
     status_lines_printed: usize,
     tty: bool,
+    /// Every event of the cycle, as well, while set (tests).
+    watch: Option<Vec<Event>>,
+    /// When set, the next step keeps a copy of the cycle and its inputs right before the step
+    /// in [`VirtualRun::captured`] (benchmarks replay it) and clears the flag.
+    pub capture: bool,
+    /// The copy [`VirtualRun::capture`] asked for.
+    pub captured: Option<Captured<'p>>,
     /// Called with `true` right before the cycle thread's work of a cycle (the script's
     /// commands and the step) and with `false` right after: tests count allocations there.
     pub probe: Option<fn(bool)>,
@@ -468,7 +496,9 @@ pub struct VirtualRun<'p> {
 
 impl std::fmt::Debug for VirtualRun<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("VirtualRun").field("cycle", &self.k).finish_non_exhaustive()
+        f.debug_struct("VirtualRun")
+            .field("cycle", &self.k)
+            .finish_non_exhaustive()
     }
 }
 
@@ -490,7 +520,10 @@ impl<'p> VirtualRun<'p> {
         let mut cmmo = Vec::new();
         for a in &plan.axes {
             if let Transport::Modbus { slot } = a.setup.transport {
-                cmmo.push((usize::from(slot), InMemoryCmmo::new(t0).map_err(RunError::Io)?));
+                cmmo.push((
+                    usize::from(slot),
+                    InMemoryCmmo::new(t0).map_err(RunError::Io)?,
+                ));
             }
         }
         let plans: Vec<_> = plan.axes.iter().filter_map(|a| a.boot.clone()).collect();
@@ -525,6 +558,9 @@ impl<'p> VirtualRun<'p> {
             status_every: opts.status_every,
             status_lines_printed: 0,
             tty: out_is_tty(),
+            capture: false,
+            captured: None,
+            watch: None,
             probe: None,
         })
     }
@@ -586,11 +622,17 @@ impl<'p> VirtualRun<'p> {
             let o = self.core.modbus_output(*slot).data;
             let answer = dev.exchange(&o, now);
             let missed = &mut self.modbus_missed[i];
-            *missed = if answer.is_some() { 0 } else { missed.saturating_add(1) };
+            *missed = if answer.is_some() {
+                0
+            } else {
+                missed.saturating_add(1)
+            };
             self.core.modbus_input(
                 *slot,
                 ModbusInput {
-                    image: answer.and_then(|a| Image::from_slice(&a)).unwrap_or_default(),
+                    image: answer
+                        .and_then(|a| Image::from_slice(&a))
+                        .unwrap_or_default(),
                     fresh: answer.is_some(),
                     late_cycles: 0,
                     lost: *missed >= MODBUS_TIMEOUT_CYCLES,
@@ -600,7 +642,11 @@ impl<'p> VirtualRun<'p> {
         if let Some(p) = self.probe {
             p(true);
         }
-        self.script.poll(&mut self.core.cycle, self.boot.is_finished(), now);
+        self.script
+            .poll(&mut self.core.cycle, self.boot.is_finished(), now);
+        if std::mem::take(&mut self.capture) {
+            self.captured = Some(self.core.capture(now));
+        }
         let frames = self.core.iterate(now);
         if let Some(p) = self.probe {
             p(false);
@@ -616,6 +662,9 @@ impl<'p> VirtualRun<'p> {
         }
         while let Some(e) = self.core.cycle.poll_event() {
             note_event(plan, &e, &mut self.summary, out);
+            if let Some(w) = &mut self.watch {
+                w.push(e);
+            }
         }
         if let Some(t) = self.next_status
             && now >= t
@@ -626,6 +675,13 @@ impl<'p> VirtualRun<'p> {
             self.next_status = self.status_every.map(|d| t + d);
         }
         self.k += 1;
+    }
+
+    /// As [`VirtualRun::step`], and appends the cycle's events of this step to `events`.
+    pub fn step_with_events(&mut self, out: &mut dyn Write, events: &mut Vec<Event>) {
+        self.watch = Some(std::mem::take(events));
+        self.step(out);
+        *events = self.watch.take().unwrap_or_default();
     }
 
     /// Ends the run: lets the bus settle and fills the summary.
@@ -719,23 +775,59 @@ pub fn report_boot(plan: &MachinePlan, r: &BootReport, out: &mut dyn Write, summ
 
 /// Records one event in the summary; prints faults and chain ends.
 pub fn note_event(plan: &MachinePlan, e: &Event, summary: &mut Summary, out: &mut dyn Write) {
-    let axis = |a: AxisId| plan.axes.get(usize::from(a)).map_or("?".into(), |x| x.name.clone());
-    let group = |g: GroupId| plan.groups.get(usize::from(g)).map_or("?".into(), |x| x.0.clone());
+    let axis = |a: AxisId| {
+        plan.axes
+            .get(usize::from(a))
+            .map_or("?".into(), |x| x.name.clone())
+    };
+    let group = |g: GroupId| {
+        plan.groups
+            .get(usize::from(g))
+            .map_or("?".into(), |x| x.0.clone())
+    };
     match *e {
-        Event::Fault { cycle, axis: a, reason } => {
-            say(out, &format!("cycle {cycle}: FAULT axis {}: {}", axis(a), describe(reason)));
+        Event::Fault {
+            cycle,
+            axis: a,
+            reason,
+        } => {
+            say(
+                out,
+                &format!(
+                    "cycle {cycle}: FAULT axis {}: {}",
+                    axis(a),
+                    describe(reason)
+                ),
+            );
             summary.faults.push((axis(a), reason));
         }
         Event::Acknowledged { cycle, axis: a } => {
-            say(out, &format!("cycle {cycle}: axis {} acknowledged", axis(a)));
+            say(
+                out,
+                &format!("cycle {cycle}: axis {} acknowledged", axis(a)),
+            );
         }
         Event::RecordReached { .. } => summary.records_reached += 1,
-        Event::ChainComplete { cycle, group: g, record } => {
+        Event::ChainComplete {
+            cycle,
+            group: g,
+            record,
+        } => {
             summary.records_reached += 1;
             let _ = (cycle, g, record, group(g));
         }
-        Event::ChainAborted { cycle, group: g, record } => {
-            say(out, &format!("cycle {cycle}: group {} chain aborted at record {record}", group(g)));
+        Event::ChainAborted {
+            cycle,
+            group: g,
+            record,
+        } => {
+            say(
+                out,
+                &format!(
+                    "cycle {cycle}: group {} chain aborted at record {record}",
+                    group(g)
+                ),
+            );
         }
         Event::LateModbus { .. } => summary.late_modbus += 1,
         Event::AxisState { .. } => {}

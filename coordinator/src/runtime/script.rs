@@ -107,7 +107,8 @@ impl Script {
                 .filter_map(|a| c.axis_status(a))
                 .filter(|s| s.online && s.fault == crate::fault::FaultReason::None)
         }
-        if self.shutdown && !matches!(self.phase, Phase::Stopping | Phase::Disabling | Phase::Done) {
+        if self.shutdown && !matches!(self.phase, Phase::Stopping | Phase::Disabling | Phase::Done)
+        {
             self.send(c, Command::Stop(Target::All));
             self.go(Phase::Stopping, now);
             return;
@@ -166,7 +167,12 @@ impl Script {
                 let off = (0..axes)
                     .filter_map(|a| c.axis_status(a))
                     .filter(|s| s.online)
-                    .all(|s| matches!(s.feedback.state, AxisState::Disabled | AxisState::Offline | AxisState::Fault));
+                    .all(|s| {
+                        matches!(
+                            s.feedback.state,
+                            AxisState::Disabled | AxisState::Offline | AxisState::Fault
+                        )
+                    });
                 if off || waited > STOP_TIMEOUT {
                     self.go(Phase::Done, now);
                 }
@@ -181,7 +187,13 @@ impl Script {
         }
         for g in 0..c.group_count() as GroupId {
             if let Some(first) = c.first_record(g) {
-                self.send(c, Command::StartChain { group: g, record: first });
+                self.send(
+                    c,
+                    Command::StartChain {
+                        group: g,
+                        record: first,
+                    },
+                );
             }
         }
     }

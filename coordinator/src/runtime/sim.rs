@@ -14,7 +14,7 @@ use drivers::sim::cmmo_st::{self, Server, ServerConfig, Session};
 use drivers::sim::emca::Emca;
 use drivers::sim::fhpp_drive::FhppDrive;
 use drivers::sim::mtr_dci::MtrDci;
-use drivers::sim::tlc5xx::{TlcConfig, Tlc5xx};
+use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
 use drivers::time::Instant;
 
 use crate::axis::{DeviceKind, Profile};
@@ -120,7 +120,10 @@ impl SimBus {
 
     /// The drive of an axis.
     pub fn drive_mut(&mut self, axis: &str) -> Option<&mut SimDrive> {
-        self.drives.iter_mut().find(|(n, _)| n == axis).map(|(_, d)| d)
+        self.drives
+            .iter_mut()
+            .find(|(n, _)| n == axis)
+            .map(|(_, d)| d)
     }
 
     fn refs(&mut self) -> Vec<&mut dyn Steppable> {

@@ -75,7 +75,11 @@ pub fn config_with_cycle(n: usize, group_size: usize, cycle_ms: usize) -> String
     for members in [on_can, on_modbus] {
         for chunk in members.chunks(group_size) {
             let names: Vec<String> = chunk.iter().map(|i| format!("\"a{i}\"")).collect();
-            let _ = writeln!(s, "\n[[groups]]\nname = \"g{g}\"\naxes = [{}]", names.join(", "));
+            let _ = writeln!(
+                s,
+                "\n[[groups]]\nname = \"g{g}\"\naxes = [{}]",
+                names.join(", ")
+            );
             g += 1;
         }
     }

@@ -255,7 +255,7 @@ impl Guarded {
 }
 
 /// The master side of node guarding for up to `N` nodes, with an event queue of `Q`.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct GuardingMaster<const N: usize, const Q: usize = 16> {
     nodes: Vec<Guarded, N>,
     events: Deque<GuardingEvent, Q>,

@@ -184,7 +184,7 @@ impl Monitored {
 /// [`HeartbeatEvent::Lost`] is reported as soon as `now` reaches the last heartbeat plus the
 /// consumer time, whether `now` comes through [`HeartbeatConsumer::handle_timeout`] or with a
 /// late frame.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct HeartbeatConsumer<const N: usize, const Q: usize = 16> {
     nodes: Vec<Monitored, N>,
     events: Deque<HeartbeatEvent, Q>,
