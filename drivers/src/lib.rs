@@ -26,5 +26,6 @@ pub mod can;
 pub mod canopen;
 pub mod cia402;
 pub mod fhpp;
+pub mod modbus;
 pub mod sim;
 pub mod time;
