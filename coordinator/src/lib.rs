@@ -21,13 +21,15 @@ pub mod axis;
 pub mod budget;
 pub mod command;
 pub mod comparator;
-pub mod event;
 #[cfg(feature = "std")]
 pub mod config;
 #[cfg(feature = "std")]
 pub mod demo;
+pub mod event;
 pub mod fault;
 pub mod profile;
 pub mod records;
+#[cfg(feature = "std")]
+pub mod runtime;
 
 pub use drivers;

@@ -1,0 +1,1 @@
+//! The CMMO-ST Modbus TCP exchange thread (being written).
