@@ -105,6 +105,17 @@ pub enum Link {
     Down(DownReason),
 }
 
+impl std::fmt::Display for Link {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Link::Connecting => f.write_str("connecting"),
+            Link::Up => f.write_str("up"),
+            Link::TimedOut(ms) => write!(f, "no answer for {ms} ms"),
+            Link::Down(reason) => write!(f, "down: {reason}"),
+        }
+    }
+}
+
 /// What the cycle thread gets each cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ModbusInput {
@@ -482,7 +493,9 @@ impl Exchange {
                 // dropped.
                 Err(ResponseError::WrongTransaction { .. } | ResponseError::NotPending) => {}
                 Err(e @ ResponseError::Exception { .. }) => {
+                    // The device answered, just not with data: it is not silent.
                     self.pending = None;
+                    self.silent_since = None;
                     self.set_link(Link::Down(DownReason::Response(e)));
                 }
                 Err(e) => return self.fail(Link::Down(DownReason::Response(e))),
@@ -613,6 +626,7 @@ mod tests {
             link,
             Link::Down(DownReason::Connect(ErrorKind::ConnectionRefused))
         );
+        assert_eq!(link.to_string(), "down: cannot connect: ConnectionRefused");
         thread.stop();
     }
 }
