@@ -10,9 +10,9 @@
 //! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy.
 
 pub mod boot;
-//TEMP pub mod modbus;
+pub mod modbus;
 pub mod plan;
-//TEMP pub mod realtime;
+pub mod realtime;
 pub mod rt;
 pub mod run;
 pub mod script;

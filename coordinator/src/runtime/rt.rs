@@ -207,11 +207,17 @@ impl fmt::Display for RtReport {
     }
 }
 
+/// `EPERM: Operation not permitted (os error 1)`: the symbolic name is what people search for.
 fn errno_text(e: &io::Error) -> String {
-    match e.raw_os_error() {
-        Some(n) => format!("{e} (errno {n})"),
-        None => e.to_string(),
-    }
+    let name = match e.raw_os_error() {
+        Some(libc::EPERM) => "EPERM: ",
+        Some(libc::ENOMEM) => "ENOMEM: ",
+        Some(libc::EINVAL) => "EINVAL: ",
+        Some(libc::EAGAIN) => "EAGAIN: ",
+        Some(libc::ESRCH) => "ESRCH: ",
+        _ => "",
+    };
+    format!("{name}{e}")
 }
 
 fn rlimit(resource: libc::__rlimit_resource_t) -> Option<libc::rlim_t> {
@@ -262,7 +268,7 @@ pub fn enter_realtime(settings: &RtSettings) -> RtReport {
                 "mlockall(MCL_CURRENT|MCL_FUTURE) refused: {}; memory can be paged out and a \
                  page fault can stall a cycle. The locked-memory limit is {} bytes: raise it \
                  (`ulimit -l unlimited`, memlock in /etc/security/limits.conf) or grant \
-                 CAP_IPC_LOCK",
+                 CAP_IPC_LOCK.",
                 errno_text(&e),
                 limit_text(rlimit(libc::RLIMIT_MEMLOCK)),
             ));
@@ -279,12 +285,12 @@ pub fn enter_realtime(settings: &RtSettings) -> RtReport {
         } else {
             let e = io::Error::last_os_error();
             let why = if e.raw_os_error() == Some(libc::EINVAL) {
-                "SCHED_FIFO priorities are 1..=99".to_string()
+                "SCHED_FIFO priorities are 1..=99.".to_string()
             } else {
                 format!(
-                    "the real-time priority limit is {}: raise it (`ulimit -r 99`, rtprio in \
+                    "The real-time priority limit is {}: raise it (`ulimit -r 99`, rtprio in \
                      /etc/security/limits.conf) or grant CAP_SYS_NICE (e.g. `setcap \
-                     cap_sys_nice,cap_ipc_lock+ep` on the binary)",
+                     cap_sys_nice,cap_ipc_lock+ep` on the binary).",
                     limit_text(rlimit(libc::RLIMIT_RTPRIO))
                 )
             };
@@ -300,7 +306,7 @@ pub fn enter_realtime(settings: &RtSettings) -> RtReport {
             Ok(()) => report.cpu = Some(cpu),
             Err(e) => report.warnings.push(format!(
                 "pinning to CPU {cpu} refused: {}; the thread may migrate between CPUs. Choose \
-                 a CPU this process may use (see `taskset -p $$` and isolcpus)",
+                 a CPU this process may use (see `taskset -p $$` and isolcpus).",
                 errno_text(&e)
             )),
         }
@@ -516,6 +522,8 @@ mod tests {
         .join()
         .unwrap();
         let text = report.to_string();
+        // Shown with --nocapture: what this machine granted.
+        println!("{text}");
         assert!(text.starts_with("real-time: "));
         if !report.memory_locked {
             assert!(
@@ -532,12 +540,78 @@ mod tests {
                 report
                     .warnings
                     .iter()
-                    .any(|w| w.contains("errno") && w.contains("CAP_SYS_NICE")),
+                    .any(|w| w.contains("os error") && w.contains("CAP_SYS_NICE")),
                 "{text}"
             ),
         }
         assert_eq!(report.is_complete(), report.warnings.is_empty());
         assert_eq!(text.lines().count(), 1 + report.warnings.len());
+    }
+
+    /// Removes CAP_SYS_NICE and CAP_IPC_LOCK from the calling thread's effective set
+    /// (capabilities are per thread on Linux), so the refusals can be seen even as root.
+    fn drop_rt_capabilities() {
+        #[repr(C)]
+        struct Header {
+            version: u32,
+            pid: libc::c_int,
+        }
+        #[repr(C)]
+        #[derive(Clone, Copy, Default)]
+        struct Data {
+            effective: u32,
+            permitted: u32,
+            inheritable: u32,
+        }
+        const VERSION_3: u32 = 0x2008_0522;
+        const CAP_IPC_LOCK: u32 = 14;
+        const CAP_SYS_NICE: u32 = 23;
+        let mut header = Header {
+            version: VERSION_3,
+            pid: 0,
+        };
+        let mut data = [Data::default(); 2];
+        // SAFETY: capget fills the two-element data array version 3 asks for.
+        let rc = unsafe { libc::syscall(libc::SYS_capget, &mut header, data.as_mut_ptr()) };
+        assert_eq!(rc, 0);
+        data[0].effective &= !((1 << CAP_IPC_LOCK) | (1 << CAP_SYS_NICE));
+        // SAFETY: as above; capset only reads `header` and `data`.
+        let rc = unsafe { libc::syscall(libc::SYS_capset, &mut header, data.as_ptr()) };
+        assert_eq!(rc, 0);
+    }
+
+    #[test]
+    fn refusals_name_the_errno_and_the_remedy() {
+        let report = std::thread::spawn(|| {
+            drop_rt_capabilities();
+            enter_realtime(&RtSettings::default())
+        })
+        .join()
+        .unwrap();
+        println!("{report}");
+        let rtprio = rlimit(libc::RLIMIT_RTPRIO).unwrap_or(0);
+        if rtprio < 80 {
+            assert_eq!(report.fifo_priority, None);
+        }
+        if report.fifo_priority.is_none() {
+            let w = report
+                .warnings
+                .iter()
+                .find(|w| w.starts_with("SCHED_FIFO priority 80 refused"))
+                .unwrap_or_else(|| panic!("{report}"));
+            assert!(w.contains("EPERM") && w.contains("ulimit -r"), "{w}");
+            assert!(w.contains("CAP_SYS_NICE"), "{w}");
+        }
+        if !report.memory_locked {
+            assert!(
+                report
+                    .warnings
+                    .iter()
+                    .any(|w| w.contains("ulimit -l") && w.contains("CAP_IPC_LOCK")),
+                "{report}"
+            );
+        }
+        assert!(!report.is_complete() || rtprio >= 80, "{report}");
     }
 
     #[test]

@@ -447,7 +447,7 @@ pub fn run(cfg: &Config, opts: &RunOptions, out: &mut dyn Write) -> Result<Summa
     if opts.virtual_time {
         run_virtual(&plan, opts, out)
     } else {
-        return Err(RunError::Io("TEMP".into()));
+        crate::runtime::realtime::run_real(&plan, opts, out)
     }
 }
 
