@@ -50,11 +50,16 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
         for (i, &a) in gs.axes.iter().enumerate() {
             positions[i] = plan.axes[usize::from(a)].setup.position_max * 3 / 4;
         }
-        let _ = run.core.cycle.command(&Command::MoveGroup {
+        let reply = run.core.cycle.command(&Command::MoveGroup {
             group: g as GroupId,
             positions,
             velocity_percent: 100,
         });
+        assert!(
+            matches!(reply, coordinator::command::Reply::Latched { .. }),
+            "group {g}: {reply:?}\n{}",
+            String::from_utf8_lossy(&out)
+        );
     }
     for _ in 0..20 {
         run.step(&mut out);

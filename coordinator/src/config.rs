@@ -2109,8 +2109,8 @@ mod tests {
                 "records[1].position: inf is not a finite number",
             ),
             (
-                &[("position_min = -50.0", "position_min = nan")],
-                "axes[1].limits.position_min: NaN is not a finite number",
+                &[("position_min = -180.0", "position_min = nan")],
+                "axes[3].limits.position_min: NaN is not a finite number",
             ),
             (
                 &[("cycle_us = 2000", "cycle_us = 0")],
@@ -2211,7 +2211,7 @@ mod tests {
     fn group_tables_convert_the_example_to_increments() {
         use crate::records::{Record, Step};
         let t = tables(EXAMPLE);
-        assert_eq!(t.len(), 2);
+        assert_eq!(t.len(), 3);
         let (name, gantry) = &t[0];
         assert_eq!(name, "gantry");
         assert_eq!(gantry.axes(), 2);
@@ -2392,7 +2392,7 @@ mod tests {
             ),
             (
                 &[("x = 100.0, y = -40.0", "x = 100.0, y = -400.0")],
-                "groups[0].records[1].targets.y: -400 is outside -300..=300",
+                "groups[0].records[1].targets.y: -400 is outside -250..=250",
             ),
             (
                 &[("x = 100.0, y = -40.0", "x = nan, y = -40.0")],
@@ -2526,7 +2526,7 @@ mod tests {
         let e = errors(&edited(&[("x = 10.0, y = 0.0", "x = 10.0, y = 900.0")]));
         assert_eq!(
             e,
-            ["groups[0].records[3].targets.y: 900 is outside -50..=250"]
+            ["groups[0].records[3].targets.y: 900 is outside 0..=250"]
         );
     }
 

@@ -567,15 +567,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     fn apply(&mut self, c: &Command) -> Result<(), Rejected> {
         match *c {
             Command::Enable(t) => {
-                // Check first, so that a group is enabled whole or not at all.
-                self.for_target(t, |a| match a.fault {
-                    FaultReason::None => Ok(()),
+                // Checked whole first: a group or the machine is enabled entirely or not at all.
+                self.for_target(t, |a| match (a.fault, a.online) {
+                    (FaultReason::None, true) => Ok(()),
+                    (FaultReason::None, false) => Err(Rejected::WrongState("drive not booted")),
                     _ => Err(Rejected::Faulted),
                 })?;
                 self.for_target(t, |a| {
-                    if !a.online {
-                        return Err(Rejected::WrongState("drive not booted"));
-                    }
                     if matches!(a.mode, Mode::Off | Mode::QuickStopped) {
                         a.mode = Mode::On;
                         a.setpoint = a.feedback.position;

@@ -23,7 +23,7 @@ use crate::runtime::modbus::{self as mb, Link, ModbusSettings};
 use crate::runtime::plan::MachinePlan;
 use crate::runtime::rt::{self, RtSettings, Ticker};
 use crate::runtime::run::{
-    CycleCore, FrameHash, RX_CAPACITY, RunError, RunOptions, SDO_PER_CYCLE, Snapshot, Summary,
+    CycleCore, FrameHash, RX_CAPACITY, TX_CAPACITY, send_all, RunError, RunOptions, SDO_PER_CYCLE, Snapshot, Summary,
     axis_of_node, finish_summary, note_event, out_is_tty, print_status, report_boot, say,
     status_lines,
 };
@@ -53,6 +53,7 @@ pub fn run_real(
         bitrate,
         clock: ClockMode::Real,
         rx_capacity: RX_CAPACITY,
+        tx_capacity: TX_CAPACITY,
         ..VirtualBusConfig::default()
     })
     .map_err(|e| RunError::Io(e.to_string()))?;
@@ -196,11 +197,12 @@ pub fn run_real(
                     }
                     script.poll(&mut core.cycle, booted >= boot_count, now);
                     let frames = core.iterate(now);
-                    let _ = port.send_batch(frames);
+                    let refused = send_all(&mut port, frames);
+                    core.tx_refused += refused;
                     for _ in 0..SDO_PER_CYCLE {
                         match ends.tx_frames.dequeue() {
                             Some(f) => {
-                                let _ = port.send(&f);
+                                core.tx_refused += send_all(&mut port, &[f]);
                             }
                             None => break,
                         }
@@ -227,6 +229,7 @@ pub fn run_real(
                     machine_time: period * (k as u32),
                     frames_sent: core.frames_sent,
                     step_ns: core.step_figures(),
+                    frames_lost: (core.tx_refused, core.rx_dropped),
                     ..Summary::default()
                 };
                 finish_summary(plan, &core.cycle, &script, &mut summary);

@@ -35,7 +35,7 @@ use crate::runtime::sim::{InMemoryCmmo, SimBus};
 pub type MachineCycle<'t> = Cycle<'t, MAX_AXES, MAX_GROUPS>;
 
 /// Frames one cycle may send: SYNC, one RPDO and one guarding poll per axis, plus SDO slots.
-const TX_CAPACITY: usize = 2 * MAX_AXES + 16;
+pub(crate) const TX_CAPACITY: usize = 2 * MAX_AXES + 16;
 /// Frames one cycle may receive before the rest waits for the next.
 pub(crate) const RX_CAPACITY: usize = 4096;
 /// SDO/NMT frames sent per cycle after the PDOs (the budget's reserved slots).
@@ -102,6 +102,8 @@ pub struct Summary {
     pub records_reached: u64,
     /// Commands the script sent that were refused.
     pub refused: u64,
+    /// Frames the bus refused to queue, and received frames dropped for want of room.
+    pub frames_lost: (u64, u64),
     /// Modbus answers that came late.
     pub late_modbus: u64,
     /// FNV-1a hash of every frame on the bus with its time (virtual time: reproducible).
@@ -126,6 +128,13 @@ impl std::fmt::Display for Summary {
             "  bus: {} frames ({} sent by the coordinator), load {:.1} %",
             self.frames_on_bus, self.frames_sent, self.bus_load_percent
         )?;
+        if self.frames_lost != (0, 0) {
+            writeln!(
+                f,
+                "  LOST FRAMES: {} refused by the bus on sending, {} dropped on receiving",
+                self.frames_lost.0, self.frames_lost.1
+            )?;
+        }
         writeln!(
             f,
             "  cycle step: median {} ns, p99 {} ns, max {} ns",
@@ -320,6 +329,8 @@ pub struct CycleCore<'t> {
     pub frames_sent: u64,
     /// Received frames dropped because more than [`RX_CAPACITY`] arrived in one cycle.
     pub rx_dropped: u64,
+    /// Frames the bus refused to queue (a full transmit queue, bus-off).
+    pub tx_refused: u64,
 }
 
 impl std::fmt::Debug for CycleCore<'_> {
@@ -356,6 +367,7 @@ impl<'t> CycleCore<'t> {
                 .map_err(|e| RunError::Config(e.to_string()))?,
             frames_sent: 0,
             rx_dropped: 0,
+            tx_refused: 0,
         })
     }
 
@@ -423,6 +435,17 @@ impl<'t> CycleCore<'t> {
         let h = &self.step_ns;
         (h.value_at_quantile(0.5), h.value_at_quantile(0.99), h.max())
     }
+}
+
+/// Queues `frames` on `port`; returns how many the bus refused.
+pub fn send_all<B: Bus>(port: &mut B, frames: &[Frame]) -> u64 {
+    let mut refused = 0;
+    for f in frames {
+        if port.send(f).is_err() {
+            refused += 1;
+        }
+    }
+    refused
 }
 
 /// The axis on a CAN node.
@@ -510,6 +533,7 @@ impl<'p> VirtualRun<'p> {
             bitrate,
             clock: ClockMode::Virtual,
             rx_capacity: RX_CAPACITY,
+            tx_capacity: TX_CAPACITY,
             ..VirtualBusConfig::default()
         })
         .map_err(|e| RunError::Io(e.to_string()))?;
@@ -651,11 +675,12 @@ impl<'p> VirtualRun<'p> {
         if let Some(p) = self.probe {
             p(false);
         }
-        let _ = self.port.send_batch(frames);
+        let refused = send_all(&mut self.port, frames);
+        self.core.tx_refused += refused;
         for _ in 0..SDO_PER_CYCLE {
             match self.boot.poll_transmit(now) {
                 Some(f) => {
-                    let _ = self.port.send(&f);
+                    self.core.tx_refused += send_all(&mut self.port, &[f]);
                 }
                 None => break,
             }
@@ -697,6 +722,7 @@ impl<'p> VirtualRun<'p> {
         summary.bus_load_percent =
             100.0 * self.busy.as_secs_f64() / summary.machine_time.as_secs_f64().max(1e-9);
         summary.step_ns = self.core.step_figures();
+        summary.frames_lost = (self.core.tx_refused, self.core.rx_dropped);
         summary.frame_hash = self.hash.value();
         finish_summary(self.plan, &self.core.cycle, &self.script, &mut summary);
         summary

@@ -116,7 +116,12 @@ impl Script {
         match self.phase {
             Phase::Boot => {
                 if all_booted {
-                    self.send(c, Command::Enable(Target::All));
+                    // Axis by axis: a drive that failed to boot must not keep the others off.
+                    for a in 0..axes {
+                        if c.axis_status(a).is_some_and(|s| s.online && s.fault == crate::fault::FaultReason::None) {
+                            self.send(c, Command::Enable(Target::Axis(a)));
+                        }
+                    }
                     self.go(Phase::Enabling, now);
                 }
             }
@@ -124,7 +129,11 @@ impl Script {
                 let ready = online(c).all(|s| s.feedback.state == AxisState::Ready);
                 if ready || waited > PHASE_TIMEOUT {
                     if self.opts.home {
-                        self.send(c, Command::Home(Target::All));
+                        for a in 0..axes {
+                            if c.axis_status(a).is_some_and(|s| s.mode == Mode::On) {
+                                self.send(c, Command::Home(Target::Axis(a)));
+                            }
+                        }
                         self.go(Phase::Homing, now);
                     } else {
                         self.go(Phase::Running, now);
