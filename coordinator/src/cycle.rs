@@ -1587,7 +1587,7 @@ mod tests {
         c.set_online(0, true, Instant::ZERO);
         c.set_online(2, true, Instant::ZERO);
         let mut frames = [Frame::std8(0, [0; 8]); 8];
-        let mut modbus = [Image::default(); 0];
+        let mut modbus: [Image; 0] = [];
         let mut out = CycleOutput {
             frames: &mut frames,
             len: 0,
@@ -1620,7 +1620,7 @@ mod tests {
         c.set_online(1, true, Instant::ZERO);
         let emcy = Frame::std8(0x082, [0x10, 0x42, 0x01, 0, 0, 0, 0, 0]);
         let mut frames = [Frame::std8(0, [0; 8]); 8];
-        let mut modbus = [Image::default(); 0];
+        let mut modbus: [Image; 0] = [];
         for _ in 0..2 {
             let mut out = CycleOutput {
                 frames: &mut frames,

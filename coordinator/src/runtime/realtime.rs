@@ -17,15 +17,15 @@ use hdrhistogram::Histogram;
 use heapless::spsc::Queue;
 
 use crate::axis::Image;
-use crate::command::{AxisId, Answer};
+use crate::command::{Answer, AxisId};
 use crate::cycle::{ModbusInput, Transport};
 use crate::runtime::modbus::{self as mb, Link, ModbusSettings};
 use crate::runtime::plan::MachinePlan;
 use crate::runtime::rt::{self, RtSettings, Ticker};
 use crate::runtime::run::{
-    CycleCore, FrameHash, RX_CAPACITY, TX_CAPACITY, send_all, RunError, RunOptions, SDO_PER_CYCLE, Snapshot, Summary,
-    axis_of_node, finish_summary, note_event, out_is_tty, print_status, report_boot, say,
-    status_lines,
+    CycleCore, FrameHash, RX_CAPACITY, RunError, RunOptions, SDO_PER_CYCLE, Snapshot, Summary,
+    TX_CAPACITY, axis_of_node, finish_summary, note_event, out_is_tty, print_status, report_boot,
+    say, send_all, status_lines,
 };
 use crate::runtime::script::{Phase, Script};
 use crate::runtime::services::{self, ServiceEvent};

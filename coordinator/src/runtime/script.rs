@@ -118,7 +118,9 @@ impl Script {
                 if all_booted {
                     // Axis by axis: a drive that failed to boot must not keep the others off.
                     for a in 0..axes {
-                        if c.axis_status(a).is_some_and(|s| s.online && s.fault == crate::fault::FaultReason::None) {
+                        if c.axis_status(a)
+                            .is_some_and(|s| s.online && s.fault == crate::fault::FaultReason::None)
+                        {
                             self.send(c, Command::Enable(Target::Axis(a)));
                         }
                     }

@@ -23,12 +23,12 @@ use crate::runtime::plan::MachinePlan;
 
 /// A simulated CANopen drive on its bus port.
 pub enum SimDrive {
-    /// Festo MTR-DCI.
-    MtrDci(Station<VirtualPort, MtrDci>),
+    /// Festo MTR-DCI (boxed: the simulators are tens of kilobytes each).
+    MtrDci(Box<Station<VirtualPort, MtrDci>>),
     /// Festo EMCA.
-    Emca(Station<VirtualPort, Emca>),
+    Emca(Box<Station<VirtualPort, Emca>>),
     /// Schneider TLC5xx.
-    Tlc5xx(Station<VirtualPort, Tlc5xx>),
+    Tlc5xx(Box<Station<VirtualPort, Tlc5xx>>),
 }
 
 impl std::fmt::Debug for SimDrive {
@@ -45,9 +45,9 @@ impl std::fmt::Debug for SimDrive {
 impl SimDrive {
     fn steppable(&mut self) -> &mut dyn Steppable {
         match self {
-            SimDrive::MtrDci(s) => s,
-            SimDrive::Emca(s) => s,
-            SimDrive::Tlc5xx(s) => s,
+            SimDrive::MtrDci(s) => s.as_mut(),
+            SimDrive::Emca(s) => s.as_mut(),
+            SimDrive::Tlc5xx(s) => s.as_mut(),
         }
     }
     /// The drive's bus port (to disconnect it in a test).
@@ -99,18 +99,19 @@ impl SimBus {
                         Profile::Fhpp => drivers::sim::mtr_dci::Profile::Fhpp,
                         Profile::Cia402 => drivers::sim::mtr_dci::Profile::Cia402,
                     };
-                    SimDrive::MtrDci(Station::new(
+                    SimDrive::MtrDci(Box::new(Station::new(
                         port,
                         MtrDci::new(id, p, now).map_err(|e| err(&e))?,
-                    ))
+                    )))
                 }
-                (DeviceKind::Emca, _) => {
-                    SimDrive::Emca(Station::new(port, Emca::new(id, now).map_err(|e| err(&e))?))
-                }
-                (DeviceKind::Tlc5xx, _) => SimDrive::Tlc5xx(Station::new(
+                (DeviceKind::Emca, _) => SimDrive::Emca(Box::new(Station::new(
+                    port,
+                    Emca::new(id, now).map_err(|e| err(&e))?,
+                ))),
+                (DeviceKind::Tlc5xx, _) => SimDrive::Tlc5xx(Box::new(Station::new(
                     port,
                     Tlc5xx::new(TlcConfig::new(id), now).map_err(|e| err(&e))?,
-                )),
+                ))),
                 (DeviceKind::CmmoSt, _) => continue,
             };
             drives.push((a.name.clone(), d));
