@@ -644,3 +644,45 @@ fn hold_and_resume_continue_the_move_to_its_target() {
         Reply::Rejected(Rejected::OutOfRange { max: 200, .. })
     ));
 }
+
+#[test]
+fn in_sync_consumer_mode_the_cycle_follows_the_received_sync() {
+    let text = EXAMPLE.replace("sync = \"producer\"", "sync = \"consumer\"");
+    assert_ne!(text, EXAMPLE);
+    let plan = plan(&Config::parse(&text).unwrap()).unwrap();
+    assert!(!plan.cycle.sync_producer);
+    let opts = RunOptions {
+        duration: Some(Duration::from_secs(20)),
+        ..quiet(true)
+    };
+    let mut run = VirtualRun::new(&plan, &opts).unwrap();
+    let mut out = Vec::new();
+    while run.script.phase() != Phase::Done {
+        if run.elapsed() >= Duration::from_secs(20) && run.script.phase() == Phase::Running {
+            run.shut_down();
+        }
+        run.step(&mut out);
+        assert!(
+            run.elapsed() < Duration::from_secs(40),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
+    }
+    let cycles = run.cycles();
+    let (synced, missed) = (run.synced, run.missed_syncs);
+    let s = run.finish(Duration::ZERO);
+    let text = String::from_utf8_lossy(&out);
+    // Every cycle was started by a received SYNC, and every SYNC on the bus is the external
+    // producer's: the coordinator sent none.
+    assert_eq!(synced, cycles, "{s}");
+    assert_eq!(missed, 0);
+    assert!(
+        s.syncs_on_bus >= cycles && s.syncs_on_bus <= cycles + 2,
+        "{s}"
+    );
+    assert!(
+        s.faults.is_empty() && s.boot_failures.is_empty(),
+        "{s}\n{text}"
+    );
+    assert!(s.laps >= 1 && s.records_reached >= 3, "{s}\n{text}");
+}

@@ -154,19 +154,55 @@ pub fn run_real(
                 let mut booted = 0usize;
                 let start = monotonic_now() + period;
                 let mut ticker = Ticker::new(start, period);
+                let producer = plan.cycle.sync_producer;
+                let mut last_sync = start;
                 let end = opts.duration.map(|d| start + d);
                 let mut next_status = opts.status_every.map(|d| start + d);
                 let mut exchanges = exchanges;
                 let mut k = 0u64;
                 loop {
-                    let tick = ticker.wait();
-                    let now = tick.deadline;
-                    let _ = late.record((tick.late.as_nanos() as u64).max(1));
-                    skipped += tick.skipped;
-                    while let Ok(Some(f)) = port.try_recv() {
-                        let _ = ends.offer_received(&f);
-                        core.receive(f);
-                    }
+                    let now = if producer {
+                        let tick = ticker.wait();
+                        let _ = late.record((tick.late.as_nanos() as u64).max(1));
+                        skipped += tick.skipped;
+                        while let Ok(Some(f)) = port.try_recv() {
+                            let _ = ends.offer_received(&f);
+                            core.receive(f);
+                        }
+                        tick.deadline
+                    } else {
+                        // SYNC consumer: the received SYNC starts the cycle; what arrives before
+                        // it belongs to this cycle. Two periods without SYNC count as missed.
+                        let mut deadline = last_sync + period * 2;
+                        loop {
+                            match port.recv_until(deadline) {
+                                Ok(Some(f)) if f.cob_id() == Some(0x080) => {
+                                    let t = f.timestamp();
+                                    let _ = late.record(
+                                        (monotonic_now().saturating_duration_since(t).as_nanos()
+                                            as u64)
+                                            .max(1),
+                                    );
+                                    last_sync = t;
+                                    break t;
+                                }
+                                Ok(Some(f)) => {
+                                    let _ = ends.offer_received(&f);
+                                    core.receive(f);
+                                }
+                                Ok(None) | Err(_) => {
+                                    skipped += 1;
+                                    deadline += period;
+                                    // No SYNC: a stop (Ctrl-C, the duration) still runs the
+                                    // cycle so that the drives are disabled.
+                                    let over = end.is_some_and(|e| monotonic_now() >= e);
+                                    if over || stop.load(Ordering::Relaxed) {
+                                        break monotonic_now();
+                                    }
+                                }
+                            }
+                        }
+                    };
                     while let Some(r) = ends.boot_reports.dequeue() {
                         booted += 1;
                         if let Some(a) = axis_of_node(plan, r.node.get()) {

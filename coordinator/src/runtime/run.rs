@@ -84,6 +84,8 @@ pub struct Summary {
     pub frames_sent: u64,
     /// Frames on the bus (all nodes).
     pub frames_on_bus: u64,
+    /// SYNC frames on the bus (whoever sent them).
+    pub syncs_on_bus: u64,
     /// Bus load over the run, percent (worst-case stuffed frame lengths).
     pub bus_load_percent: f64,
     /// Cycle step compute time, ns: median, p99, max.
@@ -507,6 +509,14 @@ pub struct VirtualRun<'p> {
     tty: bool,
     /// Every event of the cycle, as well, while set (tests).
     watch: Option<Vec<Event>>,
+    /// SYNC-consumer mode: the SYNC being taken, frames after it, frames for the next cycle.
+    held: Option<Frame>,
+    later: Vec<Frame>,
+    pending_rx: Vec<Frame>,
+    /// SYNC-consumer mode: SYNCs received, and periods that passed without one.
+    pub synced: u64,
+    /// See [`VirtualRun::synced`].
+    pub missed_syncs: u64,
     /// When set, the next step keeps a copy of the cycle and its inputs right before the step
     /// in [`VirtualRun::captured`] (benchmarks replay it) and clears the flag.
     pub capture: bool,
@@ -585,13 +595,24 @@ impl<'p> VirtualRun<'p> {
             capture: false,
             captured: None,
             watch: None,
+            held: None,
+            later: Vec::with_capacity(RX_CAPACITY),
+            pending_rx: Vec::with_capacity(RX_CAPACITY),
+            synced: 0,
+            missed_syncs: 0,
             probe: None,
         })
     }
 
-    /// The time of the next cycle's SYNC.
+    /// The time of the next cycle's SYNC (producer mode: the coordinator's schedule; consumer
+    /// mode: when the external producer is due to send it).
     pub fn now(&self) -> Instant {
-        self.t0 + self.plan.period * (self.k as u32)
+        let k = if self.plan.cycle.sync_producer {
+            self.k
+        } else {
+            self.k + 1
+        };
+        self.t0 + self.plan.period * (k as u32)
     }
 
     /// Machine time since the start.
@@ -619,6 +640,7 @@ impl<'p> VirtualRun<'p> {
         while let Ok(Some(f)) = self.monitor.try_recv() {
             self.hash.add(&f);
             self.summary.frames_on_bus += 1;
+            self.summary.syncs_on_bus += u64::from(f.cob_id() == Some(0x080));
             self.busy += frame_duration(&f, self.bitrate);
         }
     }
@@ -626,14 +648,19 @@ impl<'p> VirtualRun<'p> {
     /// Runs one cycle: the drives up to this SYNC, receive, boot, Modbus, script, step, send.
     /// Events are noted in the summary and printed to `out`.
     pub fn step(&mut self, out: &mut dyn Write) {
-        let now = self.now();
         let plan = self.plan;
-        self.sims.run_until(&self.bus, now);
-        self.drain_monitor();
-        while let Ok(Some(f)) = self.port.try_recv() {
-            self.boot.handle_frame(&f, f.timestamp());
-            self.core.receive(f);
-        }
+        let now = if plan.cycle.sync_producer {
+            let now = self.now();
+            self.sims.run_until(&self.bus, now);
+            self.drain_monitor();
+            while let Ok(Some(f)) = self.port.try_recv() {
+                self.boot.handle_frame(&f, f.timestamp());
+                self.core.receive(f);
+            }
+            now
+        } else {
+            self.until_sync()
+        };
         self.boot.handle_timeout(now);
         for r in &self.boot.reports()[self.reported..] {
             report_boot(plan, r, out, &mut self.summary);
@@ -700,6 +727,47 @@ impl<'p> VirtualRun<'p> {
             self.next_status = self.status_every.map(|d| t + d);
         }
         self.k += 1;
+    }
+
+    /// SYNC-consumer mode: runs the bus until the external producer's next SYNC has arrived,
+    /// takes every frame up to it, and returns its time (the cycle's `now`). Frames after it
+    /// wait for the next cycle, as they would on a real bus.
+    fn until_sync(&mut self) -> Instant {
+        for f in std::mem::take(&mut self.pending_rx) {
+            self.boot.handle_frame(&f, f.timestamp());
+            self.core.receive(f);
+        }
+        let due = self.now();
+        // SYNC has the highest priority after NMT, but may wait for a frame on the wire.
+        let mut until = due + Duration::from_micros(500);
+        loop {
+            self.sims.run_until(&self.bus, until);
+            self.drain_monitor();
+            while let Ok(Some(f)) = self.port.try_recv() {
+                if self.held.is_some() {
+                    self.later.push(f);
+                    continue;
+                }
+                self.boot.handle_frame(&f, f.timestamp());
+                if f.cob_id() == Some(0x080) {
+                    self.held = Some(f);
+                    self.synced += 1;
+                } else {
+                    self.core.receive(f);
+                }
+            }
+            if let Some(sync) = self.held.take() {
+                let now = sync.timestamp();
+                // What arrived after the SYNC belongs to the next cycle.
+                let later = std::mem::take(&mut self.later);
+                self.pending_rx = later;
+                return now;
+            }
+            // No SYNC: the producer is gone. Keep waiting, a period at a time (the cycle
+            // does not run without SYNC; the drives' own supervision notices).
+            self.missed_syncs += 1;
+            until += self.plan.period;
+        }
     }
 
     /// As [`VirtualRun::step`], and appends the cycle's events of this step to `events`.

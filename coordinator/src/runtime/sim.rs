@@ -5,9 +5,12 @@
 
 use std::sync::{Arc, Mutex};
 
+use drivers::can::Frame;
 use drivers::can::station::{self, Station, Steppable};
 use drivers::can::{PortId, VirtualBus, VirtualPort};
 use drivers::canopen::NodeId;
+use drivers::canopen::endpoint::Endpoint;
+use drivers::canopen::sync::{SyncCobId, SyncProducer};
 use drivers::modbus::client::Client;
 use drivers::sim::cmmo_st::mbap::MAX_ADU;
 use drivers::sim::cmmo_st::{self, Server, ServerConfig, Session};
@@ -75,11 +78,45 @@ impl SimDrive {
     }
 }
 
-/// The simulated CANopen drives.
+/// Another node producing SYNC (a PLC, another master): what a coordinator in SYNC-consumer
+/// mode follows. Simulated with the stack's own SYNC producer.
+#[derive(Debug)]
+pub struct ExternalSync {
+    producer: SyncProducer,
+}
+
+impl ExternalSync {
+    /// A producer of SYNC every `period`, the first at `first`.
+    pub fn new(period: std::time::Duration, first: Instant) -> Result<ExternalSync, String> {
+        let cob = SyncCobId {
+            producer: true,
+            id: 0x080,
+        };
+        let mut producer = SyncProducer::new(cob, period.as_micros() as u32, 0)
+            .map_err(|e| format!("SYNC producer: {e}"))?;
+        producer.start(first);
+        Ok(ExternalSync { producer })
+    }
+}
+
+impl Endpoint for ExternalSync {
+    fn handle_frame(&mut self, _frame: &Frame, _now: Instant) {}
+    fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
+        self.producer.poll_transmit(now)
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        self.producer.poll_timeout()
+    }
+    fn handle_timeout(&mut self, _now: Instant) {}
+}
+
+/// The simulated CANopen drives (and, for a SYNC consumer, the SYNC producer it follows).
 #[derive(Debug)]
 pub struct SimBus {
     /// One drive per CANopen axis: the axis name and the drive.
     pub drives: Vec<(String, SimDrive)>,
+    /// The external SYNC producer (SYNC-consumer mode only).
+    pub sync: Option<Box<Station<VirtualPort, ExternalSync>>>,
 }
 
 impl SimBus {
@@ -116,7 +153,18 @@ impl SimBus {
             };
             drives.push((a.name.clone(), d));
         }
-        Ok(SimBus { drives })
+        let sync = if plan.cycle.sync_producer {
+            None
+        } else {
+            // The external producer starts one cycle in, so the drives have booted into a
+            // running bus as they would on a machine.
+            let port = bus.attach("sync-producer");
+            Some(Box::new(Station::new(
+                port,
+                ExternalSync::new(plan.period, now + plan.period)?,
+            )))
+        };
+        Ok(SimBus { drives, sync })
     }
 
     /// The drive of an axis.
@@ -128,7 +176,12 @@ impl SimBus {
     }
 
     fn refs(&mut self) -> Vec<&mut dyn Steppable> {
-        self.drives.iter_mut().map(|(_, d)| d.steppable()).collect()
+        let mut v: Vec<&mut dyn Steppable> =
+            self.drives.iter_mut().map(|(_, d)| d.steppable()).collect();
+        if let Some(s) = &mut self.sync {
+            v.push(s.as_mut());
+        }
+        v
     }
 
     /// Runs the drives on a virtual-time bus up to `until`.
