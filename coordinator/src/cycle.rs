@@ -1128,12 +1128,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             // Motion: one sample per member per cycle.
             let g = &mut self.groups[gi];
             if let Some(m) = &mut g.motion {
-                let samples = m.step();
+                let mut samples = [(0i64, 0i64); MAX_GROUP_AXES];
+                let n = g.setup.axes.len().min(MAX_GROUP_AXES);
+                m.step_positions(&mut samples[..n]);
                 let state = m.state();
                 for (i, &mm) in g.setup.axes.iter().enumerate() {
                     let a = &mut self.axes[usize::from(mm)];
-                    a.setpoint = samples[i].position;
-                    a.setpoint_velocity = samples[i].velocity;
+                    (a.setpoint, a.setpoint_velocity) = samples[i];
                     a.following = true;
                 }
                 let arrived = state == GroupState::Done
@@ -1246,9 +1247,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         for i in 0..self.axes.len() {
             let a = &mut self.axes[i];
             if let Some(m) = &mut a.solo {
-                let s = m.step()[0];
-                a.setpoint = s.position;
-                a.setpoint_velocity = s.velocity;
+                let mut s = [(0i64, 0i64)];
+                m.step_positions(&mut s);
+                (a.setpoint, a.setpoint_velocity) = s[0];
                 a.following = true;
                 let arrived = m.state() == GroupState::Done && a.feedback.motion_complete;
                 let stopped = m.state() == GroupState::Stopped && a.solo_stop;

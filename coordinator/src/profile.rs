@@ -813,6 +813,26 @@ impl<const N: usize> Group<N> {
 
     /// Advances one cycle (override ramp, path time, state) and returns the setpoints.
     pub fn step(&mut self) -> [Sample; N] {
+        let p = self.advance();
+        self.samples(p)
+    }
+
+    /// As [`Group::step`], but only the positions and velocities of the first `out.len()` axes
+    /// (what a cycle streaming setpoints needs; the acceleration and jerk conversions are the
+    /// costly part of a sample).
+    pub fn step_positions(&mut self, out: &mut [(i64, i64)]) {
+        let p = self.advance();
+        for (i, o) in out.iter_mut().enumerate().take(N) {
+            *o = (
+                self.position(i, p.s),
+                axis_rate(self.delta[i], p.v, self.cycle_ns, 1),
+            );
+        }
+    }
+
+    /// Advances the path by one cycle (override ramp, phase, state) and returns its
+    /// time-scaled state.
+    fn advance(&mut self) -> PathSample {
         self.cycle += 1;
         let before = self.rate;
         if self.rate < self.rate_target {
@@ -845,7 +865,7 @@ impl<const N: usize> Group<N> {
             TIME_BITS,
         );
         p.v = mul_shift(p.v, r, TIME_BITS);
-        self.samples(p)
+        p
     }
 }
 
@@ -898,6 +918,38 @@ single_axis!(SCurve, Shape::SCurve);
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn step_positions_matches_step() {
+        let limits = [AxisLimits::new(50_000, 200_000, 4_000_000); 3];
+        let start = [0, 100, -5000];
+        let target = Target::Absolute([40_000, -20_000, 3]);
+        let mut a = Group::plan(start, target, &limits, Shape::SCurve, 2_000_000).unwrap();
+        let mut b = a.clone();
+        let _ = a.set_override(70);
+        let _ = b.set_override(70);
+        for k in 0..2000 {
+            if k == 300 {
+                a.hold();
+                b.hold();
+            }
+            if k == 600 {
+                let _ = a.resume();
+                let _ = b.resume();
+            }
+            let full = a.step();
+            let mut pv = [(0, 0); 2];
+            b.step_positions(&mut pv);
+            for i in 0..2 {
+                assert_eq!(
+                    pv[i],
+                    (full[i].position, full[i].velocity),
+                    "cycle {k} axis {i}"
+                );
+            }
+            assert_eq!(a.state(), b.state());
+        }
+    }
     use proptest::prelude::*;
 
     const MS: u32 = 1_000_000;
