@@ -686,3 +686,58 @@ fn in_sync_consumer_mode_the_cycle_follows_the_received_sync() {
     );
     assert!(s.laps >= 1 && s.records_reached >= 3, "{s}\n{text}");
 }
+
+#[test]
+fn a_drive_that_fails_to_boot_is_reported_and_the_others_run() {
+    let plan = example();
+    let mut run = VirtualRun::new(&plan, &quiet(false)).unwrap();
+    // The TLC5xx (node 3) is not on the bus.
+    let port = run.sims.drive_mut("z").unwrap().port();
+    run.bus.set_disconnected(port, true);
+    let mut out = Vec::new();
+    while run.script.phase() != Phase::Running {
+        run.step(&mut out);
+        assert!(
+            run.elapsed() < Duration::from_secs(60),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
+    }
+    steps(&mut run, 10);
+    let text = String::from_utf8_lossy(&out).to_string();
+    assert_eq!(run.summary.boot_failures.len(), 1, "{text}");
+    assert!(
+        run.summary.boot_failures[0].contains("axis z")
+            && run.summary.boot_failures[0].contains("boot-up"),
+        "{:?}",
+        run.summary.boot_failures
+    );
+    let z = plan.axis("z").unwrap() as u16;
+    assert_eq!(
+        run.core.cycle.axis_status(z).unwrap().fault,
+        FaultReason::BootFailed
+    );
+    for name in ["x", "y", "gripper"] {
+        let s = run
+            .core
+            .cycle
+            .axis_status(plan.axis(name).unwrap() as u16)
+            .unwrap();
+        assert!(
+            s.feedback.homed && s.mode == Mode::On,
+            "{name}: {s:?}\n{text}"
+        );
+    }
+    // The lift cannot move; the gantry can.
+    assert!(matches!(
+        run.core.cycle.command(&Command::StartChain {
+            group: plan.group("lift").unwrap() as u16,
+            record: 0
+        }),
+        Reply::Rejected(_)
+    ));
+    latched(run.core.cycle.command(&Command::StartChain {
+        group: plan.group("gantry").unwrap() as u16,
+        record: 13,
+    }));
+}

@@ -1,0 +1,118 @@
+//! `coordinator run`, as the built binary: the embedded machine in virtual time with its
+//! summary, the real-time run stopped by SIGINT (the drives are disabled before the exit), and
+//! clear refusals.
+
+use std::io::Read;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn coordinator() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_coordinator"))
+}
+
+#[test]
+fn the_default_machine_runs_in_virtual_time_and_prints_a_summary() {
+    let out = coordinator()
+        .args(["run", "--virtual-time", "--duration", "20", "--quiet"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for needle in [
+        "machine: 4 axes, 3 groups, cycle 2000 us, virtual time",
+        "boot: axis x: node 1: operational",
+        "boot: axis z: node 3: operational",
+        "summary: 100",
+        "axis x:",
+        "axis gripper:",
+        "frame hash",
+    ] {
+        assert!(text.contains(needle), "{needle:?} missing in:\n{text}");
+    }
+    // Every axis ends disabled.
+    assert_eq!(text.matches(", Disabled").count(), 4, "{text}");
+}
+
+#[test]
+fn sigint_stops_the_real_time_run_and_disables_every_drive() {
+    let mut child = coordinator()
+        .args(["run", "--quiet"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Let it boot and start moving (machine time is real time here).
+    std::thread::sleep(Duration::from_secs(6));
+    // SAFETY: kill(2) on our own child's pid, which has not been reaped yet.
+    let r = unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) };
+    assert_eq!(r, 0);
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "no exit after SIGINT"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut text = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut text)
+        .unwrap();
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert!(status.success(), "{status:?}\n{text}\n{err}");
+    assert!(text.contains("summary:"), "{text}");
+    assert_eq!(
+        text.matches(", Disabled").count(),
+        4,
+        "every drive disabled before exit:\n{text}"
+    );
+}
+
+#[test]
+fn virtual_time_without_a_duration_is_refused() {
+    let out = coordinator()
+        .args(["run", "--virtual-time"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--virtual-time needs --duration"));
+}
+
+#[test]
+fn a_bad_configuration_is_refused_with_its_key() {
+    let dir = std::env::temp_dir().join(format!("coordinator-run-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bad.toml");
+    let text = coordinator::config::EXAMPLE.replace("node = 3", "node = 300");
+    std::fs::write(&path, text).unwrap();
+    let out = coordinator()
+        .args([
+            "run",
+            "--virtual-time",
+            "--duration",
+            "1",
+            "--config",
+            path.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("axes[2].node"), "{err}");
+}
