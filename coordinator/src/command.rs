@@ -77,6 +77,28 @@ pub enum Command {
         /// Percent.
         percent: u16,
     },
+    /// Read a drive parameter over the FHPP parameter channel (FPC on PDO2; axes with
+    /// `fpc = true`). The value arrives later as [`crate::event::Event::Parameter`].
+    ReadParameter {
+        /// The axis.
+        axis: AxisId,
+        /// The parameter number.
+        pnu: u16,
+        /// The sub-index.
+        sub: u8,
+    },
+    /// Write a drive parameter over the parameter channel; the outcome arrives as
+    /// [`crate::event::Event::Parameter`].
+    WriteParameter {
+        /// The axis.
+        axis: AxisId,
+        /// The parameter number.
+        pnu: u16,
+        /// The sub-index.
+        sub: u8,
+        /// The value (32 bits; the drive takes the parameter's width).
+        value: u32,
+    },
     /// Set or clear a bit of the machine's digital input word (simulated inputs and tests).
     SetInput {
         /// Bit 0..=31.

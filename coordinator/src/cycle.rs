@@ -25,6 +25,7 @@ use drivers::canopen::emcy::EmcyMessage;
 use drivers::canopen::guarding::{GuardingEvent, GuardingMaster};
 use drivers::canopen::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use drivers::canopen::{FunctionCode, NodeId};
+use drivers::fhpp::fpc;
 use drivers::time::Instant;
 use heapless::{Deque, Vec};
 
@@ -40,6 +41,8 @@ use crate::records::{
 
 /// Events the cycle can hold before the services take them; more are counted and dropped.
 pub const EVENT_CAPACITY: usize = 256;
+/// Cycles a parameter-channel task may wait for its reply.
+pub const FPC_TIMEOUT_CYCLES: u32 = 250;
 
 /// How an axis is reached.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -96,6 +99,8 @@ pub struct AxisSetup {
     pub following_error: i64,
     /// A fault after this many cycles in a row without an input image (0: not monitored).
     pub late_cycles: u16,
+    /// The FHPP parameter channel is mapped on PDO2 (Festo drives over CANopen).
+    pub fpc: bool,
 }
 
 /// One group, as the cycle needs it.
@@ -236,6 +241,10 @@ struct AxisRt {
     group: Option<GroupId>,
     /// A velocity or force record of the group drives this axis directly.
     special: Option<Demand>,
+    /// The parameter channel (axes with `fpc`), its task and this cycle's reply bytes.
+    fpc: Option<fpc::Client>,
+    fpc_task: Option<fpc::Param>,
+    fpc_in: Option<Image>,
     last_state: AxisState,
     out: Image,
 }
@@ -366,6 +375,14 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     solo_stop: false,
                     group: None,
                     special: None,
+                    fpc: if s.fpc {
+                        crate::axis::fpc_codec(s.kind)
+                            .map(|c| fpc::Client::new(c, FPC_TIMEOUT_CYCLES))
+                    } else {
+                        None
+                    },
+                    fpc_task: None,
+                    fpc_in: None,
                     last_state: AxisState::Offline,
                     out: Image::default(),
                 })
@@ -807,6 +824,18 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 Ok(())
             }
+            Command::ReadParameter { axis, pnu, sub } => {
+                self.parameter(axis, fpc::Request::Read(fpc::Param::new(pnu, sub)))
+            }
+            Command::WriteParameter {
+                axis,
+                pnu,
+                sub,
+                value,
+            } => self.parameter(
+                axis,
+                fpc::Request::Write(fpc::Param::new(pnu, sub), fpc::Value::Dword(value)),
+            ),
             Command::SetInput { bit, value } => {
                 if bit >= 32 {
                     return Err(Rejected::OutOfRange {
@@ -824,6 +853,28 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 Ok(())
             }
         }
+    }
+
+    /// Starts a parameter-channel task on an axis.
+    fn parameter(&mut self, axis: AxisId, req: fpc::Request) -> Result<(), Rejected> {
+        let a = self
+            .axes
+            .get_mut(usize::from(axis))
+            .ok_or(Rejected::UnknownAxis(axis))?;
+        if !a.online {
+            return Err(Rejected::WrongState("drive not booted"));
+        }
+        let Some(client) = &mut a.fpc else {
+            return Err(Rejected::WrongState(
+                "no parameter channel (fpc) on this axis",
+            ));
+        };
+        client.submit(req).map_err(|_| Rejected::Busy)?;
+        a.fpc_task = match req {
+            fpc::Request::Read(p) | fpc::Request::Write(p, _) => Some(p),
+            fpc::Request::NoTask => None,
+        };
+        Ok(())
     }
 
     /// Plans a group move from the members' setpoints; every member's demand becomes a path
@@ -894,6 +945,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let now = input.now;
         for a in self.axes.iter_mut() {
             a.input = None;
+            a.fpc_in = None;
         }
         self.receive(input);
         self.supervise(now);
@@ -917,6 +969,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 FunctionCode::Tpdo(1) if !f.is_remote() => {
                     if let Some(img) = Image::from_slice(f.data()) {
                         self.axes[usize::from(axis)].input = Some(img);
+                    }
+                }
+                FunctionCode::Tpdo(2) if !f.is_remote() => {
+                    if let Some(img) = Image::from_slice(f.data()) {
+                        self.axes[usize::from(axis)].fpc_in = Some(img);
                     }
                 }
                 FunctionCode::NmtErrorControl => {
@@ -1339,6 +1396,24 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
             }
             let a = &mut self.axes[i];
+            if let (Some(client), Some(input)) = (&mut a.fpc, a.fpc_in)
+                && let Some(outcome) = client.handle_input(input.bytes())
+            {
+                let p = a.fpc_task.take().unwrap_or_default();
+                let result = match outcome {
+                    Ok(v) => Ok(v.raw()),
+                    Err(fpc::TaskError::Refused { number, .. }) => Err(number),
+                    Err(fpc::TaskError::Timeout { .. }) => Err(u16::MAX),
+                };
+                self.emit(Event::Parameter {
+                    cycle,
+                    axis: i as AxisId,
+                    pnu: p.pnu,
+                    sub: p.sub,
+                    result,
+                });
+            }
+            let a = &mut self.axes[i];
             if fb.state != a.last_state {
                 a.last_state = fb.state;
                 self.emit(Event::AxisState {
@@ -1372,6 +1447,16 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         *m = a.out;
                     }
                 }
+            }
+        }
+        // The parameter channels after every RPDO1: the motion images come first.
+        for a in &self.axes {
+            if let (true, Some(client), Transport::Can { node: n }) =
+                (a.online, &a.fpc, a.setup.transport)
+                && let Some(id) = node(n)
+                && let Ok(f) = Frame::new_std(FunctionCode::Rpdo(2).cob_id(id), &client.output())
+            {
+                out.push(f);
             }
         }
         while let Some(f) = self.guarding.poll_transmit(now) {
@@ -1465,6 +1550,7 @@ mod tests {
             position_max: 160_000,
             following_error: 10_000,
             late_cycles: 3,
+            fpc: false,
         }
     }
 

@@ -70,4 +70,18 @@ pub enum Event {
         /// How many cycles late.
         cycles: u32,
     },
+    /// A parameter-channel task ended: the value read or written, or the drive's error
+    /// number (or 0xFFFF when no reply came in time).
+    Parameter {
+        /// The cycle.
+        cycle: u64,
+        /// The axis.
+        axis: AxisId,
+        /// The parameter number.
+        pnu: u16,
+        /// The sub-index.
+        sub: u8,
+        /// The value, or the error number.
+        result: Result<u32, u16>,
+    },
 }

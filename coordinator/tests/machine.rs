@@ -410,7 +410,8 @@ fn event_cycle(e: &coordinator::event::Event) -> u64 {
         | E::RecordReached { cycle, .. }
         | E::ChainComplete { cycle, .. }
         | E::ChainAborted { cycle, .. }
-        | E::LateModbus { cycle, .. } => cycle,
+        | E::LateModbus { cycle, .. }
+        | E::Parameter { cycle, .. } => cycle,
     }
 }
 
@@ -740,4 +741,116 @@ fn a_drive_that_fails_to_boot_is_reported_and_the_others_run() {
         group: plan.group("gantry").unwrap() as u16,
         record: 13,
     }));
+}
+
+#[test]
+fn the_parameter_channel_reads_and_writes_drive_parameters() {
+    use coordinator::event::Event as E;
+    // x (MTR-DCI, classic FPC) and y (EMCA, EFPC) with the parameter channel on PDO2; the two
+    // extra frames each way need a longer cycle.
+    let text = EXAMPLE
+        .replace("cycle_us = 2000", "cycle_us = 3000")
+        .replace(
+            "guard_time_ms = 100      # node guarding",
+            "fpc = true\nguard_time_ms = 100      # node guarding",
+        )
+        .replace("fpc = false", "fpc = true");
+    let plan = plan(&Config::parse(&text).unwrap()).unwrap();
+    let mut run = ready(&plan);
+    let x = plan.axis("x").unwrap() as u16;
+    let y = plan.axis("y").unwrap() as u16;
+    let mut events = Vec::new();
+    let param = |run: &mut VirtualRun<'_>, events: &mut Vec<E>, cmd: Command| {
+        // The channel takes one task at a time and needs a "no task"/"no reply" exchange
+        // between two: Busy until then.
+        let mut tries = 0;
+        while run.core.cycle.command(&cmd) == Reply::Rejected(Rejected::Busy) {
+            tries += 1;
+            assert!(tries < 20, "still busy");
+            steps(run, 1);
+        }
+        events.clear();
+        until_event(run, 500, |e| matches!(e, E::Parameter { .. }), events).expect("an answer");
+        events
+            .iter()
+            .find_map(|e| match *e {
+                E::Parameter {
+                    axis,
+                    pnu,
+                    sub,
+                    result,
+                    ..
+                } => Some((axis, pnu, sub, result)),
+                _ => None,
+            })
+            .unwrap()
+    };
+    // Write then read back the EMCA's PNU 583 (direct start condition; the boot set it to 1).
+    let (a, pnu, sub, r) = param(
+        &mut run,
+        &mut events,
+        Command::ReadParameter {
+            axis: y,
+            pnu: 583,
+            sub: 1,
+        },
+    );
+    assert_eq!((a, pnu, sub, r), (y, 583, 1, Ok(1)));
+    let (_, _, _, r) = param(
+        &mut run,
+        &mut events,
+        Command::WriteParameter {
+            axis: y,
+            pnu: 583,
+            sub: 1,
+            value: 2,
+        },
+    );
+    assert_eq!(r, Ok(2));
+    let (_, _, _, r) = param(
+        &mut run,
+        &mut events,
+        Command::ReadParameter {
+            axis: y,
+            pnu: 583,
+            sub: 1,
+        },
+    );
+    assert_eq!(r, Ok(2));
+    // A parameter the MTR-DCI does not have: its error number comes back.
+    let (a, _, _, r) = param(
+        &mut run,
+        &mut events,
+        Command::ReadParameter {
+            axis: x,
+            pnu: 2000,
+            sub: 0,
+        },
+    );
+    assert_eq!(a, x);
+    assert!(r.is_err(), "{r:?}");
+    // One task at a time; no channel on the TLC5xx.
+    steps(&mut run, 5);
+    latched(run.core.cycle.command(&Command::ReadParameter {
+        axis: x,
+        pnu: 502,
+        sub: 0,
+    }));
+    assert_eq!(
+        run.core.cycle.command(&Command::ReadParameter {
+            axis: x,
+            pnu: 502,
+            sub: 0
+        }),
+        Reply::Rejected(Rejected::Busy)
+    );
+    let z = plan.axis("z").unwrap() as u16;
+    assert!(matches!(
+        run.core.cycle.command(&Command::ReadParameter {
+            axis: z,
+            pnu: 1,
+            sub: 0
+        }),
+        Reply::Rejected(Rejected::WrongState(_))
+    ));
 }

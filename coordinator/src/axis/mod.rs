@@ -368,6 +368,44 @@ pub const TLC_RPDO1: &[u32] = &[0x6040_0010, 0x607A_0020, 0x6060_0008];
 /// TLC5xx TPDO1 (7 bytes): statusword, position actual value 6064h, modes display 6061h.
 pub const TLC_TPDO1: &[u32] = &[0x6041_0010, 0x6064_0020, 0x6061_0008];
 
+/// The Festo parameter channel on PDO2 (MTR-DCI §7.4, EMCA §5.1; static): FPC byte 1, sub-index,
+/// PKE/PNU, PWE each way.
+const FPC_RPDO2: &[u32] = &[0x3010_0008, 0x3011_0008, 0x3012_0010, 0x3013_0020];
+/// The drive's reply.
+const FPC_TPDO2: &[u32] = &[0x3030_0008, 0x3031_0008, 0x3032_0010, 0x3033_0020];
+
+/// The parameter-channel PDOs (PDO2) of a Festo drive in FHPP over CANopen; `None` for the
+/// others (the CMMO-ST's 8-byte Modbus profile and CiA 402 have none).
+pub fn fpc_mapping(kind: DeviceKind, profile: Profile) -> Option<PdoMap> {
+    use drivers::canopen::FunctionCode;
+    let pdo = |function, mapping| PdoSpec {
+        number: 2,
+        function,
+        mapping,
+        remappable: false,
+        transmission: 1,
+    };
+    match (kind, profile) {
+        (DeviceKind::MtrDci | DeviceKind::Emca, Profile::Fhpp) => Some(PdoMap {
+            rpdo: Some(pdo(FunctionCode::Rpdo(2), FPC_RPDO2)),
+            tpdo: Some(pdo(FunctionCode::Tpdo(2), FPC_TPDO2)),
+        }),
+        _ => None,
+    }
+}
+
+/// The parameter-channel codec of a Festo drive (classic FPC on the MTR-DCI, EFPC on the EMCA,
+/// little-endian on CANopen).
+pub fn fpc_codec(kind: DeviceKind) -> Option<drivers::fhpp::fpc::Codec> {
+    use drivers::fhpp::{ByteOrder, Variant, fpc::Codec};
+    let v = match kind {
+        DeviceKind::MtrDci => Variant::MtrDci,
+        DeviceKind::Emca => Variant::Emca,
+        _ => return None,
+    };
+    Some(Codec::new(v.parameter_channel(), ByteOrder::Little))
+}
+
 /// The cyclic PDOs the coordinator configures for a `kind` drive in `profile` (see
 /// [`DriveAxis::rx_len`] for the image lengths they produce). Combinations
 /// [`DriveAxis::new`] refuses get no PDOs.

@@ -13,7 +13,8 @@ use crate::cycle::{AxisSetup, CycleSetup, GroupSetup, Supervision, Transport};
 use crate::fault::Reaction;
 use crate::profile::{AxisLimits, Shape};
 use crate::records::RecordTable;
-use crate::runtime::boot::{self, BootPlan, SupervisionPlan};
+use crate::runtime::boot::{self, BootPlan, PdoPlan, SupervisionPlan};
+use drivers::canopen::pdo::PdoDirection;
 
 /// Axes a configured machine may have (the runtime's capacity; the cycle is generic).
 pub const MAX_AXES: usize = 128;
@@ -212,6 +213,18 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             if k == DeviceKind::Tlc5xx {
                 bp.parameters = tlc_parameters(&lim);
             }
+            if a.fpc
+                && let Some(m) = axis::fpc_mapping(k, p)
+            {
+                for (dir, spec) in [(PdoDirection::Rpdo, m.rpdo), (PdoDirection::Tpdo, m.tpdo)] {
+                    if let Some(spec) = spec
+                        && let Some(mut pp) = PdoPlan::sync(dir, 2, spec.mapping)
+                    {
+                        pp.static_mapping = !spec.remappable;
+                        bp.pdos.push(pp);
+                    }
+                }
+            }
             if k == DeviceKind::Emca && p == Profile::Fhpp {
                 bp.parameters = vec![emca_start_interrupts()];
             }
@@ -239,6 +252,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 position_max: (a.limits.position_max * s).round() as i64,
                 following_error: fe,
                 late_cycles: if a.device.is_modbus() { 0 } else { 3 },
+                fpc: a.fpc && axis::fpc_mapping(k, p).is_some(),
             },
             boot,
             modbus: a.modbus.clone(),

@@ -924,6 +924,25 @@ pub fn note_event(plan: &MachinePlan, e: &Event, summary: &mut Summary, out: &mu
             );
         }
         Event::LateModbus { .. } => summary.late_modbus += 1,
+        Event::Parameter {
+            cycle,
+            axis: a,
+            pnu,
+            sub,
+            result,
+        } => match result {
+            Ok(v) => say(
+                out,
+                &format!("cycle {cycle}: axis {} PNU {pnu}:{sub} = {v}", axis(a)),
+            ),
+            Err(n) => say(
+                out,
+                &format!(
+                    "cycle {cycle}: axis {} PNU {pnu}:{sub} refused: error {n}",
+                    axis(a)
+                ),
+            ),
+        },
         Event::AxisState { .. } => {}
     }
 }
