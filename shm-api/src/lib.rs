@@ -1,13 +1,16 @@
-//! The shared-memory contract of the motion coordinator over iceoryx2.
-//!
-//! This crate will hold the `#[repr(C)]` payloads (`MachineState`, commands and their answers),
-//! the service names under a configurable prefix (`motion/state`, `motion/command`,
-//! `motion/events`), the client library (`Client::connect`, `latest`, `next`, `command`) and the
-//! clients that ship (`motion-watch`, `motion-top`, `motion-cmd`).
+//! The shared-memory contract of the motion coordinator over iceoryx2: the `#[repr(C)]`
+//! payloads ([`contract`]), the service names under a configurable prefix (default `motion`),
+//! the coordinator's publishing side and the client library, and the clients that ship
+//! (`motion-watch`, `motion-top`, `motion-cmd`). `docs/clients.md` describes the contract field
+//! by field and how to write a client in Rust, Python and C.
 //!
 //! ```
 //! assert_eq!(shm_api::DEFAULT_PREFIX, "motion");
+//! assert_eq!(core::mem::size_of::<shm_api::contract::AxisState>(), 128);
+//! assert_eq!(core::mem::size_of::<shm_api::contract::GroupState>(), 48);
 //! ```
+
+pub mod contract;
 
 /// The default prefix of every service name of the contract.
 pub const DEFAULT_PREFIX: &str = "motion";

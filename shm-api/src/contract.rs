@@ -1,0 +1,450 @@
+//! The wire contract: every payload that crosses shared memory, `#[repr(C)]`, fixed size, with
+//! explicit padding, so that C, C++ and Python (ctypes) clients can read it as it lies in
+//! memory. Units are in each field's doc. Changing any field changes [`LAYOUT_HASH`] (a test
+//! recomputes it), and the hash is part of every type name, so a client built against another
+//! layout is refused by iceoryx2 when it opens the service.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// The contract's version; bumped on any incompatible change.
+pub const LAYOUT_VERSION: u32 = 1;
+/// A hash of the layout of every payload (sizes and field offsets), checked by a test that
+/// recomputes it: see `layout::compute_hash`.
+pub const LAYOUT_HASH: u32 = 0;
+/// Axes a [`MachineState`] holds.
+pub const MAX_AXES: usize = 128;
+/// Groups a [`MachineState`] holds.
+pub const MAX_GROUPS: usize = 16;
+/// Axes of one group move.
+pub const MAX_GROUP_AXES: usize = 8;
+/// Bytes of a name (NUL-padded UTF-8).
+pub const NAME_LEN: usize = 16;
+/// Bytes of a unit name.
+pub const UNIT_LEN: usize = 8;
+/// User-unit fixed point: positions and velocities are in millionths of the axis's unit
+/// (`position = 1_500_000` is 1.5 mm on a mm axis).
+pub const MICRO: i64 = 1_000_000;
+
+/// What an axis is (the drive state as the coordinator sees it).
+pub mod axis_state {
+    /// No image yet, or the drive stopped answering.
+    pub const OFFLINE: u8 = 0;
+    /// Power stage off.
+    pub const DISABLED: u8 = 1;
+    /// Being brought to operation enabled.
+    pub const ENABLING: u8 = 2;
+    /// Operation enabled, standing.
+    pub const READY: u8 = 3;
+    /// Homing.
+    pub const HOMING: u8 = 4;
+    /// Moving.
+    pub const MOVING: u8 = 5;
+    /// Halt or quick stop active.
+    pub const STOPPING: u8 = 6;
+    /// The drive reports a fault.
+    pub const FAULT: u8 = 7;
+}
+
+/// What an axis was commanded to do.
+pub mod axis_mode {
+    /// Power off.
+    pub const OFF: u8 = 0;
+    /// Enabled (standing or following a move).
+    pub const ON: u8 = 1;
+    /// Homing.
+    pub const HOMING: u8 = 2;
+    /// Jogging.
+    pub const JOG: u8 = 3;
+    /// Quick-stopped (a fault reaction or a command) until acknowledged or re-enabled.
+    pub const QUICK_STOPPED: u8 = 4;
+    /// Acknowledging a fault.
+    pub const ACKNOWLEDGING: u8 = 5;
+}
+
+/// Bits of [`AxisState::flags`].
+pub mod axis_flags {
+    /// The drive is booted and in the cycle.
+    pub const ONLINE: u16 = 1 << 0;
+    /// Enabled by command.
+    pub const ENABLED: u16 = 1 << 1;
+    /// Referenced (homed).
+    pub const HOMED: u16 = 1 << 2;
+    /// Motion complete / target reached.
+    pub const MOTION_COMPLETE: u16 = 1 << 3;
+    /// The drive signals a warning.
+    pub const WARNING: u16 = 1 << 4;
+    /// A move (group or single-axis) is streaming setpoints to the axis.
+    pub const FOLLOWING: u16 = 1 << 5;
+    /// The drive is FHPP (clear: CiA 402).
+    pub const FHPP: u16 = 1 << 6;
+}
+
+/// Why an axis is faulted ([`AxisState::fault`]); [`AxisState::fault_code`] and
+/// [`AxisState::fault_value`] carry the numbers.
+pub mod fault {
+    /// No fault.
+    pub const NONE: u8 = 0;
+    /// No heartbeat within the consumer time.
+    pub const HEARTBEAT_LOST: u8 = 1;
+    /// Node guarding lost (no answer, toggle error).
+    pub const GUARDING_LOST: u8 = 2;
+    /// An EMCY; `fault_code` is its error code.
+    pub const EMCY: u8 = 3;
+    /// Following error; `fault_value` is the error, `fault_limit` the limit, increments.
+    pub const FOLLOWING_ERROR: u8 = 4;
+    /// The drive reports a fault; `fault_code` is its number.
+    pub const DRIVE_FAULT: u8 = 5;
+    /// The Modbus TCP exchange timed out.
+    pub const MODBUS_TIMEOUT: u8 = 6;
+    /// TPDOs missing; `fault_value` is the number of cycles.
+    pub const LATE_TPDO: u8 = 7;
+    /// The drive's boot failed.
+    pub const BOOT_FAILED: u8 = 8;
+}
+
+/// A group's chain state ([`GroupState::chain_state`]).
+pub mod chain_state {
+    /// Never started.
+    pub const IDLE: u8 = 0;
+    /// A record's start delay runs.
+    pub const DELAY: u8 = 1;
+    /// A record's move runs.
+    pub const MOVING: u8 = 2;
+    /// The move arrived; waiting for a condition.
+    pub const WAITING: u8 = 3;
+    /// Ended at a record without a step (RCC).
+    pub const COMPLETE: u8 = 4;
+    /// Aborted.
+    pub const ABORTED: u8 = 5;
+}
+
+/// A group's move ([`GroupState::motion`]).
+pub mod motion_state {
+    /// No move.
+    pub const NONE: u8 = 0;
+    /// Following the move.
+    pub const MOVING: u8 = 1;
+    /// Decelerating after a hold.
+    pub const HOLDING: u8 = 2;
+    /// Decelerating after a quick stop.
+    pub const QUICK_STOPPING: u8 = 3;
+    /// Stopped on the path; can resume.
+    pub const STOPPED: u8 = 4;
+    /// Arrived.
+    pub const DONE: u8 = 5;
+}
+
+/// One axis in [`MachineState`] (128 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct AxisState {
+    /// Actual position, µunits (see [`MICRO`]).
+    pub position: i64,
+    /// Setpoint, µunits.
+    pub setpoint: i64,
+    /// Actual velocity, µunits/s (0 where the drive does not report it).
+    pub velocity: i64,
+    /// Actual position, drive increments.
+    pub position_inc: i64,
+    /// Setpoint, drive increments.
+    pub setpoint_inc: i64,
+    /// Following-error value or missed cycles, by [`AxisState::fault`].
+    pub fault_value: i64,
+    /// The following-error limit, increments (for [`fault::FOLLOWING_ERROR`]).
+    pub fault_limit: i64,
+    /// Actual force, ‰ of nominal (0 where not reported).
+    pub force_permille: i32,
+    /// Raw status bits: FHPP SCON | SPOS << 8; CiA 402 statusword.
+    pub status_bits: u16,
+    /// [`axis_flags`].
+    pub flags: u16,
+    /// [`axis_state`].
+    pub state: u8,
+    /// [`axis_mode`].
+    pub mode: u8,
+    /// [`fault`] kind.
+    pub fault: u8,
+    /// Padding, 0.
+    pub reserved0: u8,
+    /// EMCY error code or drive fault number.
+    pub fault_code: u16,
+    /// The record the axis's group chain is at, or -1.
+    pub active_record: i16,
+    /// The axis name.
+    pub name: [u8; NAME_LEN],
+    /// The user unit.
+    pub unit: [u8; UNIT_LEN],
+    /// Padding, 0 (room for fields of later versions).
+    pub reserved1: [u8; 32],
+}
+
+/// One group in [`MachineState`] (48 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct GroupState {
+    /// The record running (in a delay, moving or waiting), or -1.
+    pub active_record: i16,
+    /// The record the chain is at or ended at, or -1 (FHPP status byte 3).
+    pub record: i16,
+    /// The last record whose move arrived since the chain started, or -1.
+    pub reached: i16,
+    /// Feed override requested, %.
+    pub override_percent: u16,
+    /// [`chain_state`].
+    pub chain_state: u8,
+    /// RC1: a step condition was met since the chain started.
+    pub rc1: u8,
+    /// RCC: the chain ran to its end.
+    pub rcc: u8,
+    /// [`motion_state`].
+    pub motion: u8,
+    /// Number of member axes.
+    pub axis_count: u8,
+    /// Padding, 0.
+    pub reserved0: [u8; 3],
+    /// Member axes (indices into [`MachineState::axes`]); the first `axis_count` count.
+    pub axes: [u8; MAX_GROUP_AXES],
+    /// The group name.
+    pub name: [u8; NAME_LEN],
+    /// Padding, 0.
+    pub reserved1: [u8; 8],
+}
+
+/// Bus and cycle counters in [`MachineState`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct BusStats {
+    /// Frames the coordinator sent since the start.
+    pub frames_sent: u64,
+    /// Frames the coordinator received since the start.
+    pub frames_received: u64,
+    /// Frames the bus refused to queue.
+    pub tx_refused: u64,
+    /// Received frames dropped for want of room.
+    pub rx_dropped: u64,
+    /// Cycles skipped (real time: deadlines long passed; consumer mode: periods without SYNC).
+    pub skipped_cycles: u64,
+    /// The last cycle step's compute time, ns.
+    pub step_ns: u32,
+    /// How late the cycle thread woke after its deadline in the last cycle, µs.
+    pub wake_late_us: u32,
+}
+
+/// The whole machine, published once per cycle on `PREFIX/state`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("motion::MachineState::v1")]
+pub struct MachineState {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// [`LAYOUT_HASH`].
+    pub layout_hash: u32,
+    /// The cycle number (the step that produced this state).
+    pub cycle: u64,
+    /// The cycle's SYNC time, ns of CLOCK_MONOTONIC (or of virtual time).
+    pub sync_time_ns: u64,
+    /// When the sample was written, ns of CLOCK_MONOTONIC (for latency measurements).
+    pub publish_time_ns: u64,
+    /// Cycle period, ns.
+    pub cycle_ns: u32,
+    /// Number of valid entries in `axes`.
+    pub axis_count: u16,
+    /// Number of valid entries in `groups`.
+    pub group_count: u16,
+    /// The machine's digital input word.
+    pub inputs: u32,
+    /// 1 in virtual time.
+    pub virtual_time: u8,
+    /// Padding, 0.
+    pub reserved0: [u8; 3],
+    /// Bus and cycle counters.
+    pub bus: BusStats,
+    /// The axes; the first `axis_count` are valid.
+    pub axes: [AxisState; MAX_AXES],
+    /// The groups; the first `group_count` are valid.
+    pub groups: [GroupState; MAX_GROUPS],
+}
+
+/// Command kinds ([`CommandRequest::kind`]).
+pub mod command_kind {
+    /// Enable `target`.
+    pub const ENABLE: u16 = 1;
+    /// Disable `target`.
+    pub const DISABLE: u16 = 2;
+    /// Acknowledge faults of `target`.
+    pub const ACKNOWLEDGE: u16 = 3;
+    /// Home `target`.
+    pub const HOME: u16 = 4;
+    /// Jog `axis` at `value` ‰ of its velocity limit (signed; 0 stops).
+    pub const JOG: u16 = 5;
+    /// Move `axis` to `positions[0]` µunits at `percent` % of its velocity limit.
+    pub const MOVE_AXIS: u16 = 6;
+    /// Move `group` to `positions` (µunits, group order) at `percent` %.
+    pub const MOVE_GROUP: u16 = 7;
+    /// Start `group`'s chain at `record`.
+    pub const START_CHAIN: u16 = 8;
+    /// Hold `target`.
+    pub const HOLD: u16 = 9;
+    /// Resume `target`.
+    pub const RESUME: u16 = 10;
+    /// Stop `target`.
+    pub const STOP: u16 = 11;
+    /// Quick stop `target`.
+    pub const QUICK_STOP: u16 = 12;
+    /// Set `group`'s override to `percent` %.
+    pub const SET_OVERRIDE: u16 = 13;
+    /// Read parameter `pnu`:`sub` of `axis` (the value arrives as an event).
+    pub const READ_PARAMETER: u16 = 14;
+    /// Write `value` to parameter `pnu`:`sub` of `axis`.
+    pub const WRITE_PARAMETER: u16 = 15;
+    /// Set input bit `record` to `value != 0`.
+    pub const SET_INPUT: u16 = 16;
+}
+
+/// Which axes a command addresses ([`CommandRequest::target`]).
+pub mod target {
+    /// One axis: `axis`.
+    pub const AXIS: u8 = 0;
+    /// Every axis of `group`.
+    pub const GROUP: u8 = 1;
+    /// Every axis.
+    pub const ALL: u8 = 2;
+}
+
+/// A command, on `PREFIX/command` (request-response).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("motion::CommandRequest::v1")]
+pub struct CommandRequest {
+    /// The client's tag, echoed in the reply.
+    pub tag: u64,
+    /// [`command_kind`].
+    pub kind: u16,
+    /// [`target`].
+    pub target: u8,
+    /// Share of the limits, 1..=100 % (moves), or the override (0..=200 %).
+    pub percent: u8,
+    /// The axis (target [`target::AXIS`], jog, moves, parameters).
+    pub axis: u16,
+    /// The group (target [`target::GROUP`], group moves, chains, override).
+    pub group: u16,
+    /// The record (chains), or the input bit.
+    pub record: u16,
+    /// The parameter's sub-index.
+    pub sub: u8,
+    /// Padding, 0.
+    pub reserved0: u8,
+    /// The parameter number.
+    pub pnu: u16,
+    /// Padding, 0.
+    pub reserved1: u16,
+    /// Jog ‰, override %, parameter value, input level.
+    pub value: i64,
+    /// Targets, µunits (group order for group moves; `[0]` for an axis move).
+    pub positions: [i64; MAX_GROUP_AXES],
+}
+
+/// Reply status ([`CommandReply::status`]).
+pub mod status {
+    /// Accepted: latches at the SYNC of `cycle`.
+    pub const LATCHED: u16 = 0;
+    /// No such axis (`value` = the axis).
+    pub const UNKNOWN_AXIS: u16 = 1;
+    /// No such group.
+    pub const UNKNOWN_GROUP: u16 = 2;
+    /// No such record.
+    pub const UNKNOWN_RECORD: u16 = 3;
+    /// A value outside its limit: `value`, `min`, `max`.
+    pub const OUT_OF_RANGE: u16 = 4;
+    /// The axis or group is in the wrong state (`reason`).
+    pub const WRONG_STATE: u16 = 5;
+    /// Busy with another task.
+    pub const BUSY: u16 = 6;
+    /// A fault must be acknowledged first.
+    pub const FAULTED: u16 = 7;
+    /// The move cannot be planned.
+    pub const PLAN: u16 = 8;
+    /// The request could not be decoded (unknown kind or target).
+    pub const BAD_REQUEST: u16 = 9;
+    /// The coordinator could not take the request (its queue is full).
+    pub const OVERLOADED: u16 = 10;
+}
+
+/// The answer to a [`CommandRequest`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("motion::CommandReply::v1")]
+pub struct CommandReply {
+    /// The request's tag.
+    pub tag: u64,
+    /// The cycle whose SYNC latches the command ([`status::LATCHED`]).
+    pub cycle: u64,
+    /// The value refused ([`status::OUT_OF_RANGE`]) or the axis/group/record concerned.
+    pub value: i64,
+    /// The lowest allowed value.
+    pub min: i64,
+    /// The highest allowed value.
+    pub max: i64,
+    /// [`status`].
+    pub status: u16,
+    /// Padding, 0.
+    pub reserved0: [u8; 6],
+    /// The reason in words for [`status::WRONG_STATE`] (NUL-padded).
+    pub reason: [u8; 48],
+}
+
+/// Event ids on `PREFIX/events` (iceoryx2 event service; the details are in the next state).
+pub mod event_id {
+    /// An axis changed state or mode.
+    pub const STATE_CHANGED: usize = 1;
+    /// An axis faulted.
+    pub const FAULT: usize = 2;
+    /// A chain reached a record.
+    pub const RECORD_REACHED: usize = 3;
+    /// A chain completed (RCC).
+    pub const CHAIN_COMPLETE: usize = 4;
+    /// A chain was aborted.
+    pub const CHAIN_ABORTED: usize = 5;
+    /// A fault was acknowledged.
+    pub const ACKNOWLEDGED: usize = 6;
+    /// A parameter task ended.
+    pub const PARAMETER: usize = 7;
+    /// The coordinator is shutting down.
+    pub const SHUTDOWN: usize = 8;
+}
+
+/// One event with its details, on `PREFIX/event-log` (publish-subscribe, published from the
+/// services thread, never from the cycle thread). Every record is also signalled on
+/// `PREFIX/events` with its [`EventRecord::id`] as the event id, so a client can sleep on the
+/// event service and read the details here.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("motion::EventRecord::v1")]
+pub struct EventRecord {
+    /// A sequence number, counting every record published.
+    pub seq: u64,
+    /// The cycle it happened in.
+    pub cycle: u64,
+    /// Details: the value read or written, the following error, the late cycles.
+    pub value: i64,
+    /// [`event_id`].
+    pub id: u16,
+    /// The axis, or 0xFFFF.
+    pub axis: u16,
+    /// The group, or 0xFFFF.
+    pub group: u16,
+    /// The record, or 0xFFFF.
+    pub record: u16,
+    /// The axis state ([`axis_state`]) or fault kind ([`fault`]).
+    pub state: u8,
+    /// 1 if `value` is an error number (a refused parameter task).
+    pub error: u8,
+    /// The parameter's sub-index.
+    pub sub: u8,
+    /// Padding, 0.
+    pub reserved0: u8,
+    /// The parameter number, EMCY code or drive fault number.
+    pub code: u16,
+    /// Padding, 0.
+    pub reserved1: u16,
+}
