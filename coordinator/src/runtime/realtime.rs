@@ -111,6 +111,14 @@ pub fn run_real(
     let sim_thread = std::thread::Builder::new()
         .name("drives".into())
         .spawn(move || {
+            // The simulated drives stand for hardware that never waits for this machine's
+            // other processes: they run just below the cycle thread (a warning is printed by
+            // the cycle thread's own report where real-time scheduling is refused).
+            let _ = rt::enter_realtime(&RtSettings {
+                priority: Some(70),
+                cpu: None,
+                lock_memory: false,
+            });
             while !sim_stop.load(Ordering::Relaxed) {
                 let next = sims.settle();
                 let now = monotonic_now();

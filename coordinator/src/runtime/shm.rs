@@ -1,0 +1,547 @@
+//! The coordinator's side of the shared-memory contract (`shm-api`): the machine state written
+//! in place into a loaned sample after every cycle, client commands translated to the cycle's
+//! commands and their answers back, the cycle's events as event records. The conversions are
+//! integer (user units in millionths, `shm_api::contract::MICRO`), done with per-axis scale
+//! factors computed once at start-up.
+
+use shm_api::contract::{
+    self as wire, AxisState as WireAxis, CommandReply, CommandRequest, EventRecord,
+    GroupState as WireGroup, MachineState, axis_flags, command_kind, status, target,
+};
+
+use crate::axis::AxisState;
+use crate::command::{Command, Rejected, Reply, Target};
+use crate::cycle::{Cycle, Mode};
+use crate::event::Event;
+use crate::fault::FaultReason;
+use crate::profile::GroupState as PathState;
+use crate::records::{ChainState, MAX_GROUP_AXES};
+use crate::runtime::plan::MachinePlan;
+
+const Q: u32 = 32;
+
+/// What does not change during a run: names, units, scale factors, group members.
+#[derive(Debug, Clone)]
+pub struct StaticInfo {
+    axes: Vec<AxisInfo>,
+    groups: Vec<GroupInfo>,
+    cycle_ns: u32,
+    virtual_time: bool,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct AxisInfo {
+    name: [u8; wire::NAME_LEN],
+    unit: [u8; wire::UNIT_LEN],
+    /// µunits per increment, Q32.
+    micro_per_inc: i128,
+    /// increments per µunit, Q32.
+    inc_per_micro: i128,
+    fhpp: bool,
+    group: Option<u16>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct GroupInfo {
+    name: [u8; wire::NAME_LEN],
+    axes: [u8; MAX_GROUP_AXES],
+    count: u8,
+}
+
+fn text<const N: usize>(s: &str) -> [u8; N] {
+    let mut out = [0u8; N];
+    // Cut at a character boundary so the bytes stay valid UTF-8.
+    let mut n = s.len().min(N);
+    while !s.is_char_boundary(n) {
+        n -= 1;
+    }
+    out[..n].copy_from_slice(&s.as_bytes()[..n]);
+    out
+}
+
+impl StaticInfo {
+    /// The fixed part of the state of `plan`.
+    pub fn new(plan: &MachinePlan, virtual_time: bool) -> StaticInfo {
+        let q = f64::from(1u32 << 16) * f64::from(1u32 << 16);
+        let axes = plan
+            .axes
+            .iter()
+            .enumerate()
+            .map(|(i, a)| AxisInfo {
+                name: text(&a.name),
+                unit: text(&a.unit),
+                micro_per_inc: (1e6 / a.scale * q).round() as i128,
+                inc_per_micro: (a.scale / 1e6 * q).round() as i128,
+                fhpp: a.setup.profile == crate::axis::Profile::Fhpp,
+                group: plan
+                    .groups
+                    .iter()
+                    .position(|(_, g, _)| g.axes.contains(&(i as u16)))
+                    .map(|g| g as u16),
+            })
+            .collect();
+        let groups = plan
+            .groups
+            .iter()
+            .map(|(name, g, _)| {
+                let mut axes = [0u8; MAX_GROUP_AXES];
+                for (k, &a) in g.axes.iter().enumerate() {
+                    axes[k] = a as u8;
+                }
+                GroupInfo {
+                    name: text(name),
+                    axes,
+                    count: g.axes.len() as u8,
+                }
+            })
+            .collect();
+        StaticInfo {
+            axes,
+            groups,
+            cycle_ns: plan.cycle.cycle_ns,
+            virtual_time,
+        }
+    }
+
+    /// Increments → µunits of an axis.
+    pub fn to_micro(&self, axis: usize, inc: i64) -> i64 {
+        let m = self.axes.get(axis).map_or(0, |a| a.micro_per_inc);
+        ((i128::from(inc) * m) >> Q) as i64
+    }
+
+    /// µunits → increments of an axis (rounded to nearest).
+    pub fn to_inc(&self, axis: usize, micro: i64) -> i64 {
+        let m = self.axes.get(axis).map_or(0, |a| a.inc_per_micro);
+        ((i128::from(micro) * m + (1 << (Q - 1))) >> Q) as i64
+    }
+}
+
+/// Counters the runtime adds to the state.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Counters {
+    /// Frames sent.
+    pub frames_sent: u64,
+    /// Frames received.
+    pub frames_received: u64,
+    /// Frames the bus refused.
+    pub tx_refused: u64,
+    /// Frames dropped on receiving.
+    pub rx_dropped: u64,
+    /// Cycles skipped.
+    pub skipped_cycles: u64,
+    /// The last step's compute time, ns.
+    pub step_ns: u32,
+    /// The last wake-up's lateness, µs.
+    pub wake_late_us: u32,
+}
+
+fn axis_state(s: AxisState) -> u8 {
+    use wire::axis_state as w;
+    match s {
+        AxisState::Offline => w::OFFLINE,
+        AxisState::Disabled => w::DISABLED,
+        AxisState::Enabling => w::ENABLING,
+        AxisState::Ready => w::READY,
+        AxisState::Homing => w::HOMING,
+        AxisState::Moving => w::MOVING,
+        AxisState::Stopping => w::STOPPING,
+        AxisState::Fault => w::FAULT,
+    }
+}
+
+fn axis_mode(m: Mode) -> u8 {
+    use wire::axis_mode as w;
+    match m {
+        Mode::Off => w::OFF,
+        Mode::On => w::ON,
+        Mode::Homing => w::HOMING,
+        Mode::Jog { .. } => w::JOG,
+        Mode::QuickStopped => w::QUICK_STOPPED,
+        Mode::Acknowledging { .. } => w::ACKNOWLEDGING,
+    }
+}
+
+/// A fault as (kind, code, value, limit).
+fn fault(f: FaultReason) -> (u8, u16, i64, i64) {
+    use wire::fault as w;
+    match f {
+        FaultReason::None => (w::NONE, 0, 0, 0),
+        FaultReason::HeartbeatLost => (w::HEARTBEAT_LOST, 0, 0, 0),
+        FaultReason::GuardingLost => (w::GUARDING_LOST, 0, 0, 0),
+        FaultReason::Emcy(c) => (w::EMCY, c, 0, 0),
+        FaultReason::FollowingError { error, limit } => (w::FOLLOWING_ERROR, 0, error, limit),
+        FaultReason::DriveFault(c) => (w::DRIVE_FAULT, c, 0, 0),
+        FaultReason::ModbusTimeout => (w::MODBUS_TIMEOUT, 0, 0, 0),
+        FaultReason::LateTpdo(n) => (w::LATE_TPDO, 0, i64::from(n), 0),
+        FaultReason::BootFailed => (w::BOOT_FAILED, 0, 0, 0),
+    }
+}
+
+fn chain_state(s: ChainState) -> u8 {
+    use wire::chain_state as w;
+    match s {
+        ChainState::Idle => w::IDLE,
+        ChainState::Delay => w::DELAY,
+        ChainState::Moving => w::MOVING,
+        ChainState::Waiting => w::WAITING,
+        ChainState::Complete => w::COMPLETE,
+        ChainState::Aborted => w::ABORTED,
+    }
+}
+
+fn motion_state(s: Option<PathState>) -> u8 {
+    use wire::motion_state as w;
+    match s {
+        None => w::NONE,
+        Some(PathState::Moving) => w::MOVING,
+        Some(PathState::Holding) => w::HOLDING,
+        Some(PathState::QuickStopping) => w::QUICK_STOPPING,
+        Some(PathState::Stopped) => w::STOPPED,
+        Some(PathState::Done) => w::DONE,
+    }
+}
+
+fn record(r: Option<u16>) -> i16 {
+    r.map_or(-1, |r| r as i16)
+}
+
+/// Writes the whole state of `c` into `s` (every field: a loaned sample holds old data).
+/// Allocation-free.
+pub fn fill_state<const A: usize, const G: usize>(
+    s: &mut MachineState,
+    info: &StaticInfo,
+    c: &Cycle<'_, A, G>,
+    sync_time_ns: u64,
+    publish_time_ns: u64,
+    counters: &Counters,
+) {
+    let axis_count = c.axis_count().min(wire::MAX_AXES);
+    let group_count = c.group_count().min(wire::MAX_GROUPS);
+    s.version = wire::LAYOUT_VERSION;
+    s.layout_hash = wire::LAYOUT_HASH;
+    // The step that produced this state is the one before `c.cycle()`.
+    s.cycle = c.cycle().saturating_sub(1);
+    s.sync_time_ns = sync_time_ns;
+    s.publish_time_ns = publish_time_ns;
+    s.cycle_ns = info.cycle_ns;
+    s.axis_count = axis_count as u16;
+    s.group_count = group_count as u16;
+    s.inputs = c.inputs();
+    s.virtual_time = u8::from(info.virtual_time);
+    s.reserved0 = [0; 3];
+    s.bus = wire::BusStats {
+        frames_sent: counters.frames_sent,
+        frames_received: counters.frames_received,
+        tx_refused: counters.tx_refused,
+        rx_dropped: counters.rx_dropped,
+        skipped_cycles: counters.skipped_cycles,
+        step_ns: counters.step_ns,
+        wake_late_us: counters.wake_late_us,
+    };
+    for (i, w) in s.axes.iter_mut().enumerate() {
+        let (Some(st), Some(ai)) = (c.axis_status(i as u16), info.axes.get(i)) else {
+            *w = empty_axis();
+            continue;
+        };
+        let fb = st.feedback;
+        let (kind, code, value, limit) = fault(st.fault);
+        let mut flags = 0u16;
+        let mut set = |on: bool, bit: u16| {
+            if on {
+                flags |= bit;
+            }
+        };
+        set(st.online, axis_flags::ONLINE);
+        set(st.enabled, axis_flags::ENABLED);
+        set(fb.homed, axis_flags::HOMED);
+        set(fb.motion_complete, axis_flags::MOTION_COMPLETE);
+        set(fb.warning, axis_flags::WARNING);
+        set(st.moving, axis_flags::FOLLOWING);
+        set(ai.fhpp, axis_flags::FHPP);
+        let active = ai
+            .group
+            .and_then(|g| c.group_status(g))
+            .and_then(|g| g.chain.active);
+        *w = WireAxis {
+            position: info.to_micro(i, fb.position),
+            setpoint: info.to_micro(i, st.setpoint),
+            velocity: info.to_micro(i, fb.velocity),
+            position_inc: fb.position,
+            setpoint_inc: st.setpoint,
+            fault_value: value,
+            fault_limit: limit,
+            force_permille: fb.force,
+            status_bits: fb.status,
+            flags,
+            state: axis_state(fb.state),
+            mode: axis_mode(st.mode),
+            fault: kind,
+            reserved0: 0,
+            fault_code: if code != 0 { code } else { fb.fault_code },
+            active_record: record(active),
+            name: ai.name,
+            unit: ai.unit,
+            reserved1: [0; 32],
+        };
+    }
+    for (g, w) in s.groups.iter_mut().enumerate() {
+        let (Some(st), Some(gi)) = (c.group_status(g as u16), info.groups.get(g)) else {
+            *w = empty_group();
+            continue;
+        };
+        *w = WireGroup {
+            active_record: record(st.chain.active),
+            record: record(st.chain.record),
+            reached: record(st.chain.reached),
+            override_percent: st.override_percent,
+            chain_state: chain_state(st.chain.state),
+            rc1: u8::from(st.chain.rc1),
+            rcc: u8::from(st.chain.rcc),
+            motion: motion_state(st.motion),
+            axis_count: gi.count,
+            reserved0: [0; 3],
+            axes: gi.axes,
+            name: gi.name,
+            reserved1: [0; 8],
+        };
+    }
+    let _ = axis_count;
+}
+
+fn empty_axis() -> WireAxis {
+    WireAxis {
+        position: 0,
+        setpoint: 0,
+        velocity: 0,
+        position_inc: 0,
+        setpoint_inc: 0,
+        fault_value: 0,
+        fault_limit: 0,
+        force_permille: 0,
+        status_bits: 0,
+        flags: 0,
+        state: 0,
+        mode: 0,
+        fault: 0,
+        reserved0: 0,
+        fault_code: 0,
+        active_record: -1,
+        name: [0; wire::NAME_LEN],
+        unit: [0; wire::UNIT_LEN],
+        reserved1: [0; 32],
+    }
+}
+
+fn empty_group() -> WireGroup {
+    WireGroup {
+        active_record: -1,
+        record: -1,
+        reached: -1,
+        override_percent: 0,
+        chain_state: 0,
+        rc1: 0,
+        rcc: 0,
+        motion: 0,
+        axis_count: 0,
+        reserved0: [0; 3],
+        axes: [0; MAX_GROUP_AXES],
+        name: [0; wire::NAME_LEN],
+        reserved1: [0; 8],
+    }
+}
+
+/// A reply with only a status.
+fn reply(tag: u64, status: u16) -> CommandReply {
+    CommandReply {
+        tag,
+        cycle: 0,
+        value: 0,
+        min: 0,
+        max: 0,
+        status,
+        reserved0: [0; 6],
+        reason: [0; 48],
+    }
+}
+
+/// Translates a client's request into the cycle's command (positions from µunits to
+/// increments); a request that cannot be decoded gets its reply at once.
+pub fn to_command(info: &StaticInfo, r: &CommandRequest) -> Result<Command, CommandReply> {
+    let bad = || reply(r.tag, status::BAD_REQUEST);
+    let tgt = match r.target {
+        target::AXIS => Target::Axis(r.axis),
+        target::GROUP => Target::Group(r.group),
+        target::ALL => Target::All,
+        _ => return Err(bad()),
+    };
+    let group_positions = || {
+        let mut p = [0i64; MAX_GROUP_AXES];
+        if let Some(g) = info.groups.get(usize::from(r.group)) {
+            for (k, slot) in p.iter_mut().enumerate().take(usize::from(g.count)) {
+                *slot = info.to_inc(usize::from(g.axes[k]), r.positions[k]);
+            }
+        }
+        p
+    };
+    Ok(match r.kind {
+        command_kind::ENABLE => Command::Enable(tgt),
+        command_kind::DISABLE => Command::Disable(tgt),
+        command_kind::ACKNOWLEDGE => Command::Acknowledge(tgt),
+        command_kind::HOME => Command::Home(tgt),
+        command_kind::HOLD => Command::Hold(tgt),
+        command_kind::RESUME => Command::Resume(tgt),
+        command_kind::STOP => Command::Stop(tgt),
+        command_kind::QUICK_STOP => Command::QuickStop(tgt),
+        command_kind::JOG => Command::Jog {
+            axis: r.axis,
+            permille: r.value.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16,
+        },
+        command_kind::MOVE_AXIS => Command::MoveAxis {
+            axis: r.axis,
+            position: info.to_inc(usize::from(r.axis), r.positions[0]),
+            velocity_percent: r.percent,
+        },
+        command_kind::MOVE_GROUP => Command::MoveGroup {
+            group: r.group,
+            positions: group_positions(),
+            velocity_percent: r.percent,
+        },
+        command_kind::START_CHAIN => Command::StartChain {
+            group: r.group,
+            record: r.record,
+        },
+        command_kind::SET_OVERRIDE => Command::SetOverride {
+            group: r.group,
+            percent: r.value.clamp(0, i64::from(u16::MAX)) as u16,
+        },
+        command_kind::READ_PARAMETER => Command::ReadParameter {
+            axis: r.axis,
+            pnu: r.pnu,
+            sub: r.sub,
+        },
+        command_kind::WRITE_PARAMETER => Command::WriteParameter {
+            axis: r.axis,
+            pnu: r.pnu,
+            sub: r.sub,
+            value: r.value as u32,
+        },
+        command_kind::SET_INPUT => Command::SetInput {
+            bit: r.record.min(255) as u8,
+            value: r.value != 0,
+        },
+        _ => return Err(bad()),
+    })
+}
+
+/// The cycle's answer as the contract's reply.
+pub fn to_reply(tag: u64, r: Reply) -> CommandReply {
+    let mut out = reply(tag, status::LATCHED);
+    match r {
+        Reply::Latched { cycle } => out.cycle = cycle,
+        Reply::Rejected(why) => {
+            let (st, value, min, max) = match why {
+                Rejected::UnknownAxis(a) => (status::UNKNOWN_AXIS, i64::from(a), 0, 0),
+                Rejected::UnknownGroup(g) => (status::UNKNOWN_GROUP, i64::from(g), 0, 0),
+                Rejected::UnknownRecord(r) => (status::UNKNOWN_RECORD, i64::from(r), 0, 0),
+                Rejected::OutOfRange {
+                    value, min, max, ..
+                } => (status::OUT_OF_RANGE, value, min, max),
+                Rejected::WrongState(why) => {
+                    out.reason = text(why);
+                    (status::WRONG_STATE, 0, 0, 0)
+                }
+                Rejected::Busy => (status::BUSY, 0, 0, 0),
+                Rejected::Faulted => (status::FAULTED, 0, 0, 0),
+                Rejected::Plan => (status::PLAN, 0, 0, 0),
+            };
+            out.status = st;
+            out.value = value;
+            out.min = min;
+            out.max = max;
+        }
+    }
+    out
+}
+
+/// A rejected reply for a request the coordinator could not take (its queue full).
+pub fn overloaded(tag: u64) -> CommandReply {
+    reply(tag, status::OVERLOADED)
+}
+
+/// The cycle's event as the contract's record (`seq` set by the caller).
+pub fn to_record(info: &StaticInfo, e: &Event) -> EventRecord {
+    use wire::event_id as id;
+    let mut r = EventRecord {
+        seq: 0,
+        cycle: 0,
+        value: 0,
+        id: 0,
+        axis: u16::MAX,
+        group: u16::MAX,
+        record: u16::MAX,
+        state: 0,
+        error: 0,
+        sub: 0,
+        reserved0: 0,
+        code: 0,
+        reserved1: 0,
+    };
+    match *e {
+        Event::AxisState { cycle, axis, state } => {
+            (r.cycle, r.id, r.axis, r.state) = (cycle, id::STATE_CHANGED as u16, axis, axis_state(state));
+        }
+        Event::Fault {
+            cycle,
+            axis,
+            reason,
+        } => {
+            let (kind, code, value, _) = fault(reason);
+            (r.cycle, r.id, r.axis, r.state, r.code, r.value) =
+                (cycle, id::FAULT as u16, axis, kind, code, value);
+        }
+        Event::Acknowledged { cycle, axis } => {
+            (r.cycle, r.id, r.axis) = (cycle, id::ACKNOWLEDGED as u16, axis);
+        }
+        Event::RecordReached {
+            cycle,
+            group,
+            record,
+        } => (r.cycle, r.id, r.group, r.record) = (cycle, id::RECORD_REACHED as u16, group, record),
+        Event::ChainComplete {
+            cycle,
+            group,
+            record,
+        } => (r.cycle, r.id, r.group, r.record) = (cycle, id::CHAIN_COMPLETE as u16, group, record),
+        Event::ChainAborted {
+            cycle,
+            group,
+            record,
+        } => (r.cycle, r.id, r.group, r.record) = (cycle, id::CHAIN_ABORTED as u16, group, record),
+        Event::LateModbus {
+            cycle,
+            axis,
+            cycles,
+        } => {
+            (r.cycle, r.id, r.axis, r.value) =
+                (cycle, id::STATE_CHANGED as u16, axis, i64::from(cycles));
+        }
+        Event::Parameter {
+            cycle,
+            axis,
+            pnu,
+            sub,
+            result,
+        } => {
+            (r.cycle, r.id, r.axis, r.code, r.sub) = (cycle, id::PARAMETER as u16, axis, pnu, sub);
+            match result {
+                Ok(v) => r.value = i64::from(v),
+                Err(n) => {
+                    r.value = i64::from(n);
+                    r.error = 1;
+                }
+            }
+        }
+    }
+    let _ = info;
+    r
+}
