@@ -11,6 +11,7 @@
 //! ```
 
 pub mod contract;
+pub mod layout_dump;
 
 /// The default prefix of every service name of the contract.
 pub const DEFAULT_PREFIX: &str = "motion";

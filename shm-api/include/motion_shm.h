@@ -1,0 +1,388 @@
+/*
+ * motion_shm.h: the motion coordinator's shared-memory contract for C and C++ clients.
+ *
+ * Mirrors shm-api/src/contract.rs field by field: every payload is #[repr(C)] in Rust, so the
+ * structs below have the same layout on the same target (host byte order, little-endian on
+ * x86-64 and ARM). All padding is explicit (reserved fields, zero). The _Static_asserts at the
+ * end pin every size and offset, and shm-api/tests/layout_languages.rs compares this header
+ * with the Rust layout, so neither side can change without the other.
+ *
+ * Services under a prefix (default "motion"):
+ *   PREFIX/state      publish-subscribe, MotionMachineState, once per cycle, history 1
+ *   PREFIX/command    request-response, MotionCommandRequest -> MotionCommandReply
+ *   PREFIX/events     event service, event id = MOTION_EVENT_ID_*
+ *   PREFIX/event-log  publish-subscribe, MotionEventRecord
+ * Open them with the iceoryx2 C or C++ bindings using the MOTION_*_TYPE_NAME strings as the
+ * payload type names (size and alignment from sizeof/alignof): a coordinator built from
+ * another layout then refuses the client when it opens the service.
+ */
+#ifndef MOTION_SHM_H
+#define MOTION_SHM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+#define MOTION_STATIC_ASSERT(cond, msg) static_assert(cond, msg)
+#define MOTION_ALIGNOF(t) alignof(t)
+extern "C" {
+#else
+#define MOTION_STATIC_ASSERT(cond, msg) _Static_assert(cond, msg)
+#define MOTION_ALIGNOF(t) _Alignof(t)
+#endif
+
+/* ---- constants ---------------------------------------------------------------------------- */
+
+/* The contract's version; bumped on any incompatible change. */
+#define MOTION_LAYOUT_VERSION 1u
+/* The layout hash the coordinator writes into MotionMachineState.layout_hash. */
+#define MOTION_LAYOUT_HASH 0x00000000u
+#define MOTION_MAX_AXES 128
+#define MOTION_MAX_GROUPS 16
+#define MOTION_MAX_GROUP_AXES 8
+/* Bytes of a name (NUL-padded UTF-8, not necessarily NUL-terminated when full). */
+#define MOTION_NAME_LEN 16
+#define MOTION_UNIT_LEN 8
+/* Positions and velocities are in millionths of the axis's unit. */
+#define MOTION_MICRO 1000000LL
+
+/* iceoryx2 type names of the service payloads (equal to the Rust #[type_name]). */
+#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1"
+#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1"
+#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1"
+#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1"
+/* The default service prefix. */
+#define MOTION_DEFAULT_PREFIX "motion"
+
+/* MotionAxisState.state */
+#define MOTION_AXIS_STATE_OFFLINE 0
+#define MOTION_AXIS_STATE_DISABLED 1
+#define MOTION_AXIS_STATE_ENABLING 2
+#define MOTION_AXIS_STATE_READY 3
+#define MOTION_AXIS_STATE_HOMING 4
+#define MOTION_AXIS_STATE_MOVING 5
+#define MOTION_AXIS_STATE_STOPPING 6
+#define MOTION_AXIS_STATE_FAULT 7
+
+/* MotionAxisState.mode */
+#define MOTION_AXIS_MODE_OFF 0
+#define MOTION_AXIS_MODE_ON 1
+#define MOTION_AXIS_MODE_HOMING 2
+#define MOTION_AXIS_MODE_JOG 3
+#define MOTION_AXIS_MODE_QUICK_STOPPED 4
+#define MOTION_AXIS_MODE_ACKNOWLEDGING 5
+
+/* MotionAxisState.flags bits */
+#define MOTION_AXIS_FLAGS_ONLINE (1u << 0)
+#define MOTION_AXIS_FLAGS_ENABLED (1u << 1)
+#define MOTION_AXIS_FLAGS_HOMED (1u << 2)
+#define MOTION_AXIS_FLAGS_MOTION_COMPLETE (1u << 3)
+#define MOTION_AXIS_FLAGS_WARNING (1u << 4)
+#define MOTION_AXIS_FLAGS_FOLLOWING (1u << 5)
+#define MOTION_AXIS_FLAGS_FHPP (1u << 6)
+
+/* MotionAxisState.fault */
+#define MOTION_FAULT_NONE 0
+#define MOTION_FAULT_HEARTBEAT_LOST 1
+#define MOTION_FAULT_GUARDING_LOST 2
+#define MOTION_FAULT_EMCY 3
+#define MOTION_FAULT_FOLLOWING_ERROR 4
+#define MOTION_FAULT_DRIVE_FAULT 5
+#define MOTION_FAULT_MODBUS_TIMEOUT 6
+#define MOTION_FAULT_LATE_TPDO 7
+#define MOTION_FAULT_BOOT_FAILED 8
+
+/* MotionGroupState.chain_state */
+#define MOTION_CHAIN_STATE_IDLE 0
+#define MOTION_CHAIN_STATE_DELAY 1
+#define MOTION_CHAIN_STATE_MOVING 2
+#define MOTION_CHAIN_STATE_WAITING 3
+#define MOTION_CHAIN_STATE_COMPLETE 4
+#define MOTION_CHAIN_STATE_ABORTED 5
+
+/* MotionGroupState.motion */
+#define MOTION_MOTION_STATE_NONE 0
+#define MOTION_MOTION_STATE_MOVING 1
+#define MOTION_MOTION_STATE_HOLDING 2
+#define MOTION_MOTION_STATE_QUICK_STOPPING 3
+#define MOTION_MOTION_STATE_STOPPED 4
+#define MOTION_MOTION_STATE_DONE 5
+
+/* MotionCommandRequest.kind */
+#define MOTION_COMMAND_KIND_ENABLE 1
+#define MOTION_COMMAND_KIND_DISABLE 2
+#define MOTION_COMMAND_KIND_ACKNOWLEDGE 3
+#define MOTION_COMMAND_KIND_HOME 4
+#define MOTION_COMMAND_KIND_JOG 5
+#define MOTION_COMMAND_KIND_MOVE_AXIS 6
+#define MOTION_COMMAND_KIND_MOVE_GROUP 7
+#define MOTION_COMMAND_KIND_START_CHAIN 8
+#define MOTION_COMMAND_KIND_HOLD 9
+#define MOTION_COMMAND_KIND_RESUME 10
+#define MOTION_COMMAND_KIND_STOP 11
+#define MOTION_COMMAND_KIND_QUICK_STOP 12
+#define MOTION_COMMAND_KIND_SET_OVERRIDE 13
+#define MOTION_COMMAND_KIND_READ_PARAMETER 14
+#define MOTION_COMMAND_KIND_WRITE_PARAMETER 15
+#define MOTION_COMMAND_KIND_SET_INPUT 16
+
+/* MotionCommandRequest.target */
+#define MOTION_TARGET_AXIS 0
+#define MOTION_TARGET_GROUP 1
+#define MOTION_TARGET_ALL 2
+
+/* MotionCommandReply.status */
+#define MOTION_STATUS_LATCHED 0
+#define MOTION_STATUS_UNKNOWN_AXIS 1
+#define MOTION_STATUS_UNKNOWN_GROUP 2
+#define MOTION_STATUS_UNKNOWN_RECORD 3
+#define MOTION_STATUS_OUT_OF_RANGE 4
+#define MOTION_STATUS_WRONG_STATE 5
+#define MOTION_STATUS_BUSY 6
+#define MOTION_STATUS_FAULTED 7
+#define MOTION_STATUS_PLAN 8
+#define MOTION_STATUS_BAD_REQUEST 9
+#define MOTION_STATUS_OVERLOADED 10
+
+/* Event ids on PREFIX/events and MotionEventRecord.id */
+#define MOTION_EVENT_ID_STATE_CHANGED 1
+#define MOTION_EVENT_ID_FAULT 2
+#define MOTION_EVENT_ID_RECORD_REACHED 3
+#define MOTION_EVENT_ID_CHAIN_COMPLETE 4
+#define MOTION_EVENT_ID_CHAIN_ABORTED 5
+#define MOTION_EVENT_ID_ACKNOWLEDGED 6
+#define MOTION_EVENT_ID_PARAMETER 7
+#define MOTION_EVENT_ID_SHUTDOWN 8
+
+/* ---- payloads ----------------------------------------------------------------------------- */
+
+/* One axis in MotionMachineState (128 bytes). Positions in µunits (MOTION_MICRO). */
+typedef struct MotionAxisState {
+    int64_t position;      /* actual position, µunits */
+    int64_t setpoint;      /* setpoint, µunits */
+    int64_t velocity;      /* actual velocity, µunits/s (0 where not reported) */
+    int64_t position_inc;  /* actual position, drive increments */
+    int64_t setpoint_inc;  /* setpoint, drive increments */
+    int64_t fault_value;   /* following error or missed cycles, by `fault` */
+    int64_t fault_limit;   /* following-error limit, increments */
+    int32_t force_permille; /* actual force, per mille of nominal */
+    uint16_t status_bits;  /* FHPP SCON | SPOS << 8; CiA 402 statusword */
+    uint16_t flags;        /* MOTION_AXIS_FLAGS_* */
+    uint8_t state;         /* MOTION_AXIS_STATE_* */
+    uint8_t mode;          /* MOTION_AXIS_MODE_* */
+    uint8_t fault;         /* MOTION_FAULT_* */
+    uint8_t reserved0;
+    uint16_t fault_code;   /* EMCY error code or drive fault number */
+    int16_t active_record; /* the record the group chain is at, or -1 */
+    uint8_t name[MOTION_NAME_LEN];
+    uint8_t unit[MOTION_UNIT_LEN];
+    uint8_t reserved1[32];
+} MotionAxisState;
+
+/* One group in MotionMachineState (48 bytes). */
+typedef struct MotionGroupState {
+    int16_t active_record;     /* the record running, or -1 */
+    int16_t record;            /* the record the chain is at or ended at, or -1 */
+    int16_t reached;           /* the last record whose move arrived, or -1 */
+    uint16_t override_percent; /* feed override, % */
+    uint8_t chain_state;       /* MOTION_CHAIN_STATE_* */
+    uint8_t rc1;               /* a step condition was met since the chain started */
+    uint8_t rcc;               /* the chain ran to its end */
+    uint8_t motion;            /* MOTION_MOTION_STATE_* */
+    uint8_t axis_count;        /* member axes */
+    uint8_t reserved0[3];
+    uint8_t axes[MOTION_MAX_GROUP_AXES]; /* indices into MotionMachineState.axes */
+    uint8_t name[MOTION_NAME_LEN];
+    uint8_t reserved1[8];
+} MotionGroupState;
+
+/* Bus and cycle counters in MotionMachineState. */
+typedef struct MotionBusStats {
+    uint64_t frames_sent;
+    uint64_t frames_received;
+    uint64_t tx_refused;
+    uint64_t rx_dropped;
+    uint64_t skipped_cycles;
+    uint32_t step_ns;      /* the last cycle step's compute time, ns */
+    uint32_t wake_late_us; /* how late the cycle thread woke, µs */
+} MotionBusStats;
+
+/* The whole machine, once per cycle on PREFIX/state. */
+typedef struct MotionMachineState {
+    uint32_t version;         /* MOTION_LAYOUT_VERSION */
+    uint32_t layout_hash;     /* MOTION_LAYOUT_HASH */
+    uint64_t cycle;
+    uint64_t sync_time_ns;    /* the cycle's SYNC time, CLOCK_MONOTONIC (or virtual) ns */
+    uint64_t publish_time_ns; /* when the sample was written, CLOCK_MONOTONIC ns */
+    uint32_t cycle_ns;
+    uint16_t axis_count;      /* valid entries in axes */
+    uint16_t group_count;     /* valid entries in groups */
+    uint32_t inputs;          /* the machine's digital input word */
+    uint8_t virtual_time;     /* 1 in virtual time */
+    uint8_t reserved0[3];
+    MotionBusStats bus;
+    MotionAxisState axes[MOTION_MAX_AXES];
+    MotionGroupState groups[MOTION_MAX_GROUPS];
+} MotionMachineState;
+
+/* A command on PREFIX/command. Zero it, then fill the fields its kind uses. */
+typedef struct MotionCommandRequest {
+    uint64_t tag;     /* echoed in the reply */
+    uint16_t kind;    /* MOTION_COMMAND_KIND_* */
+    uint8_t target;   /* MOTION_TARGET_* */
+    uint8_t percent;  /* share of the limits 1..100 % (moves) */
+    uint16_t axis;
+    uint16_t group;
+    uint16_t record;  /* chains; the input bit for SET_INPUT */
+    uint8_t sub;      /* parameter sub-index */
+    uint8_t reserved0;
+    uint16_t pnu;     /* parameter number */
+    uint16_t reserved1;
+    int64_t value;    /* jog per mille, override %, parameter value, input level */
+    int64_t positions[MOTION_MAX_GROUP_AXES]; /* targets, µunits */
+} MotionCommandRequest;
+
+/* The answer to a MotionCommandRequest. */
+typedef struct MotionCommandReply {
+    uint64_t tag;    /* the request's tag */
+    uint64_t cycle;  /* the cycle whose SYNC latches the command (LATCHED) */
+    int64_t value;   /* the value refused, or the axis/group/record concerned */
+    int64_t min;
+    int64_t max;
+    uint16_t status; /* MOTION_STATUS_* */
+    uint8_t reserved0[6];
+    uint8_t reason[48]; /* words for WRONG_STATE, NUL-padded */
+} MotionCommandReply;
+
+/* One event with its details, on PREFIX/event-log. */
+typedef struct MotionEventRecord {
+    uint64_t seq;    /* counts every record published */
+    uint64_t cycle;
+    int64_t value;   /* value read or written, following error, late cycles */
+    uint16_t id;     /* MOTION_EVENT_ID_* */
+    uint16_t axis;   /* or 0xFFFF */
+    uint16_t group;  /* or 0xFFFF */
+    uint16_t record; /* or 0xFFFF */
+    uint8_t state;   /* MOTION_AXIS_STATE_* or MOTION_FAULT_* */
+    uint8_t error;   /* 1 if value is an error number */
+    uint8_t sub;
+    uint8_t reserved0;
+    uint16_t code;   /* parameter number, EMCY code or drive fault number */
+    uint16_t reserved1;
+} MotionEventRecord;
+
+/* ---- layout checks (the same numbers as the Rust compiler's) ------------------------------ */
+
+MOTION_STATIC_ASSERT(sizeof(MotionAxisState) == 128, "MotionAxisState size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionAxisState) == 8, "MotionAxisState alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, position) == 0, "MotionAxisState.position offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, setpoint) == 8, "MotionAxisState.setpoint offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, velocity) == 16, "MotionAxisState.velocity offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, position_inc) == 24, "MotionAxisState.position_inc offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, setpoint_inc) == 32, "MotionAxisState.setpoint_inc offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, fault_value) == 40, "MotionAxisState.fault_value offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, fault_limit) == 48, "MotionAxisState.fault_limit offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, force_permille) == 56, "MotionAxisState.force_permille offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, status_bits) == 60, "MotionAxisState.status_bits offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, flags) == 62, "MotionAxisState.flags offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, state) == 64, "MotionAxisState.state offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, mode) == 65, "MotionAxisState.mode offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, fault) == 66, "MotionAxisState.fault offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, reserved0) == 67, "MotionAxisState.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, fault_code) == 68, "MotionAxisState.fault_code offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, active_record) == 70, "MotionAxisState.active_record offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, name) == 72, "MotionAxisState.name offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, unit) == 88, "MotionAxisState.unit offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, reserved1) == 96, "MotionAxisState.reserved1 offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionGroupState) == 48, "MotionGroupState size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionGroupState) == 2, "MotionGroupState alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, active_record) == 0, "MotionGroupState.active_record offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, record) == 2, "MotionGroupState.record offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, reached) == 4, "MotionGroupState.reached offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, override_percent) == 6, "MotionGroupState.override_percent offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, chain_state) == 8, "MotionGroupState.chain_state offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, rc1) == 9, "MotionGroupState.rc1 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, rcc) == 10, "MotionGroupState.rcc offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, motion) == 11, "MotionGroupState.motion offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, axis_count) == 12, "MotionGroupState.axis_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, reserved0) == 13, "MotionGroupState.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, axes) == 16, "MotionGroupState.axes offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, name) == 24, "MotionGroupState.name offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, reserved1) == 40, "MotionGroupState.reserved1 offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionBusStats) == 48, "MotionBusStats size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionBusStats) == 8, "MotionBusStats alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionBusStats, frames_sent) == 0, "MotionBusStats.frames_sent offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusStats, frames_received) == 8, "MotionBusStats.frames_received offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusStats, tx_refused) == 16, "MotionBusStats.tx_refused offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusStats, rx_dropped) == 24, "MotionBusStats.rx_dropped offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusStats, skipped_cycles) == 32, "MotionBusStats.skipped_cycles offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusStats, step_ns) == 40, "MotionBusStats.step_ns offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusStats, wake_late_us) == 44, "MotionBusStats.wake_late_us offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionMachineState) == 17248, "MotionMachineState size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionMachineState) == 8, "MotionMachineState alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, version) == 0, "MotionMachineState.version offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, layout_hash) == 4, "MotionMachineState.layout_hash offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, cycle) == 8, "MotionMachineState.cycle offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, sync_time_ns) == 16, "MotionMachineState.sync_time_ns offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, publish_time_ns) == 24, "MotionMachineState.publish_time_ns offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, cycle_ns) == 32, "MotionMachineState.cycle_ns offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, axis_count) == 36, "MotionMachineState.axis_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, group_count) == 38, "MotionMachineState.group_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, inputs) == 40, "MotionMachineState.inputs offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, virtual_time) == 44, "MotionMachineState.virtual_time offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, reserved0) == 45, "MotionMachineState.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, bus) == 48, "MotionMachineState.bus offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, axes) == 96, "MotionMachineState.axes offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineState, groups) == 16480, "MotionMachineState.groups offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionCommandRequest) == 96, "MotionCommandRequest size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionCommandRequest) == 8, "MotionCommandRequest alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, tag) == 0, "MotionCommandRequest.tag offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, kind) == 8, "MotionCommandRequest.kind offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, target) == 10, "MotionCommandRequest.target offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, percent) == 11, "MotionCommandRequest.percent offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, axis) == 12, "MotionCommandRequest.axis offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, group) == 14, "MotionCommandRequest.group offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, record) == 16, "MotionCommandRequest.record offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, sub) == 18, "MotionCommandRequest.sub offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, reserved0) == 19, "MotionCommandRequest.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, pnu) == 20, "MotionCommandRequest.pnu offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, reserved1) == 22, "MotionCommandRequest.reserved1 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, value) == 24, "MotionCommandRequest.value offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, positions) == 32, "MotionCommandRequest.positions offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionCommandReply) == 96, "MotionCommandReply size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionCommandReply) == 8, "MotionCommandReply alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, tag) == 0, "MotionCommandReply.tag offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, cycle) == 8, "MotionCommandReply.cycle offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, value) == 16, "MotionCommandReply.value offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, min) == 24, "MotionCommandReply.min offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, max) == 32, "MotionCommandReply.max offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, status) == 40, "MotionCommandReply.status offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, reserved0) == 42, "MotionCommandReply.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandReply, reason) == 48, "MotionCommandReply.reason offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionEventRecord) == 40, "MotionEventRecord size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionEventRecord) == 8, "MotionEventRecord alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, seq) == 0, "MotionEventRecord.seq offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, cycle) == 8, "MotionEventRecord.cycle offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, value) == 16, "MotionEventRecord.value offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, id) == 24, "MotionEventRecord.id offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, axis) == 26, "MotionEventRecord.axis offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, group) == 28, "MotionEventRecord.group offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, record) == 30, "MotionEventRecord.record offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, state) == 32, "MotionEventRecord.state offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, error) == 33, "MotionEventRecord.error offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, sub) == 34, "MotionEventRecord.sub offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, reserved0) == 35, "MotionEventRecord.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, code) == 36, "MotionEventRecord.code offset");
+MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, reserved1) == 38, "MotionEventRecord.reserved1 offset");
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* MOTION_SHM_H */
