@@ -38,6 +38,7 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
             chains: false,
             home: true,
         },
+        shm: None,
     };
     let mut run = VirtualRun::new(plan, &opts).expect("builds");
     let mut out = Vec::new();

@@ -38,6 +38,13 @@ enum Command {
         /// No live status lines, only events and the summary.
         #[arg(long)]
         quiet: bool,
+        /// Publish the machine over shared memory under this prefix (services
+        /// PREFIX/state, PREFIX/command, PREFIX/events, PREFIX/event-log).
+        #[arg(long, default_value = shm_api::DEFAULT_PREFIX)]
+        shm_prefix: String,
+        /// Do not publish over shared memory.
+        #[arg(long)]
+        no_shm: bool,
     },
     /// Print a commented example configuration (the embedded default machine).
     ConfigExample,
@@ -63,6 +70,8 @@ fn main() -> ExitCode {
             virtual_time,
             no_chains,
             quiet,
+            shm_prefix,
+            no_shm,
         } => {
             if let Some(d) = duration
                 && !(d.is_finite() && d > 0.0 && d <= 31_536_000.0)
@@ -99,6 +108,7 @@ fn main() -> ExitCode {
                     chains: !no_chains,
                     home: true,
                 },
+                shm: (!no_shm).then_some(shm_prefix),
             };
             let mut stdout = std::io::stdout();
             match run(&cfg, &opts, &mut stdout) {

@@ -69,6 +69,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
             chains: false,
             home: true,
         },
+        shm: None,
     };
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     run.probe = Some(probe);

@@ -25,6 +25,7 @@ fn quiet(chains: bool) -> RunOptions {
         virtual_time: true,
         status_every: None,
         script: ScriptOptions { chains, home: true },
+        shm: None,
     }
 }
 

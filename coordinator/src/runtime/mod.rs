@@ -7,7 +7,8 @@
 //! - [`realtime`]: the real-time threads;
 //! - [`rt`]: absolute-deadline wake-ups, SCHED_FIFO, mlockall, Ctrl-C;
 //! - [`modbus`]: the CMMO-ST exchange off the cycle thread;
-//! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy.
+//! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy;
+//! - [`shm`]: the machine state, commands and events over shared memory (`shm-api`).
 
 pub mod boot;
 pub mod modbus;
@@ -17,5 +18,6 @@ pub mod rt;
 pub mod run;
 pub mod script;
 pub mod services;
+pub mod shm;
 pub mod sim;
 pub mod synthetic;

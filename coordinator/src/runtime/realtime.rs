@@ -29,6 +29,7 @@ use crate::runtime::run::{
 };
 use crate::runtime::script::{Phase, Script};
 use crate::runtime::services::{self, ServiceEvent};
+use crate::runtime::shm::{StateSide, StaticInfo};
 use crate::runtime::sim::{SimBus, spawn_cmmo_server};
 
 /// Snapshots in flight from the cycle thread to the printer.
@@ -90,19 +91,39 @@ pub fn run_real(
     // Services: boot, commands, reports. Their reports reach this thread over a channel.
     let (cycle_ends, service_ends) = services::channels();
     let (report_tx, report_rx) = mpsc::channel::<ServiceEvent>();
-    let report_tx = std::sync::Mutex::new(report_tx);
+    let (shm_tx, shm_rx) = mpsc::channel::<crate::event::Event>();
+    let shm_tx = opts.shm.as_ref().map(|_| shm_tx);
     let plans: Vec<_> = plan.axes.iter().filter_map(|a| a.boot.clone()).collect();
     let boot_count = plans.len();
     let svc = services::spawn_services(
         service_ends,
         plans,
         Box::new(move |e| {
-            if let Ok(tx) = report_tx.lock() {
-                let _ = tx.send(e);
+            if let (Some(tx), ServiceEvent::Cycle(ev)) = (&shm_tx, &e) {
+                let _ = tx.send(*ev);
             }
+            let _ = report_tx.send(e);
         }),
     )
     .map_err(|e| RunError::Io(e.to_string()))?;
+
+    // Client commands and events over shared memory, on their own thread.
+    let info = StaticInfo::new(plan, false);
+    let shm_thread = match &opts.shm {
+        Some(prefix) => {
+            let _ = shm_api::publisher::cleanup_dead_nodes();
+            Some(
+                crate::runtime::shm::spawn_command_thread(
+                    prefix.clone(),
+                    info.clone(),
+                    svc.client(),
+                    shm_rx,
+                )
+                .map_err(|e| RunError::Io(e.to_string()))?,
+            )
+        }
+        None => None,
+    };
 
     // The simulated drives, stepped as time passes.
     let stop_sims = Arc::new(AtomicBool::new(false));
@@ -149,6 +170,10 @@ pub fn run_real(
             .spawn_scoped(s, move || -> Result<(CycleResult, String), RunError> {
                 let report = rt::enter_realtime(&RtSettings::default());
                 let mut ends = cycle_ends;
+                let mut shm_state = match &opts.shm {
+                    Some(prefix) => Some(StateSide::create(prefix, info).map_err(RunError::Io)?),
+                    None => None,
+                };
                 let mut core = CycleCore::new(plan)?;
                 for (i, a) in plan.axes.iter().enumerate() {
                     if matches!(a.setup.transport, Transport::Modbus { .. }) {
@@ -163,6 +188,7 @@ pub fn run_real(
                 let start = monotonic_now() + period;
                 let mut ticker = Ticker::new(start, period);
                 let producer = plan.cycle.sync_producer;
+                let mut last_late_ns = 0u64;
                 let mut last_sync = start;
                 let end = opts.duration.map(|d| start + d);
                 let mut next_status = opts.status_every.map(|d| start + d);
@@ -171,7 +197,8 @@ pub fn run_real(
                 loop {
                     let now = if producer {
                         let tick = ticker.wait();
-                        let _ = late.record((tick.late.as_nanos() as u64).max(1));
+                        last_late_ns = tick.late.as_nanos() as u64;
+                        let _ = late.record(last_late_ns.max(1));
                         skipped += tick.skipped;
                         while let Ok(Some(f)) = port.try_recv() {
                             let _ = ends.offer_received(&f);
@@ -186,11 +213,10 @@ pub fn run_real(
                             match port.recv_until(deadline) {
                                 Ok(Some(f)) if f.cob_id() == Some(0x080) => {
                                     let t = f.timestamp();
-                                    let _ = late.record(
-                                        (monotonic_now().saturating_duration_since(t).as_nanos()
-                                            as u64)
-                                            .max(1),
-                                    );
+                                    last_late_ns =
+                                        monotonic_now().saturating_duration_since(t).as_nanos()
+                                            as u64;
+                                    let _ = late.record(last_late_ns.max(1));
                                     last_sync = t;
                                     break t;
                                 }
@@ -253,6 +279,11 @@ pub fn run_real(
                     }
                     for (slot, side, _) in &mut exchanges {
                         side.put_output(k, &core.modbus_output(*slot).data);
+                    }
+                    if let Some(st) = &mut shm_state {
+                        let late_us = (last_late_ns / 1000).min(u64::from(u32::MAX)) as u32;
+                        st.counters = core.counters(skipped, late_us);
+                        st.publish(&core.cycle, now.as_nanos());
                     }
                     while let Some(e) = core.cycle.poll_event() {
                         let _ = ends.event(e);
@@ -338,6 +369,10 @@ pub fn run_real(
     stop_sims.store(true, Ordering::Relaxed);
     let _ = sim_thread.join();
     svc.stop();
+    if let Some(t) = shm_thread {
+        // The services are gone, so the event channel is closed and the thread ends.
+        let _ = t.join();
+    }
     for s in servers {
         s.shutdown();
     }

@@ -29,6 +29,7 @@ use crate::fault::FaultReason;
 use crate::runtime::boot::{BootReport, BootSequencer};
 use crate::runtime::plan::{MAX_AXES, MAX_GROUPS, MachinePlan};
 use crate::runtime::script::{Phase, Script, ScriptOptions};
+use crate::runtime::shm::{ServiceSide, StateSide, StaticInfo};
 use crate::runtime::sim::{InMemoryCmmo, SimBus};
 
 /// The cycle type of a configured machine.
@@ -55,6 +56,9 @@ pub struct RunOptions {
     pub status_every: Option<Duration>,
     /// The script.
     pub script: ScriptOptions,
+    /// Publish the machine over shared memory under this prefix (`shm-api`); `None`: not at
+    /// all.
+    pub shm: Option<String>,
 }
 
 impl Default for RunOptions {
@@ -67,6 +71,7 @@ impl Default for RunOptions {
                 chains: true,
                 home: true,
             },
+            shm: None,
         }
     }
 }
@@ -333,6 +338,10 @@ pub struct CycleCore<'t> {
     pub rx_dropped: u64,
     /// Frames the bus refused to queue (a full transmit queue, bus-off).
     pub tx_refused: u64,
+    /// Frames received.
+    pub frames_received: u64,
+    /// The last step's compute time, ns.
+    pub last_step_ns: u64,
 }
 
 impl std::fmt::Debug for CycleCore<'_> {
@@ -370,6 +379,8 @@ impl<'t> CycleCore<'t> {
             frames_sent: 0,
             rx_dropped: 0,
             tx_refused: 0,
+            frames_received: 0,
+            last_step_ns: 0,
         })
     }
 
@@ -389,6 +400,19 @@ impl<'t> CycleCore<'t> {
             self.rx.push(f);
         } else {
             self.rx_dropped += 1;
+        }
+    }
+
+    /// The counters the shared-memory state carries.
+    pub fn counters(&self, skipped: u64, wake_late_us: u32) -> crate::runtime::shm::Counters {
+        crate::runtime::shm::Counters {
+            frames_sent: self.frames_sent,
+            frames_received: self.frames_received,
+            tx_refused: self.tx_refused,
+            rx_dropped: self.rx_dropped,
+            skipped_cycles: skipped,
+            step_ns: self.last_step_ns.min(u64::from(u32::MAX)) as u32,
+            wake_late_us,
         }
     }
 
@@ -424,6 +448,8 @@ impl<'t> CycleCore<'t> {
         let len = out.len;
         let dt = monotonic_now().saturating_duration_since(t0).as_nanos() as u64;
         let _ = self.step_ns.record(dt.max(1));
+        self.last_step_ns = dt;
+        self.frames_received += self.rx.len() as u64;
         self.rx.clear();
         for m in &mut self.modbus_in {
             m.fresh = false;
@@ -509,6 +535,8 @@ pub struct VirtualRun<'p> {
     tty: bool,
     /// Every event of the cycle, as well, while set (tests).
     watch: Option<Vec<Event>>,
+    /// The shared-memory sides (state publisher; command server and events), if published.
+    shm: Option<(StateSide, ServiceSide)>,
     /// SYNC-consumer mode: the SYNC being taken, frames after it, frames for the next cycle.
     held: Option<Frame>,
     later: Vec<Frame>,
@@ -569,6 +597,17 @@ impl<'p> VirtualRun<'p> {
                 core.cycle.set_online(i as AxisId, true, t0);
             }
         }
+        let shm = match &opts.shm {
+            Some(prefix) => {
+                let _ = shm_api::publisher::cleanup_dead_nodes();
+                let info = StaticInfo::new(plan, true);
+                Some((
+                    StateSide::create(prefix, info.clone()).map_err(RunError::Io)?,
+                    ServiceSide::create(prefix, info).map_err(RunError::Io)?,
+                ))
+            }
+            None => None,
+        };
         Ok(VirtualRun {
             plan,
             bus,
@@ -595,6 +634,7 @@ impl<'p> VirtualRun<'p> {
             capture: false,
             captured: None,
             watch: None,
+            shm,
             held: None,
             later: Vec::with_capacity(RX_CAPACITY),
             pending_rx: Vec::with_capacity(RX_CAPACITY),
@@ -712,8 +752,15 @@ impl<'p> VirtualRun<'p> {
                 None => break,
             }
         }
+        if let Some((state, _)) = &mut self.shm {
+            state.counters = self.core.counters(0, 0);
+            state.publish(&self.core.cycle, now.as_nanos());
+        }
         while let Some(e) = self.core.cycle.poll_event() {
             note_event(plan, &e, &mut self.summary, out);
+            if let Some((_, svc)) = &mut self.shm {
+                svc.event(&e);
+            }
             if let Some(w) = &mut self.watch {
                 w.push(e);
             }

@@ -9,6 +9,13 @@ use shm_api::contract::{
     GroupState as WireGroup, MachineState, axis_flags, command_kind, status, target,
 };
 
+use iceoryx2::prelude::{Node, ipc};
+use shm_api::names::ServiceNames;
+use shm_api::publisher::{
+    CommandServer, EventPublisher, PendingCommand, PublisherSettings, StatePublisher,
+    cleanup_dead_nodes_with, create_node,
+};
+
 use crate::axis::AxisState;
 use crate::command::{Command, Rejected, Reply, Target};
 use crate::cycle::{Cycle, Mode};
@@ -544,4 +551,190 @@ pub fn to_record(info: &StaticInfo, e: &Event) -> EventRecord {
     }
     let _ = info;
     r
+}
+
+/// The cycle thread's side: the state publisher. Created before the first SYNC; publishing
+/// loans a sample, writes it in place and sends it — no copy, no notification, no allocation.
+pub struct StateSide {
+    // The node must outlive its ports.
+    _node: Node<ipc::Service>,
+    state: StatePublisher,
+    info: StaticInfo,
+    /// Counters published with the state; the runtime updates them.
+    pub counters: Counters,
+    /// Samples that could not be loaned or sent (counted, never waited for).
+    pub failed: u64,
+}
+
+impl std::fmt::Debug for StateSide {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StateSide").field("failed", &self.failed).finish_non_exhaustive()
+    }
+}
+
+impl StateSide {
+    /// Creates `PREFIX/state` for `plan`.
+    pub fn create(prefix: &str, info: StaticInfo) -> Result<StateSide, String> {
+        let node = create_node().map_err(|e| e.to_string())?;
+        let names = ServiceNames::new(prefix);
+        let state = StatePublisher::create(&node, &names, &PublisherSettings::default())
+            .map_err(|e| format!("{}: {e}", names.state))?;
+        Ok(StateSide {
+            _node: node,
+            state,
+            info,
+            counters: Counters::default(),
+            failed: 0,
+        })
+    }
+
+    /// Publishes the state of `c` after its step.
+    pub fn publish<const A: usize, const G: usize>(&mut self, c: &Cycle<'_, A, G>, sync_time_ns: u64) {
+        let publish_ns = drivers::time::monotonic_now().as_nanos();
+        match self.state.loan() {
+            Ok(mut s) => {
+                fill_state(&mut s, &self.info, c, sync_time_ns, publish_ns, &self.counters);
+                if s.send().is_err() {
+                    self.failed += 1;
+                }
+            }
+            Err(_) => self.failed += 1,
+        }
+    }
+}
+
+/// The services' side: the command server and the event publisher.
+pub struct ServiceSide {
+    _node: Node<ipc::Service>,
+    commands: CommandServer,
+    events: EventPublisher,
+    info: StaticInfo,
+    seq: u64,
+    polls: u64,
+}
+
+impl std::fmt::Debug for ServiceSide {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ServiceSide").field("events", &self.seq).finish_non_exhaustive()
+    }
+}
+
+impl ServiceSide {
+    /// Creates `PREFIX/command`, `PREFIX/events` and `PREFIX/event-log`.
+    pub fn create(prefix: &str, info: StaticInfo) -> Result<ServiceSide, String> {
+        let node = create_node().map_err(|e| e.to_string())?;
+        let names = ServiceNames::new(prefix);
+        let settings = PublisherSettings::default();
+        let commands = CommandServer::create(&node, &names, &settings)
+            .map_err(|e| format!("{}: {e}", names.command))?;
+        let events = EventPublisher::create(&node, &names, &settings)
+            .map_err(|e| format!("{}: {e}", names.events))?;
+        Ok(ServiceSide {
+            _node: node,
+            commands,
+            events,
+            info,
+            seq: 0,
+            polls: 0,
+        })
+    }
+
+    /// Takes the next client request, translated; a request that cannot be decoded is answered
+    /// here and `None` returned for it.
+    pub fn receive(&mut self) -> Option<(PendingCommand, Result<Command, ()>)> {
+        self.polls += 1;
+        if self.polls % 1000 == 0 {
+            // A crashed client holds its port slots until someone cleans up.
+            let _ = cleanup_dead_nodes_with(&self._node);
+        }
+        let p = self.commands.receive()?;
+        let r = *p.request();
+        match to_command(&self.info, &r) {
+            Ok(c) => Some((p, Ok(c))),
+            Err(reply) => {
+                let _ = p.reply(&reply);
+                None
+            }
+        }
+    }
+
+    /// Publishes one of the cycle's events.
+    pub fn event(&mut self, e: &Event) {
+        let mut r = to_record(&self.info, e);
+        self.seq += 1;
+        r.seq = self.seq;
+        let _ = self.events.publish(r);
+    }
+
+    /// Virtual time: answers every pending request at once through `apply`.
+    pub fn serve(&mut self, mut apply: impl FnMut(&Command) -> Reply) {
+        while let Some((p, c)) = self.receive() {
+            let tag = p.request().tag;
+            if let Ok(c) = c {
+                let _ = p.reply(&to_reply(tag, apply(&c)));
+            }
+        }
+    }
+}
+
+/// Real time: serves client commands on its own thread, through the services' command client
+/// (the services queue them to the cycle thread, which answers with the latching cycle), and
+/// publishes the events it is sent. Ends when `events` closes.
+pub fn spawn_command_thread(
+    prefix: String,
+    info: StaticInfo,
+    client: crate::runtime::services::CommandClient,
+    events: std::sync::mpsc::Receiver<Event>,
+) -> std::io::Result<std::thread::JoinHandle<Result<(), String>>> {
+    std::thread::Builder::new()
+        .name("shm-commands".into())
+        .spawn(move || {
+            let mut side = ServiceSide::create(&prefix, info)?;
+            let mut pending: Vec<(PendingCommand, std::sync::mpsc::Receiver<crate::command::Answer>)> =
+                Vec::new();
+            loop {
+                let mut idle = true;
+                while let Some((p, c)) = side.receive() {
+                    idle = false;
+                    let Ok(c) = c else { continue };
+                    match client.send(c) {
+                        Ok(rx) => pending.push((p, rx)),
+                        Err(_) => {
+                            let tag = p.request().tag;
+                            let _ = p.reply(&overloaded(tag));
+                        }
+                    }
+                }
+                let mut i = 0;
+                while i < pending.len() {
+                    match pending[i].1.try_recv() {
+                        Ok(a) => {
+                            let (p, _) = pending.swap_remove(i);
+                            let tag = p.request().tag;
+                            let _ = p.reply(&to_reply(tag, a.reply));
+                            idle = false;
+                        }
+                        Err(std::sync::mpsc::TryRecvError::Empty) => i += 1,
+                        Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                            let (p, _) = pending.swap_remove(i);
+                            let tag = p.request().tag;
+                            let _ = p.reply(&overloaded(tag));
+                        }
+                    }
+                }
+                loop {
+                    match events.try_recv() {
+                        Ok(e) => {
+                            side.event(&e);
+                            idle = false;
+                        }
+                        Err(std::sync::mpsc::TryRecvError::Empty) => break,
+                        Err(std::sync::mpsc::TryRecvError::Disconnected) => return Ok(()),
+                    }
+                }
+                if idle {
+                    std::thread::sleep(std::time::Duration::from_micros(200));
+                }
+            }
+        })
 }
