@@ -398,6 +398,12 @@ impl Client {
         self.state_service.dynamic_config().number_of_publishers() > 0
     }
 
+    /// Clients subscribed to the coordinator's state now (this one included; a crashed
+    /// client counts until its node is cleaned up).
+    pub fn subscribers(&self) -> usize {
+        self.state_service.dynamic_config().number_of_subscribers()
+    }
+
     /// Sends `req` and waits up to `timeout` for the coordinator's reply. A request with tag 0
     /// gets the client's next tag.
     pub fn command(

@@ -21,7 +21,7 @@ pub use client::{Client, ClientError, Latched, Rejected};
 pub use names::ServiceNames;
 pub use publisher::{
     CommandServer, EventPublisher, PendingCommand, PublisherSettings, ShmError, StatePublisher,
-    StateSample, cleanup_dead_nodes, create_node,
+    StateSample, cleanup_dead_nodes, cleanup_dead_nodes_with, create_node,
 };
 pub use request::{Target, name_str};
 

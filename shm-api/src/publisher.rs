@@ -101,7 +101,14 @@ pub fn create_node() -> Result<Node<ipc::Service>, ShmError> {
 /// how many dead nodes were removed.
 pub fn cleanup_dead_nodes() -> Result<u64, ShmError> {
     let node = create_node()?;
-    Ok(node.try_cleanup_dead_nodes().cleanups)
+    Ok(cleanup_dead_nodes_with(&node))
+}
+
+/// Like [`cleanup_dead_nodes`] on an existing node: the coordinator's services thread calls it
+/// now and then (a crashed client holds its port slots until someone does). Returns how many
+/// dead nodes were removed.
+pub fn cleanup_dead_nodes_with(node: &Node<ipc::Service>) -> u64 {
+    node.try_cleanup_dead_nodes().cleanups
 }
 
 /// Publishes the [`MachineState`] on `PREFIX/state`, once per cycle.
