@@ -436,6 +436,9 @@ impl Client {
             return Err(Rejected::Disconnected);
         }
         loop {
+            // Read the connection before polling: a server replies and then drops its side, so
+            // a reply sent before the disconnect is still found by this poll.
+            let connected = pending.is_connected();
             match pending.receive() {
                 Ok(Some(reply)) => {
                     let reply = *reply.payload();
@@ -447,7 +450,7 @@ impl Client {
                 Ok(None) => {}
                 Err(_) => return Err(Rejected::Disconnected),
             }
-            if !pending.is_connected() {
+            if !connected {
                 return Err(Rejected::Disconnected);
             }
             let now = Instant::now();
