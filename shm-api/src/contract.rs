@@ -10,7 +10,7 @@ use iceoryx2::prelude::ZeroCopySend;
 pub const LAYOUT_VERSION: u32 = 1;
 /// A hash of the layout of every payload (sizes and field offsets), checked by a test that
 /// recomputes it: see `layout::compute_hash`.
-pub const LAYOUT_HASH: u32 = 0;
+pub const LAYOUT_HASH: u32 = 0x4a45_2e31;
 /// Axes a [`MachineState`] holds.
 pub const MAX_AXES: usize = 128;
 /// Groups a [`MachineState`] holds.
@@ -233,7 +233,7 @@ pub struct BusStats {
 /// The whole machine, published once per cycle on `PREFIX/state`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::MachineState::v1")]
+#[type_name("motion::MachineState::v1::4a452e31")]
 pub struct MachineState {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -314,7 +314,7 @@ pub mod target {
 /// A command, on `PREFIX/command` (request-response).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandRequest::v1")]
+#[type_name("motion::CommandRequest::v1::4a452e31")]
 pub struct CommandRequest {
     /// The client's tag, echoed in the reply.
     pub tag: u64,
@@ -373,7 +373,7 @@ pub mod status {
 /// The answer to a [`CommandRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandReply::v1")]
+#[type_name("motion::CommandReply::v1::4a452e31")]
 pub struct CommandReply {
     /// The request's tag.
     pub tag: u64,
@@ -419,7 +419,7 @@ pub mod event_id {
 /// event service and read the details here.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::EventRecord::v1")]
+#[type_name("motion::EventRecord::v1::4a452e31")]
 pub struct EventRecord {
     /// A sequence number, counting every record published.
     pub seq: u64,

@@ -10,8 +10,21 @@
 //! assert_eq!(core::mem::size_of::<shm_api::contract::GroupState>(), 48);
 //! ```
 
+pub mod client;
 pub mod contract;
+pub mod layout;
 pub mod layout_dump;
+pub mod names;
+pub mod publisher;
+pub mod request;
+
+pub use client::{Client, ClientError, Latched, Rejected};
+pub use names::ServiceNames;
+pub use publisher::{
+    CommandServer, EventPublisher, PendingCommand, PublisherSettings, ShmError, StatePublisher,
+    StateSample, cleanup_dead_nodes, cleanup_dead_nodes_with, create_node,
+};
+pub use request::{Target, name_str};
 
 /// The default prefix of every service name of the contract.
 pub const DEFAULT_PREFIX: &str = "motion";

@@ -1,0 +1,309 @@
+//! A stand-in coordinator for the shm-api tests and for client development: publishes a
+//! synthetic [`MachineState`] every period with the cycle counting up by one, answers commands
+//! by simple rules, and publishes an event every few cycles.
+//!
+//! ```text
+//! motion-standin [--prefix P] [--period-us N] [--count N] [--axes N] [--groups N]
+//!                [--buffer N] [--max-subscribers N] [--events-every N]
+//!                [--stop-on-stdin-eof]
+//! ```
+//!
+//! With `--stop-on-stdin-eof` it ends (cleanly, removing its services) when its standard input
+//! closes: a test holds the pipe and drops it to stop the stand-in.
+//!
+//! Prints `ready` once every service is up, `cleaned N` whenever it removed dead nodes, and
+//! `done published=N commands=N events=N` when `--count` samples are out (0: run forever).
+//!
+//! Command rules: axis ≥ `--axes` → unknown axis; group ≥ `--groups` → unknown group; record
+//! ≥ 64 → unknown record; move percent outside 1..=100 and jog outside ±1000 ‰ → out of range;
+//! homing axis 3 → wrong state; an unknown kind or target → bad request; everything else
+//! latches at the next cycle.
+
+use shm_api::contract::{
+    AxisState, CommandReply, CommandRequest, EventRecord, GroupState, MAX_AXES, MAX_GROUPS,
+    MachineState, axis_flags, axis_state, command_kind, event_id, status, target,
+};
+use shm_api::request::name_bytes;
+use shm_api::{
+    CommandServer, EventPublisher, PublisherSettings, ServiceNames, StatePublisher,
+    cleanup_dead_nodes_with, create_node,
+};
+use std::io::Write;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+struct Args {
+    prefix: String,
+    period: Duration,
+    count: u64,
+    axes: u16,
+    groups: u16,
+    settings: PublisherSettings,
+    events_every: u64,
+    stop_on_eof: bool,
+}
+
+fn parse() -> Result<Args, String> {
+    let mut a = Args {
+        prefix: shm_api::DEFAULT_PREFIX.to_owned(),
+        period: Duration::from_millis(2),
+        count: 0,
+        axes: 4,
+        groups: 2,
+        settings: PublisherSettings::default(),
+        events_every: 50,
+        stop_on_eof: false,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
+        let num = |v: String| -> Result<u64, String> {
+            v.parse()
+                .map_err(|_| format!("{flag}: `{v}` is not a number"))
+        };
+        match flag.as_str() {
+            "--prefix" => a.prefix = value()?,
+            "--period-us" => a.period = Duration::from_micros(num(value()?)?),
+            "--count" => a.count = num(value()?)?,
+            "--axes" => a.axes = num(value()?)?.min(MAX_AXES as u64) as u16,
+            "--groups" => a.groups = num(value()?)?.min(MAX_GROUPS as u64) as u16,
+            "--buffer" => a.settings.state_buffer = num(value()?)? as usize,
+            "--max-subscribers" => a.settings.max_subscribers = num(value()?)? as usize,
+            "--events-every" => a.events_every = num(value()?)?,
+            "--stop-on-stdin-eof" => a.stop_on_eof = true,
+            _ => return Err(format!("unknown flag `{flag}`")),
+        }
+    }
+    Ok(a)
+}
+
+fn answer(req: &CommandRequest, args: &Args, cycle: u64) -> CommandReply {
+    let tag = req.tag;
+    let known_target = match req.target {
+        target::AXIS => req.axis < args.axes,
+        target::GROUP => req.group < args.groups,
+        target::ALL => true,
+        _ => return CommandReply::rejected(tag, status::BAD_REQUEST, i64::from(req.target)),
+    };
+    if !known_target {
+        return if req.target == target::AXIS {
+            CommandReply::rejected(tag, status::UNKNOWN_AXIS, i64::from(req.axis))
+        } else {
+            CommandReply::rejected(tag, status::UNKNOWN_GROUP, i64::from(req.group))
+        };
+    }
+    match req.kind {
+        command_kind::MOVE_AXIS | command_kind::MOVE_GROUP if !(1..=100).contains(&req.percent) => {
+            return CommandReply::out_of_range(tag, i64::from(req.percent), 1, 100);
+        }
+        command_kind::JOG if !(-1000..=1000).contains(&req.value) => {
+            return CommandReply::out_of_range(tag, req.value, -1000, 1000);
+        }
+        command_kind::START_CHAIN if req.record >= 64 => {
+            return CommandReply::rejected(tag, status::UNKNOWN_RECORD, i64::from(req.record));
+        }
+        command_kind::HOME if req.target == target::AXIS && req.axis == 3 => {
+            return CommandReply::wrong_state(tag, "axis 3 is not enabled");
+        }
+        command_kind::ENABLE..=command_kind::SET_INPUT => {}
+        _ => return CommandReply::rejected(tag, status::BAD_REQUEST, i64::from(req.kind)),
+    }
+    CommandReply::latched(tag, cycle + 1)
+}
+
+fn template(args: &Args) -> Box<MachineState> {
+    let axis = AxisState {
+        position: 0,
+        setpoint: 0,
+        velocity: 0,
+        position_inc: 0,
+        setpoint_inc: 0,
+        fault_value: 0,
+        fault_limit: 0,
+        force_permille: 0,
+        status_bits: 0,
+        flags: axis_flags::ONLINE | axis_flags::ENABLED,
+        state: axis_state::READY,
+        mode: 1,
+        fault: 0,
+        reserved0: 0,
+        fault_code: 0,
+        active_record: -1,
+        name: [0; 16],
+        unit: name_bytes("mm"),
+        reserved1: [0; 32],
+    };
+    let group = GroupState {
+        active_record: -1,
+        record: -1,
+        reached: -1,
+        override_percent: 100,
+        chain_state: 0,
+        rc1: 0,
+        rcc: 0,
+        motion: 0,
+        axis_count: 0,
+        reserved0: [0; 3],
+        axes: [0; 8],
+        name: [0; 16],
+        reserved1: [0; 8],
+    };
+    let mut s = Box::new(MachineState {
+        version: 0,
+        layout_hash: 0,
+        cycle: 0,
+        sync_time_ns: 0,
+        publish_time_ns: 0,
+        cycle_ns: args.period.as_nanos() as u32,
+        axis_count: args.axes,
+        group_count: args.groups,
+        inputs: 0,
+        virtual_time: 0,
+        reserved0: [0; 3],
+        bus: shm_api::contract::BusStats {
+            frames_sent: 0,
+            frames_received: 0,
+            tx_refused: 0,
+            rx_dropped: 0,
+            skipped_cycles: 0,
+            step_ns: 0,
+            wake_late_us: 0,
+        },
+        axes: [axis; MAX_AXES],
+        groups: [group; MAX_GROUPS],
+    });
+    for (i, a) in s.axes.iter_mut().enumerate().take(usize::from(args.axes)) {
+        a.name = name_bytes(&format!("X{i}"));
+    }
+    for (i, g) in s
+        .groups
+        .iter_mut()
+        .enumerate()
+        .take(usize::from(args.groups))
+    {
+        g.name = name_bytes(&format!("G{i}"));
+    }
+    s
+}
+
+fn run(args: &Args) -> Result<(), String> {
+    let names = ServiceNames::new(&args.prefix);
+    let node = create_node().map_err(|e| e.to_string())?;
+    cleanup_dead_nodes_with(&node);
+    let mut server =
+        CommandServer::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
+    let mut events =
+        EventPublisher::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
+    // The state publisher last: a client that sees it finds every other service.
+    let mut state =
+        StatePublisher::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
+    let out = std::io::stdout();
+    let say = |line: &str| {
+        let mut o = out.lock();
+        let _ = writeln!(o, "{line}");
+        let _ = o.flush();
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    if args.stop_on_eof {
+        let stop = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            let _ = std::io::copy(&mut std::io::stdin(), &mut std::io::sink());
+            stop.store(true, Ordering::Relaxed);
+        });
+    }
+    say("ready");
+
+    let tpl = template(args);
+    let epoch = Instant::now();
+    let mut deadline = epoch;
+    let (mut cycle, mut commands, mut seq) = (0u64, 0u64, 0u64);
+    loop {
+        // Serve commands until the cycle's deadline.
+        loop {
+            while let Some(cmd) = server.receive() {
+                let reply = answer(cmd.request(), args, cycle);
+                cmd.reply(&reply).map_err(|e| e.to_string())?;
+                commands += 1;
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                break;
+            }
+            std::thread::sleep((deadline - now).min(Duration::from_micros(50)));
+        }
+        let mut s = state.loan().map_err(|e| e.to_string())?;
+        let (version, hash) = (s.version, s.layout_hash);
+        *s = *tpl;
+        s.version = version;
+        s.layout_hash = hash;
+        s.cycle = cycle;
+        s.sync_time_ns = (deadline - epoch).as_nanos() as u64;
+        s.publish_time_ns = epoch.elapsed().as_nanos() as u64;
+        for (i, a) in s.axes.iter_mut().enumerate().take(usize::from(args.axes)) {
+            a.position = (cycle as i64) * 1000 + i as i64;
+            a.setpoint = a.position;
+        }
+        s.send().map_err(|e| e.to_string())?;
+        if args.events_every > 0 && cycle % args.events_every == 0 {
+            events
+                .publish(event(seq, cycle, event_id::STATE_CHANGED))
+                .map_err(|e| e.to_string())?;
+            seq += 1;
+        }
+        cycle += 1;
+        if cycle % 50 == 0 {
+            let n = cleanup_dead_nodes_with(&node);
+            if n > 0 {
+                say(&format!("cleaned {n}"));
+            }
+        }
+        if (args.count > 0 && cycle >= args.count) || stop.load(Ordering::Relaxed) {
+            break;
+        }
+        deadline += args.period;
+    }
+    events
+        .publish(event(seq, cycle, event_id::SHUTDOWN))
+        .map_err(|e| e.to_string())?;
+    say(&format!(
+        "done published={cycle} commands={commands} events={}",
+        seq + 1
+    ));
+    Ok(())
+}
+
+fn event(seq: u64, cycle: u64, id: usize) -> EventRecord {
+    EventRecord {
+        seq,
+        cycle,
+        value: 0,
+        id: id as u16,
+        axis: 0xFFFF,
+        group: 0xFFFF,
+        record: 0xFFFF,
+        state: 0,
+        error: 0,
+        sub: 0,
+        reserved0: 0,
+        code: 0,
+        reserved1: 0,
+    }
+}
+
+fn main() -> std::process::ExitCode {
+    let args = match parse() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("motion-standin: {e}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    match run(&args) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("motion-standin: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,132 @@
+//! Commands and events against the stand-in coordinator in another process.
+
+mod common;
+
+use common::{Standin, field, prefix, serial};
+use shm_api::contract::{CommandRequest, event_id, status};
+use shm_api::{Client, Latched, Rejected, Target};
+use std::collections::HashSet;
+use std::time::Duration;
+
+const WAIT: Duration = Duration::from_secs(5);
+
+#[test]
+fn a_burst_of_ten_thousand_commands_loses_none() {
+    let _g = serial();
+    let p = prefix("burst");
+    let standin = Standin::spawn(&p, &["--period-us", "1000"]);
+    let threads: Vec<_> = (0..4u64)
+        .map(|t| {
+            let p = p.clone();
+            std::thread::spawn(move || {
+                let mut c = Client::connect_timeout(&p, WAIT).expect("connect");
+                let mut tags = HashSet::new();
+                let mut latched = 0;
+                for i in 0..2500u64 {
+                    let tag = (t + 1) << 32 | i;
+                    // Every fifth command is refused (unknown axis): refusals are answers too.
+                    let axis = if i % 5 == 0 { 40 } else { (i % 4) as u16 };
+                    let req = CommandRequest::jog(axis, (i % 1000) as i16).with_tag(tag);
+                    let reply = c.command_reply(&req, WAIT).expect("an answer");
+                    assert_eq!(reply.tag, tag);
+                    assert!(tags.insert(reply.tag), "tag {tag:#x} answered twice");
+                    if reply.status == status::LATCHED {
+                        latched += 1;
+                    } else {
+                        assert_eq!((reply.status, reply.value), (status::UNKNOWN_AXIS, 40));
+                    }
+                }
+                (tags.len(), latched)
+            })
+        })
+        .collect();
+    for t in threads {
+        let (answered, latched) = t.join().expect("client thread");
+        assert_eq!(answered, 2500);
+        assert_eq!(latched, 2000);
+    }
+    let done = standin.stop();
+    assert_eq!(field(&done, "commands"), 10_000);
+}
+
+#[test]
+fn every_request_gets_its_answer_and_refusals_carry_their_numbers() {
+    let _g = serial();
+    let p = prefix("rejections");
+    let standin = Standin::spawn(&p, &["--period-us", "1000", "--axes", "4", "--groups", "2"]);
+    let mut c = Client::connect_timeout(&p, WAIT).expect("connect");
+    let now = c.next(WAIT).expect("state").cycle;
+
+    let Latched { cycle } = c
+        .command(&CommandRequest::enable(Target::All), WAIT)
+        .expect("enable all");
+    assert!(cycle > now, "latches at a later SYNC: {cycle} after {now}");
+    let cases: [(CommandRequest, Rejected); 7] = [
+        (
+            CommandRequest::enable(Target::Axis(9)),
+            Rejected::UnknownAxis(9),
+        ),
+        (
+            CommandRequest::stop(Target::Group(5)),
+            Rejected::UnknownGroup(5),
+        ),
+        (
+            CommandRequest::start_chain(1, 70),
+            Rejected::UnknownRecord(70),
+        ),
+        (
+            CommandRequest::move_axis(0, 1_000_000, 0),
+            Rejected::OutOfRange {
+                value: 0,
+                min: 1,
+                max: 100,
+            },
+        ),
+        (
+            CommandRequest::jog(2, 2000),
+            Rejected::OutOfRange {
+                value: 2000,
+                min: -1000,
+                max: 1000,
+            },
+        ),
+        (
+            CommandRequest::home(Target::Axis(3)),
+            Rejected::WrongState("axis 3 is not enabled".to_owned()),
+        ),
+        (CommandRequest::new(99), Rejected::BadRequest),
+    ];
+    for (req, want) in cases {
+        assert_eq!(c.command(&req, WAIT), Err(want.clone()), "{req:?}");
+    }
+    let msg = Rejected::OutOfRange {
+        value: 2000,
+        min: -1000,
+        max: 1000,
+    }
+    .to_string();
+    assert!(
+        msg.contains("2000") && msg.contains("-1000") && msg.contains("1000"),
+        "{msg}"
+    );
+    assert!(Rejected::UnknownAxis(9).to_string().contains('9'));
+
+    // Events: the stand-in signals one every 50 cycles; records arrive in order.
+    let a = c.wait_event(WAIT).expect("wait").expect("an event");
+    let b = c.wait_event(WAIT).expect("wait").expect("another event");
+    assert_eq!(a.id as usize, event_id::STATE_CHANGED);
+    assert_eq!(b.seq, a.seq + 1);
+    assert_eq!(b.cycle, a.cycle + 50);
+
+    let done = standin.stop();
+    assert_eq!(field(&done, "commands"), 8);
+    // The coordinator is gone: commands say so instead of hanging.
+    let gone = c.command(
+        &CommandRequest::stop(Target::All),
+        Duration::from_millis(200),
+    );
+    assert!(
+        matches!(gone, Err(Rejected::Disconnected | Rejected::Timeout)),
+        "{gone:?}"
+    );
+}

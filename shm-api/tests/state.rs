@@ -1,0 +1,288 @@
+//! The state service across real processes: fan-out to many clients without gaps, a client
+//! killed mid-run, a restarted coordinator, a mismatched layout.
+
+mod common;
+
+use common::{Standin, prefix, serial};
+use iceoryx2::prelude::*;
+use shm_api::{Client, ClientError, ServiceNames};
+use std::io::Write;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+const WAIT: Duration = Duration::from_secs(5);
+
+/// Reads `n` states in order, asserting the cycle grows by exactly one; returns
+/// `(cycle, arrival)` of each.
+fn read_in_order(client: &mut Client, n: usize) -> Vec<(u64, Instant)> {
+    let mut seen = Vec::with_capacity(n);
+    let mut last: Option<u64> = None;
+    while seen.len() < n {
+        let s = client.next(WAIT).expect("state");
+        assert_eq!(s.version, shm_api::contract::LAYOUT_VERSION);
+        assert_eq!(s.layout_hash, shm_api::contract::LAYOUT_HASH);
+        if let Some(l) = last {
+            assert_eq!(s.cycle, l + 1, "a gap or reorder after cycle {l}");
+        }
+        assert_eq!(s.axes[1].position, s.cycle as i64 * 1000 + 1);
+        last = Some(s.cycle);
+        seen.push((s.cycle, Instant::now()));
+    }
+    seen
+}
+
+#[test]
+fn eight_clients_see_every_state_in_order() {
+    let _g = serial();
+    let p = prefix("fanout");
+    let standin = Standin::spawn(
+        &p,
+        &[
+            "--period-us",
+            "1000",
+            "--buffer",
+            "256",
+            "--max-subscribers",
+            "10",
+        ],
+    );
+    let threads: Vec<_> = (0..8)
+        .map(|_| {
+            let p = p.clone();
+            std::thread::spawn(move || {
+                let mut c = Client::connect_timeout(&p, WAIT).expect("connect");
+                let seen = read_in_order(&mut c, 600);
+                (seen[0].0, seen[599].0)
+            })
+        })
+        .collect();
+    for t in threads {
+        let (first, last) = t.join().expect("client thread");
+        assert_eq!(last - first, 599);
+    }
+    let done = standin.stop();
+    assert!(common::field(&done, "published") >= 600);
+}
+
+/// The body of a client process (run by re-executing this test binary): connects, reads
+/// until told to stop or killed.
+#[test]
+#[ignore = "run as a child process by client_killed_mid_run_disturbs_nobody"]
+fn child_client_process() {
+    let Ok(p) = std::env::var("SHM_API_CHILD_PREFIX") else {
+        return;
+    };
+    let mut c = Client::connect_timeout(&p, WAIT).expect("child connect");
+    c.next(WAIT).expect("child first state");
+    println!("connected");
+    let _ = std::io::stdout().flush();
+    let ms: u64 = std::env::var("SHM_API_CHILD_MS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3000);
+    let end = Instant::now() + Duration::from_millis(ms);
+    while Instant::now() < end {
+        let _ = c.next(Duration::from_millis(100));
+    }
+}
+
+fn spawn_child(
+    p: &str,
+    ms: u64,
+) -> (
+    std::process::Child,
+    std::io::Lines<std::io::BufReader<std::process::ChildStdout>>,
+) {
+    use std::io::BufRead;
+    let mut child = Command::new(std::env::current_exe().expect("test binary"))
+        .args([
+            "--exact",
+            "child_client_process",
+            "--ignored",
+            "--nocapture",
+            "--test-threads",
+            "1",
+        ])
+        .env("SHM_API_CHILD_PREFIX", p)
+        .env("SHM_API_CHILD_MS", ms.to_string())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("spawning a client process");
+    let out = std::io::BufReader::new(child.stdout.take().expect("stdout")).lines();
+    (child, out)
+}
+
+fn wait_connected(lines: &mut std::io::Lines<std::io::BufReader<std::process::ChildStdout>>) {
+    for line in lines.by_ref() {
+        if line
+            .expect("child stdout")
+            .trim_end()
+            .ends_with("connected")
+        {
+            return;
+        }
+    }
+    panic!("client process ended before connecting");
+}
+
+#[test]
+fn client_killed_mid_run_disturbs_nobody() {
+    let _g = serial();
+    let p = prefix("killclient");
+    let mut standin = Standin::spawn(&p, &["--period-us", "1000", "--buffer", "256"]);
+    let mut children: Vec<_> = (0..3).map(|_| spawn_child(&p, 4000)).collect();
+    for (_, lines) in &mut children {
+        wait_connected(lines);
+    }
+    let watchers: Vec<_> = (0..2)
+        .map(|_| {
+            let p = p.clone();
+            std::thread::spawn(move || {
+                let mut c = Client::connect_timeout(&p, WAIT).expect("connect");
+                read_in_order(&mut c, 1600)
+            })
+        })
+        .collect();
+    let observer = Client::connect(&p).expect("observer");
+    // Let the watchers run a while before the kill.
+    std::thread::sleep(Duration::from_millis(700));
+    let before = observer.subscribers();
+    assert_eq!(before, 1 + 2 + 3);
+    let kill_at = Instant::now();
+    let (mut victim, _) = children.remove(0);
+    victim.kill().expect("SIGKILL");
+    victim.wait().expect("reaping the victim");
+    assert!(
+        standin.wait_line("cleaned", WAIT).is_some(),
+        "the publisher did not clean up after the dead client"
+    );
+    assert_eq!(observer.subscribers(), before - 1);
+
+    for w in watchers {
+        let seen = w.join().expect("watcher");
+        // Publisher pace: samples per equal windows before and after the kill.
+        let window = Duration::from_millis(500);
+        let count = |from: Instant, to: Instant| {
+            seen.iter().filter(|(_, t)| *t >= from && *t < to).count() as f64
+        };
+        let pre = count(kill_at - window, kill_at);
+        let post = count(kill_at, kill_at + window);
+        assert!(pre > 0.0 && post > 0.0, "pre {pre} post {post}");
+        let ratio = post / pre;
+        assert!(
+            (0.7..=1.43).contains(&ratio),
+            "pace changed after the kill: {pre} samples before, {post} after"
+        );
+    }
+    for (mut c, _) in children {
+        let status = c.wait().expect("child");
+        assert!(status.success(), "a surviving client failed: {status}");
+    }
+    drop(observer);
+    standin.stop();
+}
+
+#[test]
+fn restarted_coordinator_is_found_again() {
+    let _g = serial();
+    let p = prefix("restart");
+    let mut first = Standin::spawn(&p, &["--period-us", "1000"]);
+    let mut old = Client::connect_timeout(&p, WAIT).expect("connect");
+    let mut last_old = 0;
+    while last_old < 300 {
+        last_old = old.next(WAIT).expect("state").cycle;
+    }
+    first.kill();
+    // A new client waits for a coordinator while none runs.
+    let waiter = {
+        let p = p.clone();
+        std::thread::spawn(move || {
+            let mut c = Client::connect_timeout(&p, Duration::from_secs(10)).expect("reconnect");
+            c.next(WAIT).expect("state after restart").cycle
+        })
+    };
+    std::thread::sleep(Duration::from_millis(300));
+    let second = Standin::spawn(&p, &["--period-us", "1000"]);
+    let fresh = waiter.join().expect("waiter");
+    assert!(
+        fresh < last_old,
+        "{fresh} is not from the restarted coordinator"
+    );
+    // The old client resumes: `next` delivers the new coordinator's states.
+    let deadline = Instant::now() + WAIT;
+    loop {
+        let c = old.next(WAIT).expect("old client resumes").cycle;
+        if c < last_old {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "old client never saw the new coordinator"
+        );
+    }
+    drop(old);
+    second.stop();
+    drop(first);
+}
+
+/// A payload of another contract version on the same service name.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("motion::MachineState::v0::00000000")]
+struct OldMachineState {
+    cycle: u64,
+}
+
+#[test]
+fn mismatched_layout_is_refused_with_a_clear_message() {
+    let _g = serial();
+    let p = prefix("layout");
+    let node = shm_api::create_node().expect("node");
+    let names = ServiceNames::new(&p);
+    let service = node
+        .service_builder(&names.state.as_str().try_into().expect("name"))
+        .publish_subscribe::<OldMachineState>()
+        .create()
+        .expect("old service");
+    let _publisher = service.publisher_builder().create().expect("old publisher");
+    match Client::connect(&p) {
+        Err(e @ ClientError::LayoutMismatch { .. }) => {
+            let ClientError::LayoutMismatch { expected, found } = &e else {
+                unreachable!()
+            };
+            assert_eq!(
+                found,
+                "motion::MachineState::v1::4a452e31"
+                    .replace("v1::4a452e31", "v0::00000000")
+                    .as_str()
+            );
+            assert!(expected.ends_with(&shm_api::layout::type_name_suffix()));
+            let msg = e.to_string();
+            assert!(msg.contains("different contract versions"), "{msg}");
+            assert!(
+                msg.contains(found) && msg.contains(expected.as_str()),
+                "{msg}"
+            );
+        }
+        other => panic!("expected LayoutMismatch, got {other:?}"),
+    }
+    // Retrying cannot cure a mismatch: connect_timeout reports it at once.
+    let t0 = Instant::now();
+    assert!(matches!(
+        Client::connect_timeout(&p, Duration::from_secs(30)),
+        Err(ClientError::LayoutMismatch { .. })
+    ));
+    assert!(t0.elapsed() < Duration::from_secs(30));
+}
+
+#[test]
+fn no_coordinator_fails_at_once_and_after_the_timeout() {
+    let p = prefix("nobody");
+    assert_eq!(
+        Client::connect(&p).err(),
+        Some(ClientError::NoCoordinator(p.clone()))
+    );
+    let e = Client::connect_timeout(&p, Duration::from_millis(100)).err();
+    assert_eq!(e, Some(ClientError::NoCoordinator(p.clone())));
+    assert!(e.expect("error").to_string().contains(&p));
+}
