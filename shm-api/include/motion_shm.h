@@ -36,7 +36,7 @@ extern "C" {
 /* The contract's version; bumped on any incompatible change. */
 #define MOTION_LAYOUT_VERSION 1u
 /* The layout hash the coordinator writes into MotionMachineState.layout_hash. */
-#define MOTION_LAYOUT_HASH 0x00000000u
+#define MOTION_LAYOUT_HASH 0x4a452e31u
 #define MOTION_MAX_AXES 128
 #define MOTION_MAX_GROUPS 16
 #define MOTION_MAX_GROUP_AXES 8
@@ -47,10 +47,10 @@ extern "C" {
 #define MOTION_MICRO 1000000LL
 
 /* iceoryx2 type names of the service payloads (equal to the Rust #[type_name]). */
-#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1"
-#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1"
-#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1"
-#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1"
+#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1::4a452e31"
+#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1::4a452e31"
+#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1::4a452e31"
+#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1::4a452e31"
 /* The default service prefix. */
 #define MOTION_DEFAULT_PREFIX "motion"
 

@@ -29,7 +29,7 @@ import json
 #: The contract's version; bumped on any incompatible change.
 LAYOUT_VERSION = 1
 #: The layout hash the coordinator writes into ``MachineState.layout_hash``.
-LAYOUT_HASH = 0
+LAYOUT_HASH = 0x4A452E31
 #: Axes a MachineState holds.
 MAX_AXES = 128
 #: Groups a MachineState holds.
@@ -47,10 +47,10 @@ MICRO = 1_000_000
 DEFAULT_PREFIX = "motion"
 
 #: The iceoryx2 type names; they must equal the Rust ``#[type_name]`` (the test checks it).
-MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1"
-COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1"
-COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1"
-EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1"
+MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1::4a452e31"
+COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1::4a452e31"
+COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1::4a452e31"
+EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1::4a452e31"
 
 
 class AxisStateKind(enum.IntEnum):
