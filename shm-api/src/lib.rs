@@ -14,3 +14,6 @@ pub mod contract;
 
 /// The default prefix of every service name of the contract.
 pub const DEFAULT_PREFIX: &str = "motion";
+pub mod cli;
+// Temporary stand-in for the client library; deleted at merge (see the file).
+mod client_stub;
