@@ -397,11 +397,11 @@ fn cmd_exit_codes() {
 
     let mut fake = Fake::new([7]);
     fake.answer = Err(Rejected::WrongState("axis y is faulted".into()));
-    let (code, _, err) = run_cmd(&mut fake, &["home", "--axis", "y"]);
+    let (code, out, _) = run_cmd(&mut fake, &["home", "--axis", "y"]);
     assert_eq!(code, exit::REJECTED);
     assert!(
-        err.starts_with("rejected: ") && err.contains("axis y is faulted"),
-        "{err}"
+        out.starts_with("rejected: ") && out.contains("axis y is faulted"),
+        "{out}"
     );
 
     let mut fake = Fake::new([7]);
@@ -465,14 +465,14 @@ fn read_param_waits_for_its_own_answer() {
 
     let mut fake = Fake::new([7]);
     fake.events.push_back(param_event(45, 1, 502, 17, 1));
-    let (code, _, err) = run_cmd(
+    let (code, out, _) = run_cmd(
         &mut fake,
         &["write-param", "--axis", "y", "--pnu", "502", "--value", "5"],
     );
     assert_eq!(code, exit::REJECTED);
-    assert!(
-        err.contains("refused parameter 502:0 of axis y: error 17"),
-        "{err}"
+    assert_eq!(
+        out,
+        "latched in cycle 42\nrejected: the drive refused parameter 502:0 of axis y: error 17\n"
     );
 
     let mut fake = Fake::new([7]);
@@ -578,4 +578,42 @@ fn top_shows_answers() {
     assert!(app.message.starts_with("rejected: "));
     let buf = draw(&app, Some(&machine(1)));
     assert!(row_of(&buf, "rejected: ").is_some());
+}
+
+#[test]
+fn top_marks_a_stale_state() {
+    let mut t = Terminal::new(TestBackend::new(160, 20)).unwrap();
+    t.draw(|f| App::new("motion").render(f, Some(&machine(3)), true))
+        .unwrap();
+    let buf = t.backend().buffer().clone();
+    let y = row_of(&buf, "STALE: no new state").expect("stale marker");
+    assert_eq!(buf[(0, y)].fg, Color::Yellow);
+}
+
+/// The binaries as processes: exit codes without a coordinator and on usage errors (clap's
+/// own code 2 would read as "rejected").
+#[test]
+fn binaries_exit_1_without_coordinator_and_on_usage_errors() {
+    use std::process::Command;
+    let prefix = format!("clients-bin-{}", std::process::id());
+    let run = |bin: &str, args: &[&str]| {
+        let o = Command::new(bin).args(args).output().expect("binary runs");
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let cmd = env!("CARGO_BIN_EXE_motion-cmd");
+    let watch = env!("CARGO_BIN_EXE_motion-watch");
+    let (code, err) = run(cmd, &["--prefix", &prefix, "enable", "--all"]);
+    assert_eq!(code, Some(exit::ERROR));
+    assert!(err.contains(&prefix), "{err}");
+    let (code, _) = run(watch, &["--prefix", &prefix, "--count", "1"]);
+    assert_eq!(code, Some(exit::ERROR));
+    assert_eq!(run(cmd, &["enable"]).0, Some(exit::ERROR));
+    assert_eq!(run(cmd, &["frobnicate"]).0, Some(exit::ERROR));
+    assert_eq!(run(watch, &["--rate", "x"]).0, Some(exit::ERROR));
+    assert_eq!(run(cmd, &["--help"]).0, Some(exit::OK));
+    let top = env!("CARGO_BIN_EXE_motion-top");
+    assert_eq!(run(top, &["--bogus"]).0, Some(exit::ERROR));
 }

@@ -270,7 +270,7 @@ fn wait_parameter(
             Ok(Some(ev)) if is_answer(&ev, req, latched) => {
                 if ev.error != 0 {
                     let _ = writeln!(
-                        err,
+                        out,
                         "rejected: the drive refused parameter {}:{} of axis {axis_name}: error {}",
                         req.pnu, req.sub, ev.value
                     );
@@ -336,7 +336,7 @@ pub fn run(
             exit::ERROR
         }
         Err(e) => {
-            let _ = writeln!(err, "rejected: {e}");
+            let _ = writeln!(out, "rejected: {e}");
             exit::REJECTED
         }
     }
