@@ -10,6 +10,7 @@
 //! assert_eq!(core::mem::size_of::<shm_api::contract::GroupState>(), 48);
 //! ```
 
+pub mod cli;
 pub mod client;
 pub mod contract;
 pub mod layout;
@@ -28,3 +29,4 @@ pub use request::{Target, name_str};
 
 /// The default prefix of every service name of the contract.
 pub const DEFAULT_PREFIX: &str = "motion";
+

@@ -1,0 +1,20 @@
+//! `motion-cmd`: sends one command to the coordinator; exit 0 latched, 2 rejected, 1 error.
+
+use shm_api::cli::{self, cmd::CmdArgs, exit};
+
+fn main() {
+    let args: CmdArgs = cli::parse_or_exit(std::env::args_os());
+    let code = match cli::connect(&args.prefix) {
+        Ok(mut m) => cli::cmd::run(
+            &mut m,
+            &args,
+            &mut std::io::stdout().lock(),
+            &mut std::io::stderr(),
+        ),
+        Err(e) => {
+            eprintln!("motion-cmd: {e}");
+            exit::ERROR
+        }
+    };
+    std::process::exit(code);
+}

@@ -1,0 +1,229 @@
+//! Formatting in user units and names for the codes of the contract, and the CSV of
+//! `motion-watch`. Numbers are formatted from the fixed-point integers exactly (no floats).
+
+use std::fmt::Write as _;
+
+use crate::contract::{
+    AxisState, GroupState, MICRO, MachineState, axis_flags, axis_mode, axis_state, chain_state,
+    fault, motion_state,
+};
+
+use super::name_str;
+use super::resolve::group_members;
+
+/// Formats µunits as user units with `decimals` (0..=6) decimals, rounding half away from zero.
+pub fn micro(value: i64, decimals: u32) -> String {
+    let decimals = decimals.min(6);
+    let step = 10_i128.pow(6 - decimals);
+    let abs = i128::from(value).abs();
+    let rounded = (abs + step / 2) / step;
+    let scale = i128::from(MICRO) / step;
+    let sign = if value < 0 && rounded != 0 { "-" } else { "" };
+    let whole = rounded / scale;
+    if decimals == 0 {
+        format!("{sign}{whole}")
+    } else {
+        let frac = rounded % scale;
+        format!("{sign}{whole}.{frac:0width$}", width = decimals as usize)
+    }
+}
+
+/// Formats nanoseconds as seconds with 9 decimals (for CSV time columns).
+pub fn seconds(ns: u64) -> String {
+    format!("{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
+}
+
+/// The name of an [`axis_state`] code.
+pub fn state_name(state: u8) -> &'static str {
+    match state {
+        axis_state::OFFLINE => "offline",
+        axis_state::DISABLED => "disabled",
+        axis_state::ENABLING => "enabling",
+        axis_state::READY => "ready",
+        axis_state::HOMING => "homing",
+        axis_state::MOVING => "moving",
+        axis_state::STOPPING => "stopping",
+        axis_state::FAULT => "FAULT",
+        _ => "?",
+    }
+}
+
+/// The name of an [`axis_mode`] code.
+pub fn mode_name(mode: u8) -> &'static str {
+    match mode {
+        axis_mode::OFF => "off",
+        axis_mode::ON => "on",
+        axis_mode::HOMING => "homing",
+        axis_mode::JOG => "jog",
+        axis_mode::QUICK_STOPPED => "quick-stopped",
+        axis_mode::ACKNOWLEDGING => "acknowledging",
+        _ => "?",
+    }
+}
+
+/// The name of a [`chain_state`] code.
+pub fn chain_name(state: u8) -> &'static str {
+    match state {
+        chain_state::IDLE => "idle",
+        chain_state::DELAY => "delay",
+        chain_state::MOVING => "moving",
+        chain_state::WAITING => "waiting",
+        chain_state::COMPLETE => "complete",
+        chain_state::ABORTED => "aborted",
+        _ => "?",
+    }
+}
+
+/// The name of a [`motion_state`] code.
+pub fn motion_name(state: u8) -> &'static str {
+    match state {
+        motion_state::NONE => "-",
+        motion_state::MOVING => "moving",
+        motion_state::HOLDING => "holding",
+        motion_state::QUICK_STOPPING => "quick-stopping",
+        motion_state::STOPPED => "stopped",
+        motion_state::DONE => "done",
+        _ => "?",
+    }
+}
+
+/// Whether the axis has a fault to show.
+pub fn is_faulted(axis: &AxisState) -> bool {
+    axis.fault != fault::NONE || axis.state == axis_state::FAULT
+}
+
+/// The axis's fault in words with its numbers, or "" when there is none.
+pub fn fault_text(axis: &AxisState) -> String {
+    match axis.fault {
+        fault::NONE if axis.state == axis_state::FAULT => "fault".into(),
+        fault::NONE => String::new(),
+        fault::HEARTBEAT_LOST => "heartbeat lost".into(),
+        fault::GUARDING_LOST => "node guarding lost".into(),
+        fault::EMCY => format!("EMCY 0x{:04X}", axis.fault_code),
+        fault::FOLLOWING_ERROR => format!(
+            "following error {} inc (limit {})",
+            axis.fault_value, axis.fault_limit
+        ),
+        fault::DRIVE_FAULT => format!("drive fault {}", axis.fault_code),
+        fault::MODBUS_TIMEOUT => "Modbus timeout".into(),
+        fault::LATE_TPDO => format!("TPDOs missing for {} cycles", axis.fault_value),
+        fault::BOOT_FAILED => "boot failed".into(),
+        other => format!("fault kind {other} code {}", axis.fault_code),
+    }
+}
+
+/// "yes"/"no" for the homed flag.
+pub fn homed(axis: &AxisState) -> &'static str {
+    if axis.flags & axis_flags::HOMED != 0 {
+        "yes"
+    } else {
+        "no"
+    }
+}
+
+/// One axis on one line: `x ready/on pos 12.500 mm set 12.500 vel 0.000 mm/s`, and the fault.
+pub fn axis_line(axis: &AxisState) -> String {
+    let unit = name_str(&axis.unit);
+    let mut s = format!(
+        "{} {}/{} pos {} {unit} set {} vel {} {unit}/s",
+        name_str(&axis.name),
+        state_name(axis.state),
+        mode_name(axis.mode),
+        micro(axis.position, 3),
+        micro(axis.setpoint, 3),
+        micro(axis.velocity, 3),
+    );
+    if is_faulted(axis) {
+        let _ = write!(s, " fault: {}", fault_text(axis));
+    }
+    s
+}
+
+/// A group's member names, comma-separated.
+pub fn members(state: &MachineState, group: &GroupState) -> String {
+    let names: Vec<&str> = group_members(group)
+        .iter()
+        .map(|&i| {
+            state
+                .axes
+                .get(usize::from(i))
+                .map_or("?", |a| name_str(&a.name))
+        })
+        .collect();
+    names.join(",")
+}
+
+/// Quotes a CSV field when it holds a comma, quote or line break.
+pub fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.into()
+    }
+}
+
+/// The CSV header: `cycle,time_s`, then per axis `NAME_position,NAME_setpoint,NAME_velocity,
+/// NAME_state` (positions in user units, velocity in units/s, state as its numeric code).
+pub fn csv_header(state: &MachineState, axes: &[u16]) -> String {
+    let mut s = String::from("cycle,time_s");
+    for &i in axes {
+        let name = state
+            .axes
+            .get(usize::from(i))
+            .map_or("?", |a| name_str(&a.name));
+        for col in ["position", "setpoint", "velocity", "state"] {
+            let _ = write!(s, ",{}", csv_field(&format!("{name}_{col}")));
+        }
+    }
+    s
+}
+
+/// One CSV line of `state` for `axes` (columns as in [`csv_header`]; 6 decimals, exact).
+pub fn csv_line(state: &MachineState, axes: &[u16]) -> String {
+    let mut s = format!("{},{}", state.cycle, seconds(state.sync_time_ns));
+    for &i in axes {
+        match state.axes.get(usize::from(i)) {
+            Some(a) => {
+                let _ = write!(
+                    s,
+                    ",{},{},{},{}",
+                    micro(a.position, 6),
+                    micro(a.setpoint, 6),
+                    micro(a.velocity, 6),
+                    a.state
+                );
+            }
+            None => s.push_str(",,,,"),
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn micro_rounds_exactly() {
+        assert_eq!(micro(12_500_000, 3), "12.500");
+        assert_eq!(micro(-1_234_567, 3), "-1.235");
+        assert_eq!(micro(-400, 3), "0.000");
+        assert_eq!(micro(999_999, 2), "1.00");
+        assert_eq!(micro(-1, 6), "-0.000001");
+        assert_eq!(micro(2_500_000, 0), "3");
+        assert_eq!(micro(i64::MIN, 6), "-9223372036854.775808");
+    }
+
+    #[test]
+    fn seconds_have_nine_decimals() {
+        assert_eq!(seconds(1_000_000_001), "1.000000001");
+        assert_eq!(seconds(5), "0.000000005");
+    }
+
+    #[test]
+    fn csv_fields_are_quoted_when_needed() {
+        assert_eq!(csv_field("x_position"), "x_position");
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("a\"b"), "\"a\"\"b\"");
+    }
+}

@@ -1,0 +1,368 @@
+//! `motion-top`: a terminal UI with a live table of axes and groups and keys for the common
+//! commands. Rendering ([`App::render`]) and key handling ([`App::handle_key`]) are pure, so
+//! they are tested with ratatui's `TestBackend`; [`run`] owns the terminal and the connection.
+
+use std::time::{Duration, Instant};
+
+use crossterm::event::{self, Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+use ratatui::Frame;
+use ratatui::layout::{Constraint, Layout};
+use ratatui::style::{Color, Modifier, Style};
+use ratatui::text::Line;
+use ratatui::widgets::{Block, Paragraph, Row, Table, TableState};
+
+use super::resolve::{axes, groups};
+use super::{ClientError, Latched, Machine, Rejected, Target, format, name_str};
+use crate::contract::{CommandRequest, MachineState};
+
+/// What the keys act on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Selection {
+    /// Nothing selected: every axis.
+    All,
+    /// An axis row.
+    Axis(u16),
+    /// A group row.
+    Group(u16),
+}
+
+/// The UI's state between frames.
+#[derive(Debug, Clone)]
+pub struct App {
+    /// The prefix shown in the status line.
+    pub prefix: String,
+    /// The selected row.
+    pub selection: Selection,
+    /// The last command's answer or a connection message.
+    pub message: String,
+    /// Set by `q`, Esc twice or Ctrl-C.
+    pub quit: bool,
+}
+
+impl App {
+    /// A UI for the coordinator under `prefix`, nothing selected.
+    pub fn new(prefix: &str) -> Self {
+        Self {
+            prefix: prefix.into(),
+            selection: Selection::All,
+            message: String::new(),
+            quit: false,
+        }
+    }
+
+    fn target(&self) -> Target {
+        match self.selection {
+            Selection::All => Target::All,
+            Selection::Axis(a) => Target::Axis(a),
+            Selection::Group(g) => Target::Group(g),
+        }
+    }
+
+    // Rows in display order: the axes, then the groups.
+    fn row_of(&self, state: &MachineState) -> Option<usize> {
+        match self.selection {
+            Selection::All => None,
+            Selection::Axis(a) => Some(usize::from(a)),
+            Selection::Group(g) => Some(axes(state).len() + usize::from(g)),
+        }
+    }
+
+    fn select_row(&mut self, state: &MachineState, row: Option<usize>) {
+        let n = axes(state).len();
+        self.selection = match row {
+            None => Selection::All,
+            Some(r) if r < n => u16::try_from(r).map_or(Selection::All, Selection::Axis),
+            Some(r) => u16::try_from(r - n).map_or(Selection::All, Selection::Group),
+        };
+    }
+
+    /// Handles a key; returns the command it asks for. `h` hold, `r` resume, `s` stop,
+    /// `a` acknowledge the selection (or all); arrows select; Esc selects all; `q` quits.
+    pub fn handle_key(
+        &mut self,
+        key: KeyEvent,
+        state: Option<&MachineState>,
+    ) -> Option<CommandRequest> {
+        if key.kind == KeyEventKind::Release {
+            return None;
+        }
+        match key.code {
+            KeyCode::Char('q') => self.quit = true,
+            KeyCode::Char('c') if key.modifiers.contains(KeyModifiers::CONTROL) => self.quit = true,
+            KeyCode::Esc => self.selection = Selection::All,
+            KeyCode::Down | KeyCode::Up => {
+                let state = state?;
+                let rows = axes(state).len() + groups(state).len();
+                if rows == 0 {
+                    return None;
+                }
+                let next = match (self.row_of(state), key.code) {
+                    (None, KeyCode::Down) => Some(0),
+                    (None, _) => Some(rows - 1),
+                    (Some(r), KeyCode::Down) => Some((r + 1).min(rows - 1)),
+                    (Some(0), _) => None,
+                    (Some(r), _) => Some(r - 1),
+                };
+                self.select_row(state, next);
+            }
+            // Commands need a machine to go to; without one, say so instead.
+            KeyCode::Char(c @ ('h' | 'r' | 's' | 'a')) => {
+                if state.is_none() {
+                    self.message = "not connected".into();
+                    return None;
+                }
+                let t = self.target();
+                return Some(match c {
+                    'h' => CommandRequest::hold(t),
+                    'r' => CommandRequest::resume(t),
+                    's' => CommandRequest::stop(t),
+                    _ => CommandRequest::acknowledge(t),
+                });
+            }
+            _ => {}
+        }
+        None
+    }
+
+    /// Records a command's answer for the message line.
+    pub fn set_answer(&mut self, result: &Result<Latched, Rejected>) {
+        self.message = match result {
+            Ok(l) => format!("latched in cycle {}", l.cycle),
+            Err(e) => format!("rejected: {e}"),
+        };
+    }
+
+    /// Draws the UI: the status line, the axes, the groups, the message and the keys. `state`
+    /// is `None` while no coordinator is connected; `stale` says the state stopped changing.
+    pub fn render(&self, frame: &mut Frame, state: Option<&MachineState>, stale: bool) {
+        let [status, axes_area, groups_area, message, keys] = Layout::vertical([
+            Constraint::Length(1),
+            Constraint::Min(3),
+            Constraint::Length(groups_height(state)),
+            Constraint::Length(1),
+            Constraint::Length(1),
+        ])
+        .areas(frame.area());
+        frame.render_widget(
+            Paragraph::new("h hold  r resume  s stop  a acknowledge  ↑↓ select  Esc all  q quit")
+                .style(Style::new().add_modifier(Modifier::DIM)),
+            keys,
+        );
+        frame.render_widget(Paragraph::new(self.message.as_str()), message);
+        let Some(state) = state else {
+            frame.render_widget(
+                Paragraph::new(format!(
+                    "motion-top: no coordinator with prefix '{}' — retrying every second (q quits)",
+                    self.prefix
+                ))
+                .style(Style::new().fg(Color::Yellow)),
+                status,
+            );
+            return;
+        };
+        frame.render_widget(
+            Paragraph::new(status_line(state, &self.prefix, stale)),
+            status,
+        );
+
+        let header = Row::new([
+            "axis", "state", "mode", "position", "setpoint", "velocity", "unit", "homed", "fault",
+        ])
+        .style(Style::new().add_modifier(Modifier::BOLD));
+        let rows = axes(state).iter().map(|a| {
+            let row = Row::new([
+                name_str(&a.name).to_string(),
+                format::state_name(a.state).to_string(),
+                format::mode_name(a.mode).to_string(),
+                format::micro(a.position, 3),
+                format::micro(a.setpoint, 3),
+                format::micro(a.velocity, 3),
+                name_str(&a.unit).to_string(),
+                format::homed(a).to_string(),
+                format::fault_text(a),
+            ]);
+            if format::is_faulted(a) {
+                row.style(Style::new().fg(Color::Red))
+            } else {
+                row
+            }
+        });
+        let widths = [
+            Constraint::Length(12),
+            Constraint::Length(9),
+            Constraint::Length(13),
+            Constraint::Length(12),
+            Constraint::Length(12),
+            Constraint::Length(12),
+            Constraint::Length(6),
+            Constraint::Length(5),
+            Constraint::Min(10),
+        ];
+        let highlight = Style::new().add_modifier(Modifier::REVERSED);
+        let mut axis_sel = TableState::default().with_selected(match self.selection {
+            Selection::Axis(a) => Some(usize::from(a)),
+            _ => None,
+        });
+        frame.render_stateful_widget(
+            Table::new(rows, widths)
+                .header(header)
+                .block(Block::bordered().title("axes"))
+                .row_highlight_style(highlight),
+            axes_area,
+            &mut axis_sel,
+        );
+
+        let header = Row::new([
+            "group", "axes", "chain", "record", "active", "RC1", "RCC", "move", "override",
+        ])
+        .style(Style::new().add_modifier(Modifier::BOLD));
+        let rows = groups(state).iter().map(|g| {
+            Row::new([
+                name_str(&g.name).to_string(),
+                format::members(state, g),
+                format::chain_name(g.chain_state).to_string(),
+                record(g.record),
+                record(g.active_record),
+                flag(g.rc1),
+                flag(g.rcc),
+                format::motion_name(g.motion).to_string(),
+                format!("{} %", g.override_percent),
+            ])
+        });
+        let widths = [
+            Constraint::Length(12),
+            Constraint::Length(16),
+            Constraint::Length(9),
+            Constraint::Length(7),
+            Constraint::Length(7),
+            Constraint::Length(4),
+            Constraint::Length(4),
+            Constraint::Length(15),
+            Constraint::Min(8),
+        ];
+        let mut group_sel = TableState::default().with_selected(match self.selection {
+            Selection::Group(g) => Some(usize::from(g)),
+            _ => None,
+        });
+        frame.render_stateful_widget(
+            Table::new(rows, widths)
+                .header(header)
+                .block(Block::bordered().title("groups"))
+                .row_highlight_style(highlight),
+            groups_area,
+            &mut group_sel,
+        );
+    }
+}
+
+fn groups_height(state: Option<&MachineState>) -> u16 {
+    let n = state.map_or(0, |s| groups(s).len());
+    // Borders and header take three lines.
+    u16::try_from(n).unwrap_or(u16::MAX).saturating_add(3)
+}
+
+fn record(r: i16) -> String {
+    if r < 0 { "-".into() } else { r.to_string() }
+}
+
+fn flag(f: u8) -> String {
+    if f != 0 { "1".into() } else { "0".into() }
+}
+
+/// The status line: prefix, cycle, period, bus counters, step time.
+pub fn status_line<'a>(state: &MachineState, prefix: &str, stale: bool) -> Line<'a> {
+    let b = &state.bus;
+    let mut text = format!(
+        "{prefix}  cycle {}  period {} µs{}  tx {} rx {} refused {} dropped {} skipped {}  step {} µs  late {} µs  inputs 0x{:08X}",
+        state.cycle,
+        state.cycle_ns / 1000,
+        if state.virtual_time != 0 {
+            " (virtual)"
+        } else {
+            ""
+        },
+        b.frames_sent,
+        b.frames_received,
+        b.tx_refused,
+        b.rx_dropped,
+        b.skipped_cycles,
+        format::micro(i64::from(b.step_ns), 3),
+        b.wake_late_us,
+        state.inputs,
+    );
+    if stale {
+        text.push_str("  STALE: no new state");
+        return Line::styled(text, Style::new().fg(Color::Yellow));
+    }
+    Line::raw(text)
+}
+
+/// Runs the UI until `q`: connects with `connect` (retrying every second while there is no
+/// coordinator), draws at about 10 Hz and sends the keys' commands.
+pub fn run<M: Machine>(
+    prefix: &str,
+    mut connect: impl FnMut(&str) -> Result<M, ClientError>,
+) -> std::io::Result<()> {
+    let mut terminal = ratatui::try_init()?;
+    let mut app = App::new(prefix);
+    let mut machine: Option<M> = None;
+    let mut last_try: Option<Instant> = None;
+    let mut shown: Option<Box<MachineState>> = None;
+    let mut last_cycle = 0_u64;
+    let mut last_change = Instant::now();
+    let result = loop {
+        if machine.is_none() && last_try.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+            last_try = Some(Instant::now());
+            match connect(prefix) {
+                Ok(m) => {
+                    machine = Some(m);
+                    app.message = format!("connected to '{prefix}'");
+                    last_change = Instant::now();
+                }
+                Err(e) => app.message = format!("{e}"),
+            }
+        }
+        if let Some(s) = machine.as_mut().and_then(|m| m.latest()) {
+            if s.cycle != last_cycle {
+                last_cycle = s.cycle;
+                last_change = Instant::now();
+            }
+            match shown.as_mut() {
+                Some(b) => **b = *s,
+                None => shown = Some(Box::new(*s)),
+            }
+        }
+        let stale = shown.is_some() && last_change.elapsed() > Duration::from_secs(2);
+        if let Err(e) = terminal.draw(|f| app.render(f, shown.as_deref(), stale)) {
+            break Err(e);
+        }
+        match event::poll(Duration::from_millis(100)) {
+            Ok(true) => match event::read() {
+                Ok(Event::Key(key)) => {
+                    let req = app.handle_key(key, shown.as_deref());
+                    match (req, machine.as_mut()) {
+                        (Some(req), Some(m)) => {
+                            let answer = m.command(&req, Duration::from_millis(500));
+                            if matches!(answer, Err(Rejected::Disconnected)) {
+                                // Reconnect on the next pass rather than talk to nobody.
+                                machine = None;
+                            }
+                            app.set_answer(&answer);
+                        }
+                        (Some(_), None) => app.message = "not connected".into(),
+                        (None, _) => {}
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => break Err(e),
+            },
+            Ok(false) => {}
+            Err(e) => break Err(e),
+        }
+        if app.quit {
+            break Ok(());
+        }
+    };
+    ratatui::restore();
+    result
+}
