@@ -77,7 +77,10 @@ fn sigint_stops_the_real_time_run_and_disables_every_drive() {
         .unwrap();
     // 0, or 2 when the run saw faults (a heavily loaded machine can starve even the simulated
     // drives): either way the drives must end disabled.
-    assert!(matches!(status.code(), Some(0 | 2)), "{status:?}\n{text}\n{err}");
+    assert!(
+        matches!(status.code(), Some(0 | 2)),
+        "{status:?}\n{text}\n{err}"
+    );
     assert!(text.contains("summary:"), "{text}");
     assert_eq!(
         text.matches(", Disabled").count(),

@@ -29,4 +29,3 @@ pub use request::{Target, name_str};
 
 /// The default prefix of every service name of the contract.
 pub const DEFAULT_PREFIX: &str = "motion";
-

@@ -44,6 +44,9 @@ use drivers::fhpp::{ByteOrder, ControlMode, Opm, Variant};
 
 use super::{AxisError, AxisState, Demand, Feedback, Image};
 
+/// Images without a position change after which the axis counts as standing (velocity 0).
+const STILL_CYCLES: u32 = 8;
+
 /// Bytes of the FHPP cyclic image, each way.
 pub const IMAGE_LEN: usize = 8;
 
@@ -152,6 +155,9 @@ pub struct FhppAxis {
     clearing: u8,
     /// Cycles since the last image arrived.
     gap: u32,
+    /// The position at its last change, and the images since (the velocity estimate).
+    changed_at: i64,
+    since_change: u32,
 }
 
 impl FhppAxis {
@@ -178,6 +184,8 @@ impl FhppAxis {
             since_raise: 0,
             clearing: 0,
             gap: 0,
+            changed_at: 0,
+            since_change: 0,
         }
     }
 
@@ -292,13 +300,29 @@ impl FhppAxis {
                 ControlMode::Reserved => {}
             },
         }
+        // The drive refreshes its actual position at its own internal cycle (1, 5 or 2 ms), not
+        // at ours: a velocity from one image to the next would alternate between 0 and a
+        // multiple of the real one. Estimate it from position change to position change, over
+        // the time between them; still for `STILL_CYCLES` images means standing.
+        let _ = before;
+        self.since_change = self.since_change.saturating_add(self.gap.max(1));
         self.feedback.velocity = match velocity {
             Some(v) => v,
-            None if had => {
-                let span = i64::from(self.cycle_ns).saturating_mul(i64::from(self.gap.max(1)));
-                (position - before) * 1_000_000_000 / span
+            None if !had => {
+                self.changed_at = position;
+                self.since_change = 0;
+                0
             }
-            None => 0,
+            None if position != self.changed_at => {
+                let span =
+                    i64::from(self.cycle_ns).saturating_mul(i64::from(self.since_change.max(1)));
+                let v = (position - self.changed_at) * 1_000_000_000 / span;
+                self.changed_at = position;
+                self.since_change = 0;
+                v
+            }
+            None if self.since_change >= STILL_CYCLES => 0,
+            None => self.feedback.velocity,
         };
         self.feedback.position = position;
         self.feedback.force = force;
@@ -817,6 +841,42 @@ mod tests {
         let fb = a.exchange(input, &d, &mut out).unwrap();
         assert_eq!(out.len, 8);
         (out.data, fb)
+    }
+
+    #[test]
+    fn velocity_is_estimated_between_the_drives_position_updates() {
+        // The drive refreshes its position every 5 ms (an EMCA), the coordinator exchanges
+        // every 2 ms: at 100 000 inc/s the position steps by 500 inc at 0, 5, 10 ms...
+        let mut a = axis(Variant::Emca);
+        let mut seen = std::vec::Vec::new();
+        for k in 0..40u32 {
+            let t_ms = 2 * k;
+            let pos = (t_ms / 5 * 5 * 100) as i32;
+            let (_, fb) = ex(
+                &mut a,
+                Some(&inp(0x13, 0x04, 0, 0, pos)),
+                Demand::Standstill,
+            );
+            if k >= 5 {
+                seen.push(fb.velocity);
+            }
+        }
+        // Never the 0 / 2.5x alternation of a per-image difference.
+        for v in &seen {
+            assert!((60_000..=140_000).contains(v), "{seen:?}");
+        }
+        // Standing: after STILL_CYCLES images without a change the velocity is 0.
+        let mut last = 0;
+        for _ in 0..=STILL_CYCLES {
+            last = ex(
+                &mut a,
+                Some(&inp(0x13, 0x04, 0, 0, 7_800)),
+                Demand::Standstill,
+            )
+            .1
+            .velocity;
+        }
+        assert_eq!(last, 0);
     }
 
     #[test]

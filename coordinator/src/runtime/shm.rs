@@ -495,7 +495,8 @@ pub fn to_record(info: &StaticInfo, e: &Event) -> EventRecord {
     };
     match *e {
         Event::AxisState { cycle, axis, state } => {
-            (r.cycle, r.id, r.axis, r.state) = (cycle, id::STATE_CHANGED as u16, axis, axis_state(state));
+            (r.cycle, r.id, r.axis, r.state) =
+                (cycle, id::STATE_CHANGED as u16, axis, axis_state(state));
         }
         Event::Fault {
             cycle,
@@ -568,7 +569,9 @@ pub struct StateSide {
 
 impl std::fmt::Debug for StateSide {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("StateSide").field("failed", &self.failed).finish_non_exhaustive()
+        f.debug_struct("StateSide")
+            .field("failed", &self.failed)
+            .finish_non_exhaustive()
     }
 }
 
@@ -589,11 +592,22 @@ impl StateSide {
     }
 
     /// Publishes the state of `c` after its step.
-    pub fn publish<const A: usize, const G: usize>(&mut self, c: &Cycle<'_, A, G>, sync_time_ns: u64) {
+    pub fn publish<const A: usize, const G: usize>(
+        &mut self,
+        c: &Cycle<'_, A, G>,
+        sync_time_ns: u64,
+    ) {
         let publish_ns = drivers::time::monotonic_now().as_nanos();
         match self.state.loan() {
             Ok(mut s) => {
-                fill_state(&mut s, &self.info, c, sync_time_ns, publish_ns, &self.counters);
+                fill_state(
+                    &mut s,
+                    &self.info,
+                    c,
+                    sync_time_ns,
+                    publish_ns,
+                    &self.counters,
+                );
                 if s.send().is_err() {
                     self.failed += 1;
                 }
@@ -615,7 +629,9 @@ pub struct ServiceSide {
 
 impl std::fmt::Debug for ServiceSide {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ServiceSide").field("events", &self.seq).finish_non_exhaustive()
+        f.debug_struct("ServiceSide")
+            .field("events", &self.seq)
+            .finish_non_exhaustive()
     }
 }
 
@@ -690,8 +706,10 @@ pub fn spawn_command_thread(
         .name("shm-commands".into())
         .spawn(move || {
             let mut side = ServiceSide::create(&prefix, info)?;
-            let mut pending: Vec<(PendingCommand, std::sync::mpsc::Receiver<crate::command::Answer>)> =
-                Vec::new();
+            let mut pending: Vec<(
+                PendingCommand,
+                std::sync::mpsc::Receiver<crate::command::Answer>,
+            )> = Vec::new();
             loop {
                 let mut idle = true;
                 while let Some((p, c)) = side.receive() {
