@@ -277,11 +277,6 @@ impl Client {
                 e => ClientError::Shm(format!("opening {}: {e:?}", names.events)),
             })?;
 
-        let state = state_service
-            .subscriber_builder()
-            .buffer_size(state_service.static_config().subscriber_max_buffer_size())
-            .create()
-            .map_err(|e| ClientError::Shm(format!("creating the state subscriber: {e:?}")))?;
         let commands = command_service
             .client_builder()
             .create()
@@ -295,6 +290,13 @@ impl Client {
             .listener_builder()
             .create()
             .map_err(|e| ClientError::Shm(format!("creating the events listener: {e:?}")))?;
+        // The state subscriber last: from its creation on, samples queue up in its buffer, so
+        // nothing slow may come between it and the caller's first read.
+        let state = state_service
+            .subscriber_builder()
+            .buffer_size(state_service.static_config().subscriber_max_buffer_size())
+            .create()
+            .map_err(|e| ClientError::Shm(format!("creating the state subscriber: {e:?}")))?;
         Ok(Client {
             prefix: prefix.to_owned(),
             current: None,

@@ -1,0 +1,307 @@
+//! The coordinator and its shared-memory clients as separate processes: the real coordinator
+//! (`coordinator run`, real time, the embedded machine) publishing under a unique prefix, and
+//! `motion-watch` processes, the client library and the Python example reading and commanding.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use shm_api::client::{Client, Rejected};
+use shm_api::contract::{CommandRequest, axis_flags};
+use shm_api::request::Target;
+
+/// A binary of the workspace, built if a partial build has not built it yet.
+fn bin(package: &str, name: &str) -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    // target/<profile>/deps/this-test → target/<profile>/<name>
+    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+    let path = dir.join(name);
+    if !path.exists() {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let ok = Command::new(cargo)
+            .args(["build", "-q", "-p", package, "--bin", name])
+            .status()
+            .unwrap();
+        assert!(ok.success(), "building {name}");
+    }
+    path
+}
+
+fn prefix(test: &str) -> String {
+    format!("t-{test}-{}", std::process::id())
+}
+
+/// The coordinator on the embedded machine, real time, for `secs` seconds.
+struct Coordinator(Child);
+
+impl Coordinator {
+    fn start(prefix: &str, secs: u32) -> Coordinator {
+        let child = Command::new(bin("coordinator", "coordinator"))
+            .args([
+                "run",
+                "--quiet",
+                "--duration",
+                &secs.to_string(),
+                "--shm-prefix",
+                prefix,
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        Coordinator(child)
+    }
+    fn kill(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+    fn finish(mut self) -> String {
+        let out = std::mem::replace(&mut self.0, Command::new("true").spawn().unwrap())
+            .wait_with_output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr)
+    }
+}
+
+impl Drop for Coordinator {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn connect(prefix: &str) -> Client {
+    Client::connect_timeout(prefix, Duration::from_secs(20)).expect("the coordinator appears")
+}
+
+/// Waits until every axis is enabled and homed (the coordinator's script has run).
+fn wait_ready(c: &mut Client) {
+    let t = Instant::now();
+    loop {
+        let s = *c.next(Duration::from_secs(5)).expect("states");
+        let n = usize::from(s.axis_count);
+        let ready = n == 4
+            && s.axes[..n]
+                .iter()
+                .all(|a| a.flags & axis_flags::HOMED != 0 && a.flags & axis_flags::ENABLED != 0);
+        if ready {
+            return;
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "not homed: {s:?}");
+    }
+}
+
+#[test]
+fn eight_clients_see_every_cycle_in_order_and_a_killed_one_disturbs_nothing() {
+    let p = prefix("fanout");
+    let coordinator = Coordinator::start(&p, 14);
+    let mut c = connect(&p);
+    c.next(Duration::from_secs(5)).unwrap();
+    let watch = bin("shm-api", "motion-watch");
+    // Each client writes to a file: a pipe nobody reads while the test waits for another
+    // client would fill and block the client.
+    let dir = std::env::temp_dir().join(&p);
+    std::fs::create_dir_all(&dir).unwrap();
+    let spawn = |name: &str, count: u32| {
+        let file = std::fs::File::create(dir.join(name)).unwrap();
+        Command::new(&watch)
+            .args([
+                "--prefix",
+                &p,
+                "--csv",
+                "--every-cycle",
+                "--count",
+                &count.to_string(),
+            ])
+            .stdout(file)
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let victim = spawn("victim.csv", 100_000);
+    let clients: Vec<Child> = (0..8).map(|i| spawn(&format!("c{i}.csv"), 1500)).collect();
+    std::thread::sleep(Duration::from_millis(800));
+    // SIGKILL one client mid-run.
+    let mut victim = victim;
+    victim.kill().unwrap();
+    victim.wait().unwrap();
+    for (i, child) in clients.into_iter().enumerate() {
+        let out = child.wait_with_output().unwrap();
+        assert!(
+            out.status.success(),
+            "client {i}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = std::fs::read_to_string(dir.join(format!("c{i}.csv"))).unwrap();
+        let cycles: Vec<u64> = BufReader::new(text.as_bytes())
+            .lines()
+            .skip(1)
+            .map(|l| l.unwrap().split(',').next().unwrap().parse().unwrap())
+            .collect();
+        assert_eq!(cycles.len(), 1500, "client {i}");
+        for w in cycles.windows(2) {
+            assert_eq!(
+                w[1],
+                w[0] + 1,
+                "client {i}: a gap or a reorder at cycle {}",
+                w[0]
+            );
+        }
+    }
+    // The cycle went on: the coordinator's state still advances after the kill.
+    let a = c.next(Duration::from_secs(1)).unwrap().cycle;
+    std::thread::sleep(Duration::from_millis(200));
+    let b = c.next(Duration::from_secs(1)).unwrap().cycle;
+    assert!(b > a + 50, "{a} -> {b}");
+    drop(coordinator);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_restarted_coordinator_is_found_again_after_a_crash() {
+    let p = prefix("restart");
+    let mut first = Coordinator::start(&p, 30);
+    let mut c = connect(&p);
+    let before = c.next(Duration::from_secs(5)).unwrap().cycle;
+    // A crash: SIGKILL leaves its shared memory behind; the next coordinator cleans it up.
+    first.kill();
+    let second = Coordinator::start(&p, 30);
+    let t = Instant::now();
+    loop {
+        // The waiting client sees the new coordinator's cycles, which start again from 0.
+        if let Ok(s) = c.next(Duration::from_millis(500))
+            && s.cycle < before
+        {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "the restarted coordinator was not found"
+        );
+    }
+    drop(second);
+}
+
+#[test]
+fn commands_latch_in_the_reported_cycle_and_bad_ones_are_refused_with_their_reason() {
+    let p = prefix("commands");
+    let coordinator = Coordinator::start(&p, 30);
+    let mut c = connect(&p);
+    wait_ready(&mut c);
+    let t = Duration::from_secs(2);
+    // Hold the gantry: latched at a cycle, and the state of that cycle shows it.
+    let latched = c
+        .command(&CommandRequest::hold(Target::Group(0)), t)
+        .unwrap();
+    loop {
+        let s = *c.next(t).unwrap();
+        if s.cycle >= latched.cycle {
+            break;
+        }
+    }
+    // Input bit 5 set: visible from the latching cycle on.
+    let l = c.command(&CommandRequest::set_input(5, true), t).unwrap();
+    let s = loop {
+        let s = *c.next(t).unwrap();
+        if s.cycle >= l.cycle {
+            break s;
+        }
+    };
+    assert_eq!(
+        s.inputs & (1 << 5),
+        1 << 5,
+        "cycle {} vs latched {}",
+        s.cycle,
+        l.cycle
+    );
+    // Each kind of bad command, with its reason.
+    assert_eq!(
+        c.command(&CommandRequest::enable(Target::Axis(9)), t),
+        Err(Rejected::UnknownAxis(9))
+    );
+    assert_eq!(
+        c.command(&CommandRequest::hold(Target::Group(7)), t),
+        Err(Rejected::UnknownGroup(7))
+    );
+    assert_eq!(
+        c.command(&CommandRequest::start_chain(0, 99), t),
+        Err(Rejected::UnknownRecord(99))
+    );
+    // x is 0..=400 mm: 500 mm is out of range, with the limits in µunits→increments.
+    match c.command(&CommandRequest::move_axis(0, 500_000_000, 50), t) {
+        Err(Rejected::OutOfRange { min, max, .. }) => assert_eq!((min, max), (0, 160_000)),
+        other => panic!("{other:?}"),
+    }
+    // The TLC5xx has no parameter channel.
+    assert!(matches!(
+        c.command(&CommandRequest::read_parameter(2, 1, 0), t),
+        Err(Rejected::WrongState(_))
+    ));
+    // A burst: 10 000 commands from 4 clients, none lost.
+    let handles: Vec<_> = (0..4u16)
+        .map(|k| {
+            let p = p.clone();
+            std::thread::spawn(move || {
+                let mut c = connect(&p);
+                let mut latched = 0;
+                for i in 0..2500u32 {
+                    let r = c.command(
+                        &CommandRequest::set_input(8 + k, i % 2 == 0),
+                        Duration::from_secs(5),
+                    );
+                    match r {
+                        Ok(_) => latched += 1,
+                        Err(e) => panic!("client {k} command {i}: {e}"),
+                    }
+                }
+                latched
+            })
+        })
+        .collect();
+    let total: u32 = handles.into_iter().map(|h| h.join().unwrap()).sum();
+    assert_eq!(total, 10_000);
+    drop(coordinator);
+}
+
+#[test]
+fn the_python_example_reads_the_state_and_commands_the_coordinator() {
+    let have = Command::new("python3")
+        .args(["-c", "import iceoryx2"])
+        .status()
+        .map(|s| s.success());
+    if have.as_ref().map_or(true, |ok| !ok) {
+        assert!(
+            std::env::var("MOTION_SKIP_PYTHON").is_ok(),
+            "the iceoryx2 Python package is missing (.ci/run installs it; set MOTION_SKIP_PYTHON=1 to skip)"
+        );
+        return;
+    }
+    let p = prefix("python");
+    let coordinator = Coordinator::start(&p, 20);
+    let mut c = connect(&p);
+    c.next(Duration::from_secs(5)).unwrap();
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = Command::new("python3")
+        .arg(root.join("shm-api/python/example_watch_and_command.py"))
+        .args(["--prefix", &p, "--all", "--timeout", "10"])
+        .env("PYTHONPATH", root.join("shm-api/python"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for needle in [
+        "axis 0 x:",
+        "axis 3 gripper:",
+        "group 0 gantry",
+        "latched at cycle",
+    ] {
+        assert!(text.contains(needle), "{needle:?} in:\n{text}");
+    }
+    let summary = coordinator.finish();
+    assert!(summary.contains("summary:"), "{summary}");
+}
