@@ -659,7 +659,7 @@ impl ServiceSide {
     /// here and `None` returned for it.
     pub fn receive(&mut self) -> Option<(PendingCommand, Result<Command, ()>)> {
         self.polls += 1;
-        if self.polls % 1000 == 0 {
+        if self.polls.is_multiple_of(1000) {
             // A crashed client holds its port slots until someone cleans up.
             let _ = cleanup_dead_nodes_with(&self._node);
         }
