@@ -1,12 +1,14 @@
-//! Latency measurement runs of the motion coordinator.
+//! Latency measurement runs of the motion coordinator: the `timing` binary and its runs, with
+//! raw data for plots under `timing/results/`.
 //!
-//! This crate will hold the `timing` binary: cycle wake-up latency runs with baselines
-//! (`clock_nanosleep` alone, the full cycle, publish-to-client), histograms, raw data for plots
-//! under `timing/results/`, and the plots themselves.
+//! - [`shm_latency`]: publish-to-client latency over shared memory, the contract's publisher
+//!   and client beside a bare iceoryx2 pair of the same payload.
 //!
 //! ```
 //! assert!(timing::RESULTS_DIR.ends_with("results"));
 //! ```
 
-/// Where runs write their raw data, relative to the crate.
+pub mod shm_latency;
+
+/// Where runs write their raw data, relative to the workspace.
 pub const RESULTS_DIR: &str = "timing/results";

@@ -212,8 +212,8 @@ fn record(r: Option<u16>) -> i16 {
     r.map_or(-1, |r| r as i16)
 }
 
-/// Writes the whole state of `c` into `s` (every field: a loaned sample holds old data).
-/// Allocation-free.
+/// Writes the state of `c` into `s`: every header field and the valid axis and group entries
+/// (the sample is expected zeroed, as `StatePublisher::loan` gives it). Allocation-free.
 pub fn fill_state<const A: usize, const G: usize>(
     s: &mut MachineState,
     info: &StaticInfo,
@@ -245,7 +245,9 @@ pub fn fill_state<const A: usize, const G: usize>(
         step_ns: counters.step_ns,
         wake_late_us: counters.wake_late_us,
     };
-    for (i, w) in s.axes.iter_mut().enumerate() {
+    // Only the valid entries are written: a loaned sample comes zeroed, and clients read the
+    // first `axis_count` / `group_count` entries.
+    for (i, w) in s.axes.iter_mut().enumerate().take(axis_count) {
         let (Some(st), Some(ai)) = (c.axis_status(i as u16), info.axes.get(i)) else {
             *w = empty_axis();
             continue;
@@ -291,7 +293,7 @@ pub fn fill_state<const A: usize, const G: usize>(
             reserved1: [0; 32],
         };
     }
-    for (g, w) in s.groups.iter_mut().enumerate() {
+    for (g, w) in s.groups.iter_mut().enumerate().take(group_count) {
         let (Some(st), Some(gi)) = (c.group_status(g as u16), info.groups.get(g)) else {
             *w = empty_group();
             continue;

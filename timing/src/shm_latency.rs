@@ -1,0 +1,215 @@
+//! Publish-to-client latency over shared memory: the contract's state publisher and client
+//! beside a bare iceoryx2 publisher/subscriber pair of the same payload, in one run.
+//!
+//! A publisher process writes, every period, one `MachineState` through `shm_api`'s
+//! `StatePublisher` (as the coordinator does: loan, write in place, send, no notification) and
+//! one through a bare iceoryx2 publisher on another service, which also notifies a bare event
+//! service (what a bare event-driven pair does). Each sample carries its CLOCK_MONOTONIC send
+//! time. The client process measures four phases, one after the other, `samples` each:
+//! the contract's client busy-polling (`Client::next_busy`) and sleeping (`Client::next`), the
+//! bare subscriber busy-polling, and the bare subscriber woken by the bare listener.
+
+use std::fmt::Write as _;
+use std::time::Duration;
+
+use drivers::time::monotonic_now;
+use hdrhistogram::Histogram;
+use iceoryx2::prelude::*;
+use shm_api::contract::MachineState;
+
+/// One phase's figures, ns.
+#[derive(Debug, Clone)]
+pub struct Figures {
+    /// The phase.
+    pub name: &'static str,
+    /// Samples measured.
+    pub count: u64,
+    /// Median, ns.
+    pub median: u64,
+    /// 99th percentile, ns.
+    pub p99: u64,
+    /// Maximum, ns.
+    pub max: u64,
+    /// Every latency, ns, in order (for plots).
+    pub raw: Vec<u64>,
+}
+
+fn figures(name: &'static str, raw: Vec<u64>) -> Figures {
+    let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("bounds");
+    for &v in &raw {
+        let _ = h.record(v.max(1));
+    }
+    Figures {
+        name,
+        count: h.len(),
+        median: h.value_at_quantile(0.5),
+        p99: h.value_at_quantile(0.99),
+        max: h.max(),
+        raw,
+    }
+}
+
+fn bare_names(prefix: &str) -> (ServiceName, ServiceName) {
+    (
+        format!("{prefix}-bare/state").as_str().try_into().expect("name"),
+        format!("{prefix}-bare/events").as_str().try_into().expect("name"),
+    )
+}
+
+/// The publisher process: publishes on both until `count` periods have passed.
+pub fn publish(prefix: &str, period: Duration, count: u64) -> Result<(), String> {
+    use shm_api::publisher::{
+        CommandServer, EventPublisher, PublisherSettings, StatePublisher, create_node,
+    };
+    let node = create_node().map_err(|e| e.to_string())?;
+    let names = shm_api::names::ServiceNames::new(prefix);
+    let settings = PublisherSettings::default();
+    let mut ours = StatePublisher::create(&node, &names, &settings).map_err(|e| e.to_string())?;
+    // A client connects to all four services of the contract.
+    let mut commands = CommandServer::create(&node, &names, &settings).map_err(|e| e.to_string())?;
+    let _events = EventPublisher::create(&node, &names, &settings).map_err(|e| e.to_string())?;
+    let (state_name, event_name) = bare_names(prefix);
+    let bare_service = node
+        .service_builder(&state_name)
+        .publish_subscribe::<MachineState>()
+        .history_size(1)
+        .subscriber_max_buffer_size(settings.state_buffer)
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(|e| format!("{e:?}"))?;
+    let bare = bare_service.publisher_builder().create().map_err(|e| format!("{e:?}"))?;
+    let bare_events = node
+        .service_builder(&event_name)
+        .event()
+        .open_or_create()
+        .map_err(|e| format!("{e:?}"))?;
+    let notifier = bare_events.notifier_builder().create().map_err(|e| format!("{e:?}"))?;
+    let mut next = monotonic_now() + period;
+    for k in 0..count {
+        // Alternate which goes first, so neither is always second.
+        for which in [k % 2, 1 - k % 2] {
+            if which == 0 {
+                if let Ok(mut s) = ours.loan() {
+                    s.cycle = k;
+                    s.publish_time_ns = monotonic_now().as_nanos();
+                    let _ = s.send();
+                }
+            } else if let Ok(s) = bare.loan_uninit() {
+                // SAFETY: MachineState is plain integers; all-zero is a valid value.
+                let mut s = unsafe {
+                    let mut s = s;
+                    s.payload_mut().as_mut_ptr().write_bytes(0, 1);
+                    s.assume_init()
+                };
+                s.cycle = k;
+                s.publish_time_ns = monotonic_now().as_nanos();
+                let _ = s.send();
+                let _ = notifier.notify();
+            }
+        }
+        // Commands are not part of the measurement; keep the server serviced.
+        while commands.receive().is_some() {}
+        let now = monotonic_now();
+        if next > now {
+            std::thread::sleep(next - now);
+        }
+        next = next + period;
+    }
+    Ok(())
+}
+
+/// The client process: the four phases, `samples` each.
+pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
+    let mut client = shm_api::client::Client::connect_timeout(prefix, Duration::from_secs(10))
+        .map_err(|e| e.to_string())?;
+    let node = NodeBuilder::new()
+        .create::<ipc::Service>()
+        .map_err(|e| format!("{e:?}"))?;
+    let (state_name, event_name) = bare_names(prefix);
+    let bare_service = node
+        .service_builder(&state_name)
+        .publish_subscribe::<MachineState>()
+        .open()
+        .map_err(|e| format!("{e:?}"))?;
+    let bare = bare_service.subscriber_builder().create().map_err(|e| format!("{e:?}"))?;
+    let listener = node
+        .service_builder(&event_name)
+        .event()
+        .open()
+        .map_err(|e| format!("{e:?}"))?
+        .listener_builder()
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
+    let t = Duration::from_secs(2);
+    let drain_bare = || while let Ok(Some(_)) = bare.receive() {};
+    let mut out = Vec::new();
+
+    // The contract's client, busy-polling.
+    let _ = client.latest();
+    let mut raw = Vec::with_capacity(samples);
+    while raw.len() < samples {
+        let s = client.next_busy(t).map_err(|e| e.to_string())?;
+        raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
+    }
+    out.push(figures("shm-api client, busy-poll", raw));
+
+    // Bare iceoryx2 subscriber, busy-polling.
+    drain_bare();
+    let mut raw = Vec::with_capacity(samples);
+    while raw.len() < samples {
+        if let Ok(Some(s)) = bare.receive() {
+            raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
+        } else {
+            core::hint::spin_loop();
+        }
+    }
+    out.push(figures("bare iceoryx2, busy-poll", raw));
+
+    // The contract's client, sleeping between polls (Client::next).
+    let _ = client.latest();
+    let mut raw = Vec::with_capacity(samples);
+    while raw.len() < samples {
+        let s = client.next(t).map_err(|e| e.to_string())?;
+        raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
+    }
+    out.push(figures("shm-api client, sleeping (next)", raw));
+
+    // Bare iceoryx2, woken by the publisher's notification.
+    let _ = listener.try_wait(|_| {});
+    drain_bare();
+    let mut raw = Vec::with_capacity(samples);
+    while raw.len() < samples {
+        listener.timed_wait(|_| {}, t).map_err(|e| format!("{e:?}"))?;
+        while let Ok(Some(s)) = bare.receive() {
+            raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
+        }
+    }
+    out.push(figures("bare iceoryx2, event-driven (listener)", raw));
+    Ok(out)
+}
+
+/// The figures as a Markdown table, with the ratios to the bare pair.
+pub fn table(f: &[Figures]) -> String {
+    let mut s = String::from("| client | samples | median | p99 | max |\n|---|---|---|---|---|\n");
+    for x in f {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.1} µs | {:.1} µs | {:.1} µs |",
+            x.name,
+            x.count,
+            x.median as f64 / 1e3,
+            x.p99 as f64 / 1e3,
+            x.max as f64 / 1e3
+        );
+    }
+    if f.len() == 4 {
+        let r = |a: &Figures, b: &Figures| a.median as f64 / b.median.max(1) as f64;
+        let _ = writeln!(
+            s,
+            "\nmedian ratios: busy-poll {:.2}x bare; sleeping client vs bare event-driven {:.2}x",
+            r(&f[0], &f[1]),
+            r(&f[2], &f[3])
+        );
+    }
+    s
+}
