@@ -273,16 +273,21 @@ impl CommandServer {
         match self.server.receive() {
             Ok(Some(active)) => {
                 let request = *active.payload();
-                Some(PendingCommand { active, request })
+                Some(PendingCommand {
+                    active: Some(active),
+                    request,
+                })
             }
             Ok(None) | Err(_) => None,
         }
     }
 }
 
-/// A received command awaiting its one reply.
+/// A received command awaiting its one reply. Dropped without [`PendingCommand::reply`], it
+/// answers [`crate::contract::status::OVERLOADED`] itself, so a client never waits for a reply
+/// that will not come.
 pub struct PendingCommand {
-    active: CommandActive,
+    active: Option<CommandActive>,
     request: CommandRequest,
 }
 
@@ -302,12 +307,28 @@ impl PendingCommand {
 
     /// Sends the reply; the tag is set to the request's. Consumes the command: exactly one
     /// reply per request.
-    pub fn reply(self, reply: &CommandReply) -> Result<(), ShmError> {
+    pub fn reply(mut self, reply: &CommandReply) -> Result<(), ShmError> {
         let mut r = *reply;
         r.tag = self.request.tag;
-        self.active
-            .send_copy(r)
-            .map_err(|e| ShmError::iox("sending a command reply", e))
+        match self.active.take() {
+            Some(active) => active
+                .send_copy(r)
+                .map_err(|e| ShmError::iox("sending a command reply", e)),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for PendingCommand {
+    fn drop(&mut self) {
+        if let Some(active) = self.active.take() {
+            // Best effort: a client that died meanwhile cannot be answered anyway.
+            let _ = active.send_copy(CommandReply::rejected(
+                self.request.tag,
+                crate::contract::status::OVERLOADED,
+                0,
+            ));
+        }
     }
 }
 
