@@ -4,6 +4,18 @@
 //! (`motion-watch`, `motion-top`, `motion-cmd`). `docs/clients.md` describes the contract field
 //! by field and how to write a client in Rust, Python and C.
 //!
+//! # Access rights
+//!
+//! iceoryx2 0.10 fixes the permissions of its files in code; no config setting or API chooses
+//! a group. Its service segments in `/dev/shm` (`*.data`, `*.dynamic`) are created `0600`,
+//! the static service files in `/tmp/iceoryx2/services` `0400` in `0750` directories, the
+//! node files owner-only, the event sockets owner-only; only the global management segment
+//! (`iox2_*_node.*.global_mgmt`, 16 bytes) is `0666`. So only processes of the coordinator's
+//! user can open the services: run the coordinator and its clients under one service account.
+//! The crate feature `iceoryx2/dev_permissions` would make everything world-accessible
+//! (`0666`/`0777`); a umask cannot narrow or widen anything because iceoryx2 sets the final
+//! mode with `fchmod` after creation. The test `service_segments_are_owner_only` pins this.
+//!
 //! ```
 //! assert_eq!(shm_api::DEFAULT_PREFIX, "motion");
 //! assert_eq!(core::mem::size_of::<shm_api::contract::AxisState>(), 128);
@@ -23,7 +35,7 @@ pub use client::{Client, ClientError, Latched, Rejected};
 pub use names::ServiceNames;
 pub use publisher::{
     CommandServer, EventPublisher, PendingCommand, PublisherSettings, ShmError, StatePublisher,
-    StateSample, cleanup_dead_nodes, cleanup_dead_nodes_with, create_node,
+    StateSample, cleanup_dead_nodes, cleanup_dead_nodes_with, create_node, create_node_with,
 };
 pub use request::{Target, name_str};
 

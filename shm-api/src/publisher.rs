@@ -87,11 +87,18 @@ fn service_name(name: &str) -> Result<ServiceName, ShmError> {
 /// coordinator and the clients handle their own signals). Logs at `Error` unless
 /// `IOX2_LOG_LEVEL` says otherwise.
 pub fn create_node() -> Result<Node<ipc::Service>, ShmError> {
+    create_node_with(SignalHandlingMode::Disabled)
+}
+
+/// Like [`create_node`] with iceoryx2's signal handling `mode`: with
+/// [`SignalHandlingMode::HandleTerminationRequests`], `node.wait(..)` reports SIGINT and
+/// SIGTERM, so a simple process can stop cleanly and remove its services.
+pub fn create_node_with(mode: SignalHandlingMode) -> Result<Node<ipc::Service>, ShmError> {
     static LOG: std::sync::Once = std::sync::Once::new();
     // The missing-config warning would otherwise go to every tool's stderr.
     LOG.call_once(|| set_log_level_from_env_or(LogLevel::Error));
     NodeBuilder::new()
-        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .signal_handling_mode(mode)
         .create::<ipc::Service>()
         .map_err(|e| ShmError::iox("creating the iceoryx2 node", e))
 }
@@ -113,7 +120,8 @@ pub fn cleanup_dead_nodes_with(node: &Node<ipc::Service>) -> u64 {
 
 /// Publishes the [`MachineState`] on `PREFIX/state`, once per cycle.
 ///
-/// History 1 (a late joiner gets the latest state at once), safe overflow (a slow client loses
+/// History 1 (a late joiner gets the latest state with the publisher's next send, that is
+/// within a cycle, and then every later one), safe overflow (a slow client loses
 /// its oldest samples and never blocks the publisher), no notification (clients poll). Loan,
 /// write and send allocate nothing.
 pub struct StatePublisher {
@@ -265,16 +273,21 @@ impl CommandServer {
         match self.server.receive() {
             Ok(Some(active)) => {
                 let request = *active.payload();
-                Some(PendingCommand { active, request })
+                Some(PendingCommand {
+                    active: Some(active),
+                    request,
+                })
             }
             Ok(None) | Err(_) => None,
         }
     }
 }
 
-/// A received command awaiting its one reply.
+/// A received command awaiting its one reply. Dropped without [`PendingCommand::reply`], it
+/// answers [`crate::contract::status::OVERLOADED`] itself, so a client never waits for a reply
+/// that will not come.
 pub struct PendingCommand {
-    active: CommandActive,
+    active: Option<CommandActive>,
     request: CommandRequest,
 }
 
@@ -294,12 +307,28 @@ impl PendingCommand {
 
     /// Sends the reply; the tag is set to the request's. Consumes the command: exactly one
     /// reply per request.
-    pub fn reply(self, reply: &CommandReply) -> Result<(), ShmError> {
+    pub fn reply(mut self, reply: &CommandReply) -> Result<(), ShmError> {
         let mut r = *reply;
         r.tag = self.request.tag;
-        self.active
-            .send_copy(r)
-            .map_err(|e| ShmError::iox("sending a command reply", e))
+        match self.active.take() {
+            Some(active) => active
+                .send_copy(r)
+                .map_err(|e| ShmError::iox("sending a command reply", e)),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for PendingCommand {
+    fn drop(&mut self) {
+        if let Some(active) = self.active.take() {
+            // Best effort: a client that died meanwhile cannot be answered anyway.
+            let _ = active.send_copy(CommandReply::rejected(
+                self.request.tag,
+                crate::contract::status::OVERLOADED,
+                0,
+            ));
+        }
     }
 }
 

@@ -130,3 +130,38 @@ fn every_request_gets_its_answer_and_refusals_carry_their_numbers() {
         "{gone:?}"
     );
 }
+
+#[test]
+fn a_command_dropped_unanswered_is_refused_as_overloaded() {
+    // The server (this thread) takes the request and drops it; the client's wait (another
+    // thread) ends with the automatic answer instead of a timeout.
+    let p = prefix("dropped");
+    let node = shm_api::create_node().expect("node");
+    let names = shm_api::ServiceNames::new(&p);
+    let settings = shm_api::PublisherSettings::default();
+    let mut server = shm_api::CommandServer::create(&node, &names, &settings).expect("server");
+    let _events = shm_api::EventPublisher::create(&node, &names, &settings).expect("events");
+    let _state = shm_api::StatePublisher::create(&node, &names, &settings).expect("state");
+    let client = {
+        let p = p.clone();
+        std::thread::spawn(move || {
+            let mut c = Client::connect(&p).expect("client");
+            c.command(&CommandRequest::hold(Target::Group(0)).with_tag(77), WAIT)
+        })
+    };
+    let deadline = std::time::Instant::now() + WAIT;
+    let pending = loop {
+        if let Some(p) = server.receive() {
+            break p;
+        }
+        assert!(std::time::Instant::now() < deadline, "no request");
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    assert_eq!(pending.request().tag, 77);
+    assert_eq!(
+        pending.request().kind,
+        shm_api::contract::command_kind::HOLD
+    );
+    drop(pending);
+    assert_eq!(client.join().expect("client"), Err(Rejected::Overloaded));
+}

@@ -11,7 +11,7 @@
 //! With `--stop-on-stdin-eof` it ends (cleanly, removing its services) when its standard input
 //! closes: a test holds the pipe and drops it to stop the stand-in.
 //!
-//! Prints `ready` once every service is up, `cleaned N` whenever it removed dead nodes, and
+//! SIGINT and SIGTERM stop it cleanly. Prints `ready` once every service is up, `cleaned N` whenever it removed dead nodes, and
 //! `done published=N commands=N events=N` when `--count` samples are out (0: run forever).
 //!
 //! Command rules: axis ≥ `--axes` → unknown axis; group ≥ `--groups` → unknown group; record
@@ -19,6 +19,7 @@
 //! homing axis 3 → wrong state; an unknown kind or target → bad request; everything else
 //! latches at the next cycle.
 
+use iceoryx2::prelude::SignalHandlingMode;
 use shm_api::contract::{
     AxisState, CommandReply, CommandRequest, EventRecord, GroupState, MAX_AXES, MAX_GROUPS,
     MachineState, axis_flags, axis_state, command_kind, event_id, status, target,
@@ -26,7 +27,7 @@ use shm_api::contract::{
 use shm_api::request::name_bytes;
 use shm_api::{
     CommandServer, EventPublisher, PublisherSettings, ServiceNames, StatePublisher,
-    cleanup_dead_nodes_with, create_node,
+    cleanup_dead_nodes_with, create_node_with,
 };
 use std::io::Write;
 use std::sync::Arc;
@@ -189,7 +190,9 @@ fn template(args: &Args) -> Box<MachineState> {
 
 fn run(args: &Args) -> Result<(), String> {
     let names = ServiceNames::new(&args.prefix);
-    let node = create_node().map_err(|e| e.to_string())?;
+    // SIGINT/SIGTERM end the run cleanly (the services are removed).
+    let node = create_node_with(SignalHandlingMode::HandleTerminationRequests)
+        .map_err(|e| e.to_string())?;
     cleanup_dead_nodes_with(&node);
     let mut server =
         CommandServer::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
@@ -230,7 +233,13 @@ fn run(args: &Args) -> Result<(), String> {
             if now >= deadline {
                 break;
             }
-            std::thread::sleep((deadline - now).min(Duration::from_micros(50)));
+            if node
+                .wait((deadline - now).min(Duration::from_micros(50)))
+                .is_err()
+            {
+                stop.store(true, Ordering::Relaxed);
+                break;
+            }
         }
         let mut s = state.loan().map_err(|e| e.to_string())?;
         let (version, hash) = (s.version, s.layout_hash);
