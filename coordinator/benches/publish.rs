@@ -23,7 +23,10 @@ fn running(plan: &MachinePlan) -> VirtualRun<'_> {
         duration: None,
         virtual_time: true,
         status_every: None,
-        script: ScriptOptions { chains: true, home: true },
+        script: ScriptOptions {
+            chains: true,
+            home: true,
+        },
         shm: None,
     };
     let mut run = VirtualRun::new(plan, &opts).unwrap();

@@ -367,6 +367,30 @@ impl Client {
         self.next_inner(timeout, false)
     }
 
+    /// Like [`Client::next`], but sleeping on the `events` service until the coordinator's
+    /// relay signals a new state (event-driven: no polling, one wake-up per cycle).
+    pub fn next_event_driven(&mut self, timeout: Duration) -> Result<&MachineState, ClientError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if self.receive_state() {
+                return self.current().ok_or(ClientError::Disconnected);
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(if self.coordinator_present() {
+                    ClientError::Timeout
+                } else {
+                    ClientError::Disconnected
+                });
+            }
+            // Any event wakes us; the state is what we look at. A missed signal costs at most
+            // one POLL_INTERVAL (the wait is capped by it).
+            self.listener
+                .timed_wait(|_| {}, (deadline - now).min(POLL_INTERVAL * 10))
+                .map_err(|e| ClientError::Shm(format!("waiting for a state: {e:?}")))?;
+        }
+    }
+
     /// Like [`Client::next`], spinning instead of sleeping (lowest latency, one core busy).
     pub fn next_busy(&mut self, timeout: Duration) -> Result<&MachineState, ClientError> {
         self.next_inner(timeout, true)

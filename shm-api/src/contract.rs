@@ -411,6 +411,10 @@ pub mod event_id {
     pub const PARAMETER: usize = 7;
     /// The coordinator is shutting down.
     pub const SHUTDOWN: usize = 8;
+    /// A new state was published (signalled by the coordinator's relay thread right after the
+    /// cycle thread published, never by the cycle thread itself; event-driven clients wait on
+    /// it). Not logged on `event-log`.
+    pub const STATE_PUBLISHED: usize = 9;
 }
 
 /// One event with its details, on `PREFIX/event-log` (publish-subscribe, published from the

@@ -34,8 +34,9 @@ pub mod request;
 pub use client::{Client, ClientError, Latched, Rejected};
 pub use names::ServiceNames;
 pub use publisher::{
-    CommandServer, EventPublisher, PendingCommand, PublisherSettings, ShmError, StatePublisher,
-    StateSample, cleanup_dead_nodes, cleanup_dead_nodes_with, create_node, create_node_with,
+    CommandServer, EventPublisher, PendingCommand, PublisherSettings, ShmError, StateNotifier,
+    StatePublisher, StateSample, cleanup_dead_nodes, cleanup_dead_nodes_with, create_node,
+    create_node_with,
 };
 pub use request::{Target, name_str};
 

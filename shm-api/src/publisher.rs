@@ -372,7 +372,8 @@ impl EventPublisher {
         let events = node
             .service_builder(&service_name(&names.events)?)
             .event()
-            .max_notifiers(1)
+            // The event publisher and the state relay.
+            .max_notifiers(2)
             .max_listeners(settings.max_subscribers)
             .max_nodes(settings.max_nodes)
             .event_id_max_value(EVENT_ID_MAX)
@@ -399,4 +400,123 @@ impl EventPublisher {
             .map_err(|e| ShmError::iox("signalling an event", e))?;
         Ok(())
     }
+}
+
+/// Signals [`crate::contract::event_id::STATE_PUBLISHED`] on `PREFIX/events`: what an
+/// event-driven client waits on. The coordinator's cycle thread never notifies (a syscall that
+/// can block); a relay thread that wakes just after each cycle's publication does, on seeing
+/// the published-cycle counter advance.
+pub struct StateNotifier {
+    notifier: Notifier<ipc::Service>,
+}
+
+impl core::fmt::Debug for StateNotifier {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("StateNotifier").finish_non_exhaustive()
+    }
+}
+
+impl StateNotifier {
+    /// Joins (or creates) `names.events`.
+    pub fn create(
+        node: &Node<ipc::Service>,
+        names: &ServiceNames,
+        settings: &PublisherSettings,
+    ) -> Result<StateNotifier, ShmError> {
+        let events = node
+            .service_builder(&service_name(&names.events)?)
+            .event()
+            .max_notifiers(2)
+            .max_listeners(settings.max_subscribers)
+            .max_nodes(settings.max_nodes)
+            .event_id_max_value(EVENT_ID_MAX)
+            .open_or_create()
+            .map_err(|e| ShmError::iox("opening the events service", e))?;
+        let notifier = events
+            .notifier_builder()
+            .create()
+            .map_err(|e| ShmError::iox("creating the state notifier", e))?;
+        Ok(StateNotifier { notifier })
+    }
+
+    /// Signals that a new state is out.
+    pub fn notify(&self) -> Result<(), ShmError> {
+        self.notifier
+            .notify_with_custom_event_id(EventId::new(crate::contract::event_id::STATE_PUBLISHED))
+            .map(|_| ())
+            .map_err(|e| ShmError::iox("notifying a new state", e))
+    }
+}
+
+/// The relay thread: wakes `offset` after every `period` deadline from `start` (ns of
+/// CLOCK_MONOTONIC), and when `published` (the cycle thread's count of published states,
+/// stored after each send) has advanced, signals [`StateNotifier::notify`]. It re-checks every
+/// 5 µs for up to half a period when the state is not out yet. Ends when `stop` is set.
+pub fn spawn_state_relay(
+    prefix: String,
+    start_ns: u64,
+    period: core::time::Duration,
+    offset: core::time::Duration,
+    published: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> std::io::Result<std::thread::JoinHandle<Result<u64, ShmError>>> {
+    use std::sync::atomic::Ordering;
+    std::thread::Builder::new()
+        .name("state-relay".into())
+        .spawn(move || {
+            // Sleep to the microsecond, not the default 50 µs timer slack: the relay's lateness is
+            // the event-driven client's latency.
+            // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
+            unsafe {
+                libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong);
+            }
+            let node = create_node()?;
+            let names = ServiceNames::new(&prefix);
+            let notifier = StateNotifier::create(&node, &names, &PublisherSettings::default())?;
+            let period_ns = period.as_nanos().max(1) as u64;
+            let mut seen = published.load(Ordering::Acquire);
+            let mut notified = 0u64;
+            let mut k = 1u64;
+            while !stop.load(Ordering::Relaxed) {
+                let wake = start_ns + k * period_ns + offset.as_nanos() as u64;
+                let now = monotonic_ns();
+                if wake > now {
+                    std::thread::sleep(core::time::Duration::from_nanos(wake - now));
+                } else {
+                    // Late: skip to the next period rather than firing a burst.
+                    k = (now - start_ns) / period_ns + 1;
+                    continue;
+                }
+                let mut tries = 0;
+                loop {
+                    let p = published.load(Ordering::Acquire);
+                    if p != seen {
+                        seen = p;
+                        notifier.notify()?;
+                        notified += 1;
+                        break;
+                    }
+                    tries += 1;
+                    if tries * 5_000 > period_ns / 2 || stop.load(Ordering::Relaxed) {
+                        break;
+                    }
+                    std::thread::sleep(core::time::Duration::from_micros(5));
+                }
+                k += 1;
+            }
+            Ok(notified)
+        })
+}
+
+/// CLOCK_MONOTONIC, ns (the clock `MachineState::publish_time_ns` uses).
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes a timespec into the valid pointer it is given.
+    unsafe {
+        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
+    }
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }

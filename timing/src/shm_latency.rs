@@ -51,8 +51,14 @@ fn figures(name: &'static str, raw: Vec<u64>) -> Figures {
 
 fn bare_names(prefix: &str) -> (ServiceName, ServiceName) {
     (
-        format!("{prefix}-bare/state").as_str().try_into().expect("name"),
-        format!("{prefix}-bare/events").as_str().try_into().expect("name"),
+        format!("{prefix}-bare/state")
+            .as_str()
+            .try_into()
+            .expect("name"),
+        format!("{prefix}-bare/events")
+            .as_str()
+            .try_into()
+            .expect("name"),
     )
 }
 
@@ -66,7 +72,8 @@ pub fn publish(prefix: &str, period: Duration, count: u64) -> Result<(), String>
     let settings = PublisherSettings::default();
     let mut ours = StatePublisher::create(&node, &names, &settings).map_err(|e| e.to_string())?;
     // A client connects to all four services of the contract.
-    let mut commands = CommandServer::create(&node, &names, &settings).map_err(|e| e.to_string())?;
+    let mut commands =
+        CommandServer::create(&node, &names, &settings).map_err(|e| e.to_string())?;
     let _events = EventPublisher::create(&node, &names, &settings).map_err(|e| e.to_string())?;
     let (state_name, event_name) = bare_names(prefix);
     let bare_service = node
@@ -77,14 +84,33 @@ pub fn publish(prefix: &str, period: Duration, count: u64) -> Result<(), String>
         .enable_safe_overflow(true)
         .open_or_create()
         .map_err(|e| format!("{e:?}"))?;
-    let bare = bare_service.publisher_builder().create().map_err(|e| format!("{e:?}"))?;
+    let bare = bare_service
+        .publisher_builder()
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
     let bare_events = node
         .service_builder(&event_name)
         .event()
         .open_or_create()
         .map_err(|e| format!("{e:?}"))?;
-    let notifier = bare_events.notifier_builder().create().map_err(|e| format!("{e:?}"))?;
-    let mut next = monotonic_now() + period;
+    let notifier = bare_events
+        .notifier_builder()
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
+    // The coordinator's relay: wakes after each period's publication and signals it.
+    let published = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let start = monotonic_now();
+    let relay = shm_api::publisher::spawn_state_relay(
+        prefix.to_owned(),
+        start.as_nanos(),
+        period,
+        Duration::from_micros(5),
+        published.clone(),
+        stop.clone(),
+    )
+    .map_err(|e| e.to_string())?;
+    let mut next = start + period;
     for k in 0..count {
         // Alternate which goes first, so neither is always second.
         for which in [k % 2, 1 - k % 2] {
@@ -92,7 +118,9 @@ pub fn publish(prefix: &str, period: Duration, count: u64) -> Result<(), String>
                 if let Ok(mut s) = ours.loan() {
                     s.cycle = k;
                     s.publish_time_ns = monotonic_now().as_nanos();
-                    let _ = s.send();
+                    if s.send().is_ok() {
+                        published.fetch_add(1, std::sync::atomic::Ordering::Release);
+                    }
                 }
             } else if let Ok(s) = bare.loan_uninit() {
                 // SAFETY: MachineState is plain integers; all-zero is a valid value.
@@ -113,8 +141,10 @@ pub fn publish(prefix: &str, period: Duration, count: u64) -> Result<(), String>
         if next > now {
             std::thread::sleep(next - now);
         }
-        next = next + period;
+        next += period;
     }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let _ = relay.join();
     Ok(())
 }
 
@@ -131,7 +161,10 @@ pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
         .publish_subscribe::<MachineState>()
         .open()
         .map_err(|e| format!("{e:?}"))?;
-    let bare = bare_service.subscriber_builder().create().map_err(|e| format!("{e:?}"))?;
+    let bare = bare_service
+        .subscriber_builder()
+        .create()
+        .map_err(|e| format!("{e:?}"))?;
     let listener = node
         .service_builder(&event_name)
         .event()
@@ -174,12 +207,23 @@ pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
     }
     out.push(figures("shm-api client, sleeping (next)", raw));
 
+    // The contract's client, event-driven: woken by the relay's signal.
+    let _ = client.latest();
+    let mut raw = Vec::with_capacity(samples);
+    while raw.len() < samples {
+        let s = client.next_event_driven(t).map_err(|e| e.to_string())?;
+        raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
+    }
+    out.push(figures("shm-api client, event-driven (relay)", raw));
+
     // Bare iceoryx2, woken by the publisher's notification.
     let _ = listener.try_wait(|_| {});
     drain_bare();
     let mut raw = Vec::with_capacity(samples);
     while raw.len() < samples {
-        listener.timed_wait(|_| {}, t).map_err(|e| format!("{e:?}"))?;
+        listener
+            .timed_wait(|_| {}, t)
+            .map_err(|e| format!("{e:?}"))?;
         while let Ok(Some(s)) = bare.receive() {
             raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
         }
@@ -202,13 +246,14 @@ pub fn table(f: &[Figures]) -> String {
             x.max as f64 / 1e3
         );
     }
-    if f.len() == 4 {
+    if f.len() == 5 {
         let r = |a: &Figures, b: &Figures| a.median as f64 / b.median.max(1) as f64;
         let _ = writeln!(
             s,
-            "\nmedian ratios: busy-poll {:.2}x bare; sleeping client vs bare event-driven {:.2}x",
+            "\nmedian ratios: busy-poll {:.2}x bare; event-driven (relay) {:.2}x bare event-driven; sleeping {:.2}x bare event-driven",
             r(&f[0], &f[1]),
-            r(&f[2], &f[3])
+            r(&f[3], &f[4]),
+            r(&f[2], &f[4])
         );
     }
     s

@@ -174,6 +174,8 @@ pub fn run_real(
                     Some(prefix) => Some(StateSide::create(prefix, info).map_err(RunError::Io)?),
                     None => None,
                 };
+                let relay_stop = Arc::new(AtomicBool::new(false));
+                let mut relay = None;
                 let mut core = CycleCore::new(plan)?;
                 for (i, a) in plan.axes.iter().enumerate() {
                     if matches!(a.setup.transport, Transport::Modbus { .. }) {
@@ -186,8 +188,23 @@ pub fn run_real(
                 let mut skipped = 0u64;
                 let mut booted = 0usize;
                 let start = monotonic_now() + period;
-                let mut ticker = Ticker::new(start, period);
                 let producer = plan.cycle.sync_producer;
+                let mut ticker = Ticker::new(start, period);
+                if let (Some(st), Some(prefix)) = (&shm_state, &opts.shm)
+                    && producer
+                {
+                    // Event-driven clients: a relay wakes 5 µs after each deadline and
+                    // signals the new state; the cycle thread itself never notifies.
+                    relay = shm_api::publisher::spawn_state_relay(
+                        prefix.clone(),
+                        start.as_nanos(),
+                        period,
+                        Duration::from_micros(5),
+                        st.published.clone(),
+                        relay_stop.clone(),
+                    )
+                    .ok();
+                }
                 let mut last_late_ns = 0u64;
                 let mut last_sync = start;
                 let end = opts.duration.map(|d| start + d);
@@ -310,6 +327,10 @@ pub fn run_real(
                 finish_summary(plan, &core.cycle, &script, &mut summary);
                 for (_, _, thread) in exchanges {
                     thread.stop();
+                }
+                relay_stop.store(true, Ordering::Relaxed);
+                if let Some(r) = relay {
+                    let _ = r.join();
                 }
                 Ok((
                     CycleResult {

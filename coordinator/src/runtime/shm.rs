@@ -567,6 +567,9 @@ pub struct StateSide {
     pub counters: Counters,
     /// Samples that could not be loaned or sent (counted, never waited for).
     pub failed: u64,
+    /// States published, stored after each send: the relay thread reads it (an atomic store:
+    /// the cycle thread makes no syscall to signal clients).
+    pub published: std::sync::Arc<std::sync::atomic::AtomicU64>,
 }
 
 impl std::fmt::Debug for StateSide {
@@ -590,6 +593,7 @@ impl StateSide {
             info,
             counters: Counters::default(),
             failed: 0,
+            published: std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0)),
         })
     }
 
@@ -612,6 +616,9 @@ impl StateSide {
                 );
                 if s.send().is_err() {
                     self.failed += 1;
+                } else {
+                    self.published
+                        .fetch_add(1, std::sync::atomic::Ordering::Release);
                 }
             }
             Err(_) => self.failed += 1,

@@ -64,7 +64,7 @@ fn main() -> ExitCode {
         } => {
             let prefix = format!("timing-{}", std::process::id());
             // Enough periods for the four phases plus margin.
-            let count = (samples as u64 * 4 + 4000).to_string();
+            let count = (samples as u64 * 5 + 4000).to_string();
             let exe = std::env::current_exe().expect("own path");
             let mut publisher = match Command::new(exe)
                 .args(["shm-publisher", "--prefix", &prefix, "--period-us"])
