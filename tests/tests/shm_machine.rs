@@ -305,3 +305,21 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
     let summary = coordinator.finish();
     assert!(summary.contains("summary:"), "{summary}");
 }
+
+#[test]
+fn an_event_driven_client_is_woken_for_the_states_in_order() {
+    let p = prefix("evdriven");
+    let coordinator = Coordinator::start(&p, 15);
+    let mut c = connect(&p);
+    c.next(Duration::from_secs(5)).unwrap();
+    let mut last = c.latest().unwrap().cycle;
+    let t = Instant::now();
+    for _ in 0..300 {
+        let s = c.next_event_driven(Duration::from_secs(1)).expect("woken for a state");
+        assert!(s.cycle > last, "{} after {last}", s.cycle);
+        last = s.cycle;
+    }
+    // 300 states at 2 ms: woken about once per cycle, not by a timeout.
+    assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
+    drop(coordinator);
+}
