@@ -315,7 +315,9 @@ fn an_event_driven_client_is_woken_for_the_states_in_order() {
     let mut last = c.latest().unwrap().cycle;
     let t = Instant::now();
     for _ in 0..300 {
-        let s = c.next_event_driven(Duration::from_secs(1)).expect("woken for a state");
+        let s = c
+            .next_event_driven(Duration::from_secs(1))
+            .expect("woken for a state");
         assert!(s.cycle > last, "{} after {last}", s.cycle);
         last = s.cycle;
     }
