@@ -15,6 +15,7 @@ use shm_api::publisher::{
     CommandServer, EventPublisher, PendingCommand, PublisherSettings, StatePublisher,
     cleanup_dead_nodes_with, create_node,
 };
+use shm_api::request::name_bytes;
 
 use crate::axis::AxisState;
 use crate::command::{Command, Rejected, Reply, Target};
@@ -55,17 +56,6 @@ struct GroupInfo {
     count: u8,
 }
 
-fn text<const N: usize>(s: &str) -> [u8; N] {
-    let mut out = [0u8; N];
-    // Cut at a character boundary so the bytes stay valid UTF-8.
-    let mut n = s.len().min(N);
-    while !s.is_char_boundary(n) {
-        n -= 1;
-    }
-    out[..n].copy_from_slice(&s.as_bytes()[..n]);
-    out
-}
-
 impl StaticInfo {
     /// The fixed part of the state of `plan`.
     pub fn new(plan: &MachinePlan, virtual_time: bool) -> StaticInfo {
@@ -75,8 +65,8 @@ impl StaticInfo {
             .iter()
             .enumerate()
             .map(|(i, a)| AxisInfo {
-                name: text(&a.name),
-                unit: text(&a.unit),
+                name: name_bytes(&a.name),
+                unit: name_bytes(&a.unit),
                 micro_per_inc: (1e6 / a.scale * q).round() as i128,
                 inc_per_micro: (a.scale / 1e6 * q).round() as i128,
                 fhpp: a.setup.profile == crate::axis::Profile::Fhpp,
@@ -96,7 +86,7 @@ impl StaticInfo {
                     axes[k] = a as u8;
                 }
                 GroupInfo {
-                    name: text(name),
+                    name: name_bytes(name),
                     axes,
                     count: g.axes.len() as u8,
                 }
@@ -456,7 +446,7 @@ pub fn to_reply(tag: u64, r: Reply) -> CommandReply {
                     value, min, max, ..
                 } => (status::OUT_OF_RANGE, value, min, max),
                 Rejected::WrongState(why) => {
-                    out.reason = text(why);
+                    out.reason = name_bytes(why);
                     (status::WRONG_STATE, 0, 0, 0)
                 }
                 Rejected::Busy => (status::BUSY, 0, 0, 0),
