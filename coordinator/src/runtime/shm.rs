@@ -755,3 +755,57 @@ pub fn spawn_command_thread(
             }
         })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{Config, EXAMPLE};
+    use crate::runtime::plan::plan;
+
+    #[test]
+    fn user_units_convert_both_ways_in_integers() {
+        let p = plan(&Config::parse(EXAMPLE).unwrap()).unwrap();
+        let info = StaticInfo::new(&p, false);
+        // x: 400 inc/mm; gripper: 100 inc/deg.
+        assert_eq!(info.to_inc(0, 1_000_000), 400);
+        assert_eq!(info.to_micro(0, 400), 1_000_000);
+        assert_eq!(info.to_inc(0, 12_500_000), 5_000);
+        assert_eq!(info.to_micro(3, -18_000), -180_000_000);
+        for inc in [-160_001i64, -1, 0, 1, 7, 159_999] {
+            assert_eq!(info.to_inc(0, info.to_micro(0, inc)), inc);
+        }
+    }
+
+    #[test]
+    fn requests_translate_and_bad_ones_are_answered_at_once() {
+        let p = plan(&Config::parse(EXAMPLE).unwrap()).unwrap();
+        let info = StaticInfo::new(&p, false);
+        let mut r = CommandRequest::move_group(0, &[100_000_000, 50_000_000], 40);
+        r.tag = 7;
+        assert_eq!(
+            to_command(&info, &r),
+            Ok(Command::MoveGroup {
+                group: 0,
+                positions: [40_000, 50_000, 0, 0, 0, 0, 0, 0],
+                velocity_percent: 40
+            })
+        );
+        r.kind = 999;
+        let reply = to_command(&info, &r).unwrap_err();
+        assert_eq!((reply.tag, reply.status), (7, status::BAD_REQUEST));
+        let out = to_reply(
+            3,
+            Reply::Rejected(Rejected::OutOfRange {
+                axis: 0,
+                value: 9,
+                min: 0,
+                max: 5,
+            }),
+        );
+        assert_eq!(
+            (out.status, out.value, out.min, out.max),
+            (status::OUT_OF_RANGE, 9, 0, 5)
+        );
+        assert_eq!(to_reply(3, Reply::Latched { cycle: 42 }).cycle, 42);
+    }
+}
