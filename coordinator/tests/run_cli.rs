@@ -6,6 +6,11 @@ use std::io::Read;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// A shared-memory prefix of this test run alone (tests run in parallel).
+fn prefix(test: &str) -> String {
+    format!("t-runcli-{test}-{}", std::process::id())
+}
+
 fn coordinator() -> Command {
     Command::new(env!("CARGO_BIN_EXE_coordinator"))
 }
@@ -14,6 +19,7 @@ fn coordinator() -> Command {
 fn the_default_machine_runs_in_virtual_time_and_prints_a_summary() {
     let out = coordinator()
         .args(["run", "--virtual-time", "--duration", "20", "--quiet"])
+        .args(["--shm-prefix", &prefix("virtual")])
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
@@ -41,6 +47,7 @@ fn the_default_machine_runs_in_virtual_time_and_prints_a_summary() {
 fn sigint_stops_the_real_time_run_and_disables_every_drive() {
     let mut child = coordinator()
         .args(["run", "--quiet"])
+        .args(["--shm-prefix", &prefix("sigint")])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
