@@ -576,7 +576,7 @@ impl StateSide {
         let node = create_node().map_err(|e| e.to_string())?;
         let names = ServiceNames::new(prefix);
         let state = StatePublisher::create(&node, &names, &PublisherSettings::default())
-            .map_err(|e| format!("{}: {e}", names.state))?;
+            .map_err(|e| busy(prefix, &names.state, &e))?;
         Ok(StateSide {
             _node: node,
             state,
@@ -616,6 +616,20 @@ impl StateSide {
     }
 }
 
+/// The error of a service that could not be created, with the likely cause named: another
+/// coordinator already publishes under the prefix (iceoryx2 allows one publisher / server).
+fn busy(prefix: &str, service: &str, e: &shm_api::ShmError) -> String {
+    let text = e.to_string();
+    if text.contains("ExceedsMax") {
+        format!(
+            "{service}: another coordinator already publishes under the prefix `{prefix}` \
+             ({text}); choose another with --shm-prefix, or --no-shm"
+        )
+    } else {
+        format!("{service}: {text}")
+    }
+}
+
 /// The services' side: the command server and the event publisher.
 pub struct ServiceSide {
     _node: Node<ipc::Service>,
@@ -641,7 +655,7 @@ impl ServiceSide {
         let names = ServiceNames::new(prefix);
         let settings = PublisherSettings::default();
         let commands = CommandServer::create(&node, &names, &settings)
-            .map_err(|e| format!("{}: {e}", names.command))?;
+            .map_err(|e| busy(prefix, &names.command, &e))?;
         let events = EventPublisher::create(&node, &names, &settings)
             .map_err(|e| format!("{}: {e}", names.events))?;
         Ok(ServiceSide {
