@@ -96,8 +96,6 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
     let mut positions = [0i64; MAX_GROUP_AXES];
     positions[0] = tx;
     positions[1] = ty;
-    let sx0 = run.core.cycle.axis_status(x as u16).unwrap().setpoint;
-    let sy0 = run.core.cycle.axis_status(y as u16).unwrap().setpoint;
     let at = latched(run.core.cycle.command(&Command::MoveGroup {
         group: g,
         positions,
@@ -109,9 +107,8 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
     for _ in 0..5000 {
         let c = run.core.cycle.cycle();
         run.step(&mut out);
-        for (i, (axis, start, target)) in [(x, sx0, tx), (y, sy0, ty)].into_iter().enumerate() {
+        for (i, (axis, target)) in [(x, tx), (y, ty)].into_iter().enumerate() {
             let s = run.core.cycle.axis_status(axis as u16).unwrap();
-            let _ = start;
             if started[i].is_none() && s.setpoint_velocity != 0 {
                 started[i] = Some(c);
             }

@@ -274,8 +274,7 @@ impl FhppAxis {
         let img = InputImage::from_bytes(b, self.variant, self.order)
             .map_err(|_| AxisError::Decode("FHPP SCON.OPM holds a reserved mode"))?;
         let had = self.status.is_some();
-        let before = self.feedback.position;
-        let mut position = before;
+        let mut position = self.feedback.position;
         let mut velocity = None;
         let mut force = 0;
         match img.payload {
@@ -304,7 +303,6 @@ impl FhppAxis {
         // at ours: a velocity from one image to the next would alternate between 0 and a
         // multiple of the real one. Estimate it from position change to position change, over
         // the time between them; still for `STILL_CYCLES` images means standing.
-        let _ = before;
         self.since_change = self.since_change.saturating_add(self.gap.max(1));
         self.feedback.velocity = match velocity {
             Some(v) => v,

@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use drivers::can::bit_timing::frame_duration;
 use drivers::can::{Bus, ClockMode, VirtualBus, VirtualBusConfig};
-use drivers::time::{Instant, monotonic_now};
+use drivers::time::monotonic_now;
 use hdrhistogram::Histogram;
 use heapless::spsc::Queue;
 
@@ -405,6 +405,5 @@ pub fn run_real(
     s.wake_late_ns = result.late;
     s.skipped_cycles = result.skipped;
     s.wall = wall0.elapsed();
-    let _: Option<Instant> = None;
     Ok(s)
 }

@@ -304,7 +304,6 @@ pub fn fill_state<const A: usize, const G: usize>(
             reserved1: [0; 8],
         };
     }
-    let _ = axis_count;
 }
 
 fn empty_axis() -> WireAxis {
@@ -468,7 +467,7 @@ pub fn overloaded(tag: u64) -> CommandReply {
 }
 
 /// The cycle's event as the contract's record (`seq` set by the caller).
-pub fn to_record(info: &StaticInfo, e: &Event) -> EventRecord {
+pub fn to_record(e: &Event) -> EventRecord {
     use wire::event_id as id;
     let mut r = EventRecord {
         seq: 0,
@@ -542,7 +541,6 @@ pub fn to_record(info: &StaticInfo, e: &Event) -> EventRecord {
             }
         }
     }
-    let _ = info;
     r
 }
 
@@ -689,7 +687,7 @@ impl ServiceSide {
 
     /// Publishes one of the cycle's events.
     pub fn event(&mut self, e: &Event) {
-        let mut r = to_record(&self.info, e);
+        let mut r = to_record(e);
         self.seq += 1;
         r.seq = self.seq;
         let _ = self.events.publish(r);
