@@ -235,6 +235,11 @@ pub fn fill_state<const A: usize, const G: usize>(
         step_ns: counters.step_ns,
         wake_late_us: counters.wake_late_us,
     };
+    // Each group's running record, once (not once per member axis).
+    let mut active = [None::<u16>; wire::MAX_GROUPS];
+    for (g, a) in active.iter_mut().enumerate().take(group_count) {
+        *a = c.group_status(g as u16).and_then(|st| st.chain.active);
+    }
     // Only the valid entries are written: a loaned sample comes zeroed, and clients read the
     // first `axis_count` / `group_count` entries.
     for (i, w) in s.axes.iter_mut().enumerate().take(axis_count) {
@@ -259,8 +264,7 @@ pub fn fill_state<const A: usize, const G: usize>(
         set(ai.fhpp, axis_flags::FHPP);
         let active = ai
             .group
-            .and_then(|g| c.group_status(g))
-            .and_then(|g| g.chain.active);
+            .and_then(|g| active.get(usize::from(g)).copied().flatten());
         *w = WireAxis {
             position: info.to_micro(i, fb.position),
             setpoint: info.to_micro(i, st.setpoint),
