@@ -332,6 +332,29 @@ impl Drop for PendingCommand {
     }
 }
 
+/// A notifier on `names.events`, opening or creating the service. Both of its notifiers (the
+/// event publisher's and the state relay's) come from here, so the service is always created
+/// with the same settings whichever opens it first.
+fn events_notifier(
+    node: &Node<ipc::Service>,
+    names: &ServiceNames,
+    settings: &PublisherSettings,
+    step: &'static str,
+) -> Result<Notifier<ipc::Service>, ShmError> {
+    node.service_builder(&service_name(&names.events)?)
+        .event()
+        // The event publisher and the state relay.
+        .max_notifiers(2)
+        .max_listeners(settings.max_subscribers)
+        .max_nodes(settings.max_nodes)
+        .event_id_max_value(EVENT_ID_MAX)
+        .open_or_create()
+        .map_err(|e| ShmError::iox("opening the events service", e))?
+        .notifier_builder()
+        .create()
+        .map_err(|e| ShmError::iox(step, e))
+}
+
 /// Publishes [`EventRecord`]s on `PREFIX/event-log` and signals each on `PREFIX/events`.
 pub struct EventPublisher {
     publisher: Publisher<ipc::Service, EventRecord, ()>,
@@ -369,20 +392,7 @@ impl EventPublisher {
             .publisher_builder()
             .create()
             .map_err(|e| ShmError::iox("creating the event-log publisher", e))?;
-        let events = node
-            .service_builder(&service_name(&names.events)?)
-            .event()
-            // The event publisher and the state relay.
-            .max_notifiers(2)
-            .max_listeners(settings.max_subscribers)
-            .max_nodes(settings.max_nodes)
-            .event_id_max_value(EVENT_ID_MAX)
-            .open_or_create()
-            .map_err(|e| ShmError::iox("opening the events service", e))?;
-        let notifier = events
-            .notifier_builder()
-            .create()
-            .map_err(|e| ShmError::iox("creating the events notifier", e))?;
+        let notifier = events_notifier(node, names, settings, "creating the events notifier")?;
         Ok(EventPublisher {
             publisher,
             notifier,
@@ -423,19 +433,7 @@ impl StateNotifier {
         names: &ServiceNames,
         settings: &PublisherSettings,
     ) -> Result<StateNotifier, ShmError> {
-        let events = node
-            .service_builder(&service_name(&names.events)?)
-            .event()
-            .max_notifiers(2)
-            .max_listeners(settings.max_subscribers)
-            .max_nodes(settings.max_nodes)
-            .event_id_max_value(EVENT_ID_MAX)
-            .open_or_create()
-            .map_err(|e| ShmError::iox("opening the events service", e))?;
-        let notifier = events
-            .notifier_builder()
-            .create()
-            .map_err(|e| ShmError::iox("creating the state notifier", e))?;
+        let notifier = events_notifier(node, names, settings, "creating the state notifier")?;
         Ok(StateNotifier { notifier })
     }
 
