@@ -196,6 +196,32 @@ fn type_name_of<T: ZeroCopySend>() -> String {
     unsafe { <T as ZeroCopySend>::type_name() }.to_owned()
 }
 
+/// Opens the publish-subscribe service `name` of payload `T`: a missing service means no
+/// coordinator, another payload type a layout mismatch (named with the type found).
+fn open_pubsub<T: ZeroCopySend + core::fmt::Debug + 'static>(
+    node: &Node<ipc::Service>,
+    name: &str,
+    prefix: &str,
+) -> Result<PubSubFactory<ipc::Service, T, ()>, ClientError> {
+    let service = service_name(name)?;
+    match node
+        .service_builder(&service)
+        .publish_subscribe::<T>()
+        .open()
+    {
+        Ok(s) => Ok(s),
+        Err(PublishSubscribeOpenError::DoesNotExist) => {
+            Err(ClientError::NoCoordinator(prefix.to_owned()))
+        }
+        Err(PublishSubscribeOpenError::IncompatibleTypes) => Err(ClientError::LayoutMismatch {
+            expected: type_name_of::<T>(),
+            found: existing_type_name(node, &service)
+                .unwrap_or_else(|| "an unreadable type".to_owned()),
+        }),
+        Err(e) => Err(ClientError::Shm(format!("opening {name}: {e:?}"))),
+    }
+}
+
 impl Client {
     /// Connects to the coordinator under `prefix`; fails at once when none runs
     /// ([`ClientError::NoCoordinator`]) or it was built from another contract
@@ -207,23 +233,7 @@ impl Client {
         let names = ServiceNames::new(prefix);
         let no_coordinator = || ClientError::NoCoordinator(prefix.to_owned());
 
-        let state_name = service_name(&names.state)?;
-        let state_service = match node
-            .service_builder(&state_name)
-            .publish_subscribe::<MachineState>()
-            .open()
-        {
-            Ok(s) => s,
-            Err(PublishSubscribeOpenError::DoesNotExist) => return Err(no_coordinator()),
-            Err(PublishSubscribeOpenError::IncompatibleTypes) => {
-                return Err(ClientError::LayoutMismatch {
-                    expected: type_name_of::<MachineState>(),
-                    found: existing_type_name(&node, &state_name)
-                        .unwrap_or_else(|| "an unreadable type".to_owned()),
-                });
-            }
-            Err(e) => return Err(ClientError::Shm(format!("opening {}: {e:?}", names.state))),
-        };
+        let state_service = open_pubsub::<MachineState>(&node, &names.state, prefix)?;
         // The service outlives a dead coordinator while clients hold it open.
         if state_service.dynamic_config().number_of_publishers() == 0 {
             return Err(no_coordinator());
@@ -246,28 +256,7 @@ impl Client {
                 }
                 e => ClientError::Shm(format!("opening {}: {e:?}", names.command)),
             })?;
-        let log_name = service_name(&names.event_log)?;
-        let log_service = match node
-            .service_builder(&log_name)
-            .publish_subscribe::<EventRecord>()
-            .open()
-        {
-            Ok(s) => s,
-            Err(PublishSubscribeOpenError::DoesNotExist) => return Err(no_coordinator()),
-            Err(PublishSubscribeOpenError::IncompatibleTypes) => {
-                return Err(ClientError::LayoutMismatch {
-                    expected: type_name_of::<EventRecord>(),
-                    found: existing_type_name(&node, &log_name)
-                        .unwrap_or_else(|| "an unreadable type".to_owned()),
-                });
-            }
-            Err(e) => {
-                return Err(ClientError::Shm(format!(
-                    "opening {}: {e:?}",
-                    names.event_log
-                )));
-            }
-        };
+        let log_service = open_pubsub::<EventRecord>(&node, &names.event_log, prefix)?;
         let events_service = node
             .service_builder(&service_name(&names.events)?)
             .event()
