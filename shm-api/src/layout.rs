@@ -24,9 +24,45 @@ const fn feed(mut h: u32, v: usize) -> u32 {
     h
 }
 
+/// Every payload of the contract with its fields in declaration order, written once: calls
+/// `$m!($($a)*; Type, [field, ...]);` for each, nested types first. The layout hash and the
+/// layout dump (`crate::layout_dump`, which also fails to compile when a field is missing
+/// here) both walk this list.
+macro_rules! for_each_payload {
+    ($m:ident ! ($($a:tt)*)) => {
+        $m!($($a)*; AxisState, [
+            position, setpoint, velocity, position_inc, setpoint_inc, fault_value, fault_limit,
+            force_permille, status_bits, flags, state, mode, fault, reserved0, fault_code,
+            active_record, name, unit, reserved1,
+        ]);
+        $m!($($a)*; GroupState, [
+            active_record, record, reached, override_percent, chain_state, rc1, rcc, motion,
+            axis_count, reserved0, axes, name, reserved1,
+        ]);
+        $m!($($a)*; BusStats, [
+            frames_sent, frames_received, tx_refused, rx_dropped, skipped_cycles, step_ns,
+            wake_late_us,
+        ]);
+        $m!($($a)*; MachineState, [
+            version, layout_hash, cycle, sync_time_ns, publish_time_ns, cycle_ns, axis_count,
+            group_count, inputs, virtual_time, reserved0, bus, axes, groups,
+        ]);
+        $m!($($a)*; CommandRequest, [
+            tag, kind, target, percent, axis, group, record, sub, reserved0, pnu, reserved1,
+            value, positions,
+        ]);
+        $m!($($a)*; CommandReply, [tag, cycle, value, min, max, status, reserved0, reason]);
+        $m!($($a)*; EventRecord, [
+            seq, cycle, value, id, axis, group, record, state, error, sub, reserved0, code,
+            reserved1,
+        ]);
+    };
+}
+pub(crate) use for_each_payload;
+
 /// Feeds size, alignment and the listed field offsets of a type.
 macro_rules! layout {
-    ($h:ident, $t:ty, [$($f:ident),* $(,)?]) => {{
+    ($h:ident; $t:ident, [$($f:ident),* $(,)?]) => {{
         $h = feed($h, size_of::<$t>());
         $h = feed($h, align_of::<$t>());
         $( $h = feed($h, offset_of!($t, $f)); )*
@@ -37,104 +73,7 @@ macro_rules! layout {
 pub const fn compute_hash() -> u32 {
     let mut h = FNV_OFFSET;
     h = feed(h, contract::LAYOUT_VERSION as usize);
-    layout!(
-        h,
-        AxisState,
-        [
-            position,
-            setpoint,
-            velocity,
-            position_inc,
-            setpoint_inc,
-            fault_value,
-            fault_limit,
-            force_permille,
-            status_bits,
-            flags,
-            state,
-            mode,
-            fault,
-            reserved0,
-            fault_code,
-            active_record,
-            name,
-            unit,
-            reserved1
-        ]
-    );
-    layout!(
-        h,
-        GroupState,
-        [
-            active_record,
-            record,
-            reached,
-            override_percent,
-            chain_state,
-            rc1,
-            rcc,
-            motion,
-            axis_count,
-            reserved0,
-            axes,
-            name,
-            reserved1
-        ]
-    );
-    layout!(
-        h,
-        BusStats,
-        [
-            frames_sent,
-            frames_received,
-            tx_refused,
-            rx_dropped,
-            skipped_cycles,
-            step_ns,
-            wake_late_us
-        ]
-    );
-    layout!(
-        h,
-        MachineState,
-        [
-            version,
-            layout_hash,
-            cycle,
-            sync_time_ns,
-            publish_time_ns,
-            cycle_ns,
-            axis_count,
-            group_count,
-            inputs,
-            virtual_time,
-            reserved0,
-            bus,
-            axes,
-            groups
-        ]
-    );
-    layout!(
-        h,
-        CommandRequest,
-        [
-            tag, kind, target, percent, axis, group, record, sub, reserved0, pnu, reserved1, value,
-            positions
-        ]
-    );
-    layout!(
-        h,
-        CommandReply,
-        [tag, cycle, value, min, max, status, reserved0, reason]
-    );
-    layout!(
-        h,
-        EventRecord,
-        [
-            seq, cycle, value, id, axis, group, record, state, error, sub, reserved0, code,
-            reserved1
-        ]
-    );
+    for_each_payload!(layout!(h));
     h
 }
 
@@ -201,9 +140,9 @@ mod tests {
             b: u16,
         }
         let mut ha = FNV_OFFSET;
-        layout!(ha, A, [a, b]);
+        layout!(ha; A, [a, b]);
         let mut hb = FNV_OFFSET;
-        layout!(hb, B, [a, b]);
+        layout!(hb; B, [a, b]);
         assert_ne!(ha, hb);
     }
 }

@@ -54,17 +54,28 @@ fn iceoryx_type_name<T: ZeroCopySend>() -> &'static str {
     unsafe { <T as ZeroCopySend>::type_name() }
 }
 
-/// Lists a struct's fields; the destructuring pattern fails to compile when a field of the
+/// The iceoryx2 type name of a payload that travels on its own (a service's payload).
+fn service_type_name(name: &str) -> Option<&'static str> {
+    match name {
+        "MachineState" => Some(iceoryx_type_name::<MachineState>()),
+        "CommandRequest" => Some(iceoryx_type_name::<CommandRequest>()),
+        "CommandReply" => Some(iceoryx_type_name::<CommandReply>()),
+        "EventRecord" => Some(iceoryx_type_name::<EventRecord>()),
+        _ => None,
+    }
+}
+
+/// Appends a struct's layout; the destructuring pattern fails to compile when a field of the
 /// contract is missing from the list, so the dump is always complete.
-macro_rules! type_layout {
-    ($t:ident, $type_name:expr, [$($f:ident),* $(,)?]) => {{
+macro_rules! push_layout {
+    ($v:ident; $t:ident, [$($f:ident),* $(,)?]) => {{
         #[allow(dead_code)]
         fn exhaustive(v: &$t) {
             let $t { $($f: _),* } = v;
         }
-        TypeLayout {
+        $v.push(TypeLayout {
             name: stringify!($t),
-            type_name: $type_name,
+            type_name: service_type_name(stringify!($t)),
             size: size_of::<$t>(),
             align: align_of::<$t>(),
             fields: vec![$(FieldLayout {
@@ -72,112 +83,15 @@ macro_rules! type_layout {
                 offset: offset_of!($t, $f),
                 size: field_size(|v: &$t| &v.$f),
             }),*],
-        }
+        });
     }};
 }
 
 /// Every payload type of the contract, nested types first.
 pub fn layouts() -> Vec<TypeLayout> {
-    vec![
-        type_layout!(
-            AxisState,
-            None,
-            [
-                position,
-                setpoint,
-                velocity,
-                position_inc,
-                setpoint_inc,
-                fault_value,
-                fault_limit,
-                force_permille,
-                status_bits,
-                flags,
-                state,
-                mode,
-                fault,
-                reserved0,
-                fault_code,
-                active_record,
-                name,
-                unit,
-                reserved1,
-            ]
-        ),
-        type_layout!(
-            GroupState,
-            None,
-            [
-                active_record,
-                record,
-                reached,
-                override_percent,
-                chain_state,
-                rc1,
-                rcc,
-                motion,
-                axis_count,
-                reserved0,
-                axes,
-                name,
-                reserved1,
-            ]
-        ),
-        type_layout!(
-            BusStats,
-            None,
-            [
-                frames_sent,
-                frames_received,
-                tx_refused,
-                rx_dropped,
-                skipped_cycles,
-                step_ns,
-                wake_late_us,
-            ]
-        ),
-        type_layout!(
-            MachineState,
-            Some(iceoryx_type_name::<MachineState>()),
-            [
-                version,
-                layout_hash,
-                cycle,
-                sync_time_ns,
-                publish_time_ns,
-                cycle_ns,
-                axis_count,
-                group_count,
-                inputs,
-                virtual_time,
-                reserved0,
-                bus,
-                axes,
-                groups,
-            ]
-        ),
-        type_layout!(
-            CommandRequest,
-            Some(iceoryx_type_name::<CommandRequest>()),
-            [
-                tag, kind, target, percent, axis, group, record, sub, reserved0, pnu, reserved1,
-                value, positions,
-            ]
-        ),
-        type_layout!(
-            CommandReply,
-            Some(iceoryx_type_name::<CommandReply>()),
-            [tag, cycle, value, min, max, status, reserved0, reason]
-        ),
-        type_layout!(
-            EventRecord,
-            Some(iceoryx_type_name::<EventRecord>()),
-            [
-                seq, cycle, value, id, axis, group, record, state, error, sub, reserved0, code,
-                reserved1,
-            ]
-        ),
-    ]
+    let mut v = Vec::new();
+    crate::layout::for_each_payload!(push_layout!(v));
+    v
 }
 
 /// Lists constants as `("module.NAME", value)` (top-level ones without a module).
