@@ -17,7 +17,7 @@ use hdrhistogram::Histogram;
 use heapless::spsc::Queue;
 
 use crate::axis::Image;
-use crate::command::{Answer, AxisId};
+use crate::command::Answer;
 use crate::cycle::{ModbusInput, Transport};
 use crate::runtime::modbus::{self as mb, Link, ModbusSettings};
 use crate::runtime::plan::MachinePlan;
@@ -177,11 +177,6 @@ pub fn run_real(
                 let relay_stop = Arc::new(AtomicBool::new(false));
                 let mut relay = None;
                 let mut core = CycleCore::new(plan)?;
-                for (i, a) in plan.axes.iter().enumerate() {
-                    if matches!(a.setup.transport, Transport::Modbus { .. }) {
-                        core.cycle.set_online(i as AxisId, true, t0);
-                    }
-                }
                 let mut script = Script::new(opts.script, t0);
                 let mut late = Histogram::<u64>::new_with_bounds(1, 10_000_000_000, 3)
                     .map_err(|e| RunError::Config(e.to_string()))?;

@@ -351,7 +351,7 @@ impl std::fmt::Debug for CycleCore<'_> {
 }
 
 impl<'t> CycleCore<'t> {
-    /// The cycle of `plan`, with every buffer allocated.
+    /// The cycle of `plan`, with every buffer allocated and the Modbus axes online.
     pub fn new(plan: &'t MachinePlan) -> Result<CycleCore<'t>, RunError> {
         let axes: Vec<_> = plan.axes.iter().map(|a| a.setup).collect();
         let groups: Vec<_> = plan
@@ -359,7 +359,7 @@ impl<'t> CycleCore<'t> {
             .iter()
             .map(|(_, g, t)| (g.clone(), &**t))
             .collect();
-        let cycle = Box::new(
+        let mut cycle = Box::new(
             MachineCycle::new(plan.cycle, &axes, &groups)
                 .map_err(|e| RunError::Config(e.to_string()))?,
         );
@@ -368,6 +368,13 @@ impl<'t> CycleCore<'t> {
             .iter()
             .filter(|a| matches!(a.setup.transport, Transport::Modbus { .. }))
             .count();
+        // Modbus axes need no boot: they are online from the start (the time only matters to
+        // the guarding of CANopen axes).
+        for (i, a) in plan.axes.iter().enumerate() {
+            if matches!(a.setup.transport, Transport::Modbus { .. }) {
+                cycle.set_online(i as AxisId, true, Instant::ZERO);
+            }
+        }
         Ok(CycleCore {
             cycle,
             rx: Vec::with_capacity(RX_CAPACITY),
@@ -590,13 +597,7 @@ impl<'p> VirtualRun<'p> {
         }
         let plans: Vec<_> = plan.axes.iter().filter_map(|a| a.boot.clone()).collect();
         let boot = BootSequencer::new(plans, t0);
-        let mut core = CycleCore::new(plan)?;
-        // Modbus axes need no boot: they are online from the start.
-        for (i, a) in plan.axes.iter().enumerate() {
-            if matches!(a.setup.transport, Transport::Modbus { .. }) {
-                core.cycle.set_online(i as AxisId, true, t0);
-            }
-        }
+        let core = CycleCore::new(plan)?;
         let shm = match &opts.shm {
             Some(prefix) => {
                 let _ = shm_api::publisher::cleanup_dead_nodes();
