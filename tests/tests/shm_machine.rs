@@ -280,7 +280,20 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
     let p = prefix("python");
     let coordinator = Coordinator::start(&p, 20);
     let mut c = connect(&p);
-    c.next(Duration::from_secs(5)).unwrap();
+    // The example enables every axis: wait until every drive has booted (is online).
+    let t = Instant::now();
+    loop {
+        let s = *c.next(Duration::from_secs(5)).unwrap();
+        let n = usize::from(s.axis_count);
+        if n == 4
+            && s.axes[..n]
+                .iter()
+                .all(|a| a.flags & axis_flags::ONLINE != 0)
+        {
+            break;
+        }
+        assert!(t.elapsed() < Duration::from_secs(30), "not booted: {s:?}");
+    }
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
     let out = Command::new("python3")
         .arg(root.join("shm-api/python/example_watch_and_command.py"))
