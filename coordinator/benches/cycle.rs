@@ -15,7 +15,7 @@ use std::time::Duration;
 use coordinator::axis::Image;
 use coordinator::command::{Command, GroupId};
 use coordinator::config::Config;
-use coordinator::cycle::{CycleInput, CycleOutput};
+use coordinator::cycle::{BusFrame, CycleInput, CycleOutput};
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::{MachinePlan, plan};
 use coordinator::runtime::run::{Captured, RunOptions, VirtualRun};
@@ -42,7 +42,7 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
     };
     let mut run = VirtualRun::new(plan, &opts).expect("builds");
     let mut out = Vec::new();
-    while run.script.phase() != Phase::Running {
+    while run.lp.script.phase() != Phase::Running {
         run.step(&mut out);
         assert!(run.elapsed() < Duration::from_secs(300), "not homed");
     }
@@ -65,9 +65,9 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
     for _ in 0..20 {
         run.step(&mut out);
     }
-    run.capture = true;
+    run.lp.capture = true;
     run.step(&mut out);
-    let c = run.captured.take().expect("captured");
+    let c = run.lp.captured.take().expect("captured");
     assert!(
         (0..plan.groups.len()).all(|g| c
             .cycle
@@ -88,7 +88,7 @@ fn bench(c: &mut Criterion) {
         let slots = cap.modbus.len();
         group.throughput(Throughput::Elements(n as u64));
         group.bench_with_input(BenchmarkId::from_parameter(n), &cap, |b, cap| {
-            let mut frames = vec![Frame::std8(0, [0; 8]); 512];
+            let mut frames = vec![BusFrame::new(0, Frame::std8(0, [0; 8])); 512];
             let mut modbus = vec![Image::default(); slots];
             b.iter_batched_ref(
                 || cap.cycle.clone(),

@@ -31,7 +31,7 @@ fn running(plan: &MachinePlan) -> VirtualRun<'_> {
     };
     let mut run = VirtualRun::new(plan, &opts).unwrap();
     let mut out = Vec::new();
-    while run.script.phase() != Phase::Running {
+    while run.lp.script.phase() != Phase::Running {
         run.step(&mut out);
     }
     for _ in 0..50 {

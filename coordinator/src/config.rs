@@ -32,6 +32,12 @@ pub const EXAMPLE: &str = include_str!("../examples/machine.toml");
 
 /// Allowed cycle periods in microseconds (the same range as `coordinator run --cycle-us`).
 pub const CYCLE_US: core::ops::RangeInclusive<u32> = 250..=100_000;
+/// Axes one coordinator drives at most.
+pub const MAX_AXES: usize = 128;
+/// Groups one coordinator runs at most.
+pub const MAX_GROUPS: usize = 16;
+/// CAN buses one coordinator drives at most (all in its one cycle).
+pub const MAX_BUSES: usize = crate::cycle::MAX_BUSES;
 /// The default bus-load limit in percent.
 pub const DEFAULT_LOAD_LIMIT_PERCENT: u32 = 80;
 /// The default heartbeat / guard time in milliseconds.
@@ -72,14 +78,39 @@ fn default_one() -> u16 {
     1
 }
 
-/// How a bus reaches the wire.
+/// How a bus reaches the wire, and where its drives are.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BusKind {
-    /// The project's virtual bus (`vbus:NAME`), named by the bus's name.
-    Virtual,
-    /// A SocketCAN interface of the same name as the bus.
+    /// A bus inside the coordinator's process with a simulator for every drive on it: the
+    /// embedded default machine, demonstrations, tests. No other process can join it.
+    Simulated,
+    /// The cross-process virtual bus `vbus:NAME` (shared memory): the drives are other
+    /// processes (`drive-sim`, a Python tool); `canbus dump vbus:NAME` sees its traffic.
+    Vbus,
+    /// A SocketCAN interface of the same name as the bus: real drives.
     Socketcan,
+    /// The old name of `simulated`; refused so that no configuration silently changes meaning
+    /// (the key now says where the drives are).
+    Virtual,
+}
+
+impl BusKind {
+    /// The name used in the configuration.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Simulated => "simulated",
+            Self::Vbus => "vbus",
+            Self::Socketcan => "socketcan",
+            Self::Virtual => "virtual",
+        }
+    }
+}
+
+impl fmt::Display for BusKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// Who produces the SYNC on a bus.
@@ -97,9 +128,9 @@ pub enum SyncMode {
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BusConfig {
-    /// Name, unique; also the virtual bus name or the SocketCAN interface.
+    /// Name, unique; also the `vbus:NAME` or the SocketCAN interface.
     pub name: String,
-    /// Virtual or SocketCAN.
+    /// Simulated, vbus or SocketCAN.
     pub kind: BusKind,
     /// Bitrate in bit/s.
     #[serde(default = "default_bitrate")]
@@ -260,8 +291,12 @@ pub struct AxisConfig {
     pub bus: Option<String>,
     /// The CANopen node-ID, 1..=127 (CANopen devices only).
     pub node: Option<i64>,
-    /// The Modbus TCP address `host:port` (Modbus devices only).
+    /// The Modbus TCP address `host:port` (Modbus devices only), dialled by the coordinator.
     pub modbus: Option<String>,
+    /// A Modbus device simulated inside the coordinator instead of dialled (no `modbus`
+    /// address then). CANopen axes are simulated by their bus's kind.
+    #[serde(default)]
+    pub simulated: bool,
     /// Map the FHPP parameter channel (FPC) on PDO2 (FHPP over CANopen only).
     #[serde(default)]
     pub fpc: bool,
@@ -628,16 +663,38 @@ pub enum Problem {
     /// A group without axes.
     #[error("a group needs at least one axis")]
     EmptyGroup,
-    /// A group whose buses' SYNCs do not line up.
-    #[error("buses {a:?} and {b:?} do not share one SYNC: {reason}")]
-    Unaligned {
-        /// One bus.
-        a: String,
-        /// The other.
-        b: String,
-        /// Why.
-        reason: &'static str,
+    /// The bus kind `virtual`, renamed.
+    #[error(
+        "\"virtual\" is no longer a bus kind: say \"simulated\" for drives simulated inside the coordinator (what \"virtual\" ran), or \"vbus\" for the cross-process bus vbus:NAME that drive-sim, canbus and other tools join"
+    )]
+    RenamedKind,
+    /// More of something than one coordinator holds.
+    #[error("{count} {what}: at most {max} per coordinator")]
+    TooMany {
+        /// What ("axes", "groups", "buses").
+        what: &'static str,
+        /// How many the file has.
+        count: usize,
+        /// The most allowed.
+        max: usize,
     },
+    /// Two buses with different SYNC periods.
+    #[error(
+        "{value} us differs from bus {other:?}'s {cycle} us: one coordinator runs one cycle for all its buses"
+    )]
+    OneCycle {
+        /// This bus's period, µs.
+        value: u32,
+        /// The first bus.
+        other: String,
+        /// Its period, µs.
+        cycle: u32,
+    },
+    /// A SYNC-consumer bus beside other buses.
+    #[error(
+        "a SYNC consumer bus must be the coordinator's only CAN bus (the cycle follows its SYNC), and bus {0:?} is configured too"
+    )]
+    ConsumerNotAlone(String),
     /// A group mixing Modbus and CANopen axes: Modbus has no SYNC to latch on.
     #[error("axis {0:?} is on Modbus, which has no SYNC; it cannot move with CANopen axes")]
     ModbusInGroup(String),
@@ -856,7 +913,41 @@ impl Config {
                 Some(c) => self.check_cycle(&format!("{key}.cycle_us"), c, &mut err),
                 None => cycle_ok,
             };
+            if b.kind == BusKind::Virtual {
+                err.push(format!("{key}.kind"), Problem::RenamedKind);
+            }
+            // One cycle drives every bus: one period, and a SYNC consumer only alone.
+            if let Some(first) = self.buses.first().filter(|_| i > 0) {
+                let (mine, theirs) = (self.bus_cycle_us(b), self.bus_cycle_us(first));
+                if mine != theirs {
+                    err.push(
+                        format!("{key}.cycle_us"),
+                        Problem::OneCycle {
+                            value: mine,
+                            other: first.name.clone(),
+                            cycle: theirs,
+                        },
+                    );
+                }
+            }
+            if b.sync == SyncMode::Consumer
+                && let Some(other) = self.buses.iter().find(|o| o.name != b.name)
+            {
+                err.push(
+                    format!("{key}.sync"),
+                    Problem::ConsumerNotAlone(other.name.clone()),
+                );
+            }
             bus_ok.push(ok);
+        }
+        for (what, count, max) in [
+            ("buses", self.buses.len(), MAX_BUSES),
+            ("axes", self.axes.len(), MAX_AXES),
+            ("groups", self.groups.len(), MAX_GROUPS),
+        ] {
+            if count > max {
+                err.push(what, Problem::TooMany { what, count, max });
+            }
         }
 
         // Axes.
@@ -912,13 +1003,17 @@ impl Config {
                         not("is supervised by its Modbus timeout"),
                     );
                 }
-                match &a.modbus {
-                    None => err.push(format!("{key}.modbus"), Problem::Missing { device }),
-                    Some(addr) if !valid_host_port(addr) => err.push(
+                match (&a.modbus, a.simulated) {
+                    (None, false) => err.push(format!("{key}.modbus"), Problem::Missing { device }),
+                    (Some(_), true) => err.push(
+                        format!("{key}.modbus"),
+                        not("simulated inside the coordinator has no address: remove modbus, or remove simulated to dial the drive"),
+                    ),
+                    (Some(addr), false) if !valid_host_port(addr) => err.push(
                         format!("{key}.modbus"),
                         Problem::ModbusAddress(addr.clone()),
                     ),
-                    Some(_) => {}
+                    _ => {}
                 }
             } else {
                 let not = |reason| Problem::NotAllowed { device, reason };
@@ -926,6 +1021,12 @@ impl Config {
                     err.push(
                         format!("{key}.modbus"),
                         not("is on CANopen, not on Modbus TCP"),
+                    );
+                }
+                if a.simulated {
+                    err.push(
+                        format!("{key}.simulated"),
+                        not("is simulated by its bus's kind (kind = \"simulated\")"),
                     );
                 }
                 if a.fpc && profile != Profile::Fhpp {
@@ -993,7 +1094,7 @@ impl Config {
             check_scaling(&key, a, &mut err);
         }
 
-        self.check_groups(&axis_index, &bus_index, &mut err);
+        self.check_groups(&axis_index, &mut err);
         self.check_records(&axis_index, &mut err);
         self.build_group_tables(&mut err);
 
@@ -1058,12 +1159,7 @@ impl Config {
         ok
     }
 
-    fn check_groups(
-        &self,
-        axis_index: &HashMap<&str, usize>,
-        bus_index: &HashMap<&str, usize>,
-        err: &mut Errors,
-    ) {
+    fn check_groups(&self, axis_index: &HashMap<&str, usize>, err: &mut Errors) {
         let mut names: HashMap<&str, usize> = HashMap::new();
         let mut member_of: HashMap<&str, &str> = HashMap::new();
         for (g, group) in self.groups.iter().enumerate() {
@@ -1079,8 +1175,6 @@ impl Config {
             if group.axes.is_empty() {
                 err.push(format!("{key}.axes"), Problem::EmptyGroup);
             }
-            // The first CANopen member's bus, against which the others must line up.
-            let mut first_bus: Option<&BusConfig> = None;
             let mut modbus: Option<&str> = None;
             let mut canopen = false;
             for (k, name) in group.axes.iter().enumerate() {
@@ -1098,45 +1192,12 @@ impl Config {
                         },
                     );
                 }
-                let axis = &self.axes[ai];
-                if axis.device.is_modbus() {
+                // Members on different buses are fine: every bus gets its SYNC in the same
+                // cycle (one period for all buses is checked with the buses).
+                if self.axes[ai].device.is_modbus() {
                     modbus.get_or_insert(name);
-                    continue;
-                }
-                canopen = true;
-                let Some(bus) = axis
-                    .bus
-                    .as_deref()
-                    .and_then(|b| bus_index.get(b))
-                    .map(|&bi| &self.buses[bi])
-                else {
-                    continue;
-                };
-                match first_bus {
-                    None => first_bus = Some(bus),
-                    Some(first) if first.name != bus.name => {
-                        let reason = if self.bus_cycle_us(first) != self.bus_cycle_us(bus) {
-                            Some("their cycle periods differ")
-                        } else if first.sync == SyncMode::Consumer || bus.sync == SyncMode::Consumer
-                        {
-                            Some(
-                                "a SYNC consumer bus follows a producer the coordinator does not time",
-                            )
-                        } else {
-                            None
-                        };
-                        if let Some(reason) = reason {
-                            err.push(
-                                akey,
-                                Problem::Unaligned {
-                                    a: first.name.clone(),
-                                    b: bus.name.clone(),
-                                    reason,
-                                },
-                            );
-                        }
-                    }
-                    Some(_) => {}
+                } else {
+                    canopen = true;
                 }
             }
             if let (true, Some(m)) = (canopen, modbus) {
@@ -2007,19 +2068,48 @@ mod tests {
                 "axes[3].limits.velocity: 90 units are 0.09 increments, less than one",
             ),
             (
-                &[(
-                    "modbus = \"192.168.0.20:502\"",
-                    "modbus = \"192.168.0.20:502\"\nbus = \"can0\"",
-                )],
+                &[("simulated = true", "simulated = true\nbus = \"can0\"")],
                 "axes[3].bus: a cmmo-st axis is on Modbus TCP, not on a CAN bus",
             ),
             (
-                &[("modbus = \"192.168.0.20:502\"", "modbus = \"192.168.0.20\"")],
-                "axes[3].modbus: \"192.168.0.20\" is not host:port",
+                &[("simulated = true", "modbus = \"127.0.0.1\"")],
+                "axes[3].modbus: \"127.0.0.1\" is not host:port",
             ),
             (
-                &[("modbus = \"192.168.0.20:502\"", "# no address")],
+                &[("simulated = true", "# no address")],
                 "axes[3].modbus: missing: a cmmo-st axis needs it",
+            ),
+            (
+                &[(
+                    "simulated = true",
+                    "simulated = true\nmodbus = \"127.0.0.1:1502\"",
+                )],
+                "axes[3].modbus: a cmmo-st axis simulated inside the coordinator has no address",
+            ),
+            (
+                &[("node = 3", "node = 3\nsimulated = true")],
+                "axes[2].simulated: a tlc5xx axis is simulated by its bus's kind",
+            ),
+            (
+                &[("kind = \"simulated\"", "kind = \"virtual\"")],
+                "buses[0].kind: \"virtual\" is no longer a bus kind: say \"simulated\"",
+            ),
+            (
+                &[(
+                    "# Festo MTR-DCI on CANopen",
+                    "[[buses]]\nname = \"can1\"\nkind = \"vbus\"\ncycle_us = 4000\n# Festo MTR-DCI on CANopen",
+                )],
+                "buses[1].cycle_us: 4000 us differs from bus \"can0\"'s 2000 us: one coordinator runs one cycle",
+            ),
+            (
+                &[
+                    ("sync = \"producer\"", "sync = \"consumer\""),
+                    (
+                        "# Festo MTR-DCI on CANopen",
+                        "[[buses]]\nname = \"can1\"\nkind = \"vbus\"\n# Festo MTR-DCI on CANopen",
+                    ),
+                ],
+                "buses[0].sync: a SYNC consumer bus must be the coordinator's only CAN bus",
             ),
             (
                 &[("node = 3", "node = 3\nmodbus = \"h:1\"")],
@@ -2100,7 +2190,7 @@ mod tests {
             (
                 &[(
                     "# Festo MTR-DCI on CANopen",
-                    "[[buses]]\nname = \"can0\"\nkind = \"virtual\"\n# Festo MTR-DCI on CANopen",
+                    "[[buses]]\nname = \"can0\"\nkind = \"simulated\"\n# Festo MTR-DCI on CANopen",
                 )],
                 "buses[1].name: the name \"can0\" is already used by buses[0]",
             ),
@@ -2145,7 +2235,7 @@ mod tests {
     }
 
     #[test]
-    fn a_group_spans_buses_only_if_their_syncs_line_up() {
+    fn a_group_spans_buses_that_share_the_one_cycle() {
         let second_bus = "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\n\n[[buses]]";
         let two = [
             ("[[buses]]", second_bus),
@@ -2162,16 +2252,16 @@ mod tests {
         assert_eq!(
             errors(&edited(&other_cycle)),
             [
-                "groups[0].axes[1]: buses \"can0\" and \"can1\" do not share one SYNC: \
-              their cycle periods differ"
+                "buses[1].cycle_us: 2000 us differs from bus \"can1\"'s 4000 us: one coordinator \
+              runs one cycle for all its buses"
             ]
         );
         let mut consumer = two.to_vec();
         consumer[0].1 =
             "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\nsync = \"consumer\"\n\n[[buses]]";
         let e = errors(&edited(&consumer));
-        assert_eq!(e.len(), 1);
-        assert!(e[0].contains("SYNC consumer"), "{e:?}");
+        assert_eq!(e.len(), 1, "{e:?}");
+        assert!(e[0].starts_with("buses[0].sync: a SYNC consumer"), "{e:?}");
     }
 
     #[test]
@@ -2195,7 +2285,7 @@ mod tests {
     #[test]
     fn unknown_and_missing_keys_are_parse_errors() {
         let e = Config::parse(&edited(&[("sdo_slots", "sdo_slot")])).unwrap_err();
-        assert_eq!(e.key, "line 17");
+        assert_eq!(e.key, "line 19");
         assert!(e.to_string().contains("unknown field `sdo_slot`"), "{e}");
         let e = Config::parse(&edited(&[("device = \"emca\"", "device = \"emcb\"")])).unwrap_err();
         assert!(e.to_string().contains("emcb"), "{e}");

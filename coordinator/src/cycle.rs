@@ -43,12 +43,32 @@ use crate::records::{
 pub const EVENT_CAPACITY: usize = 256;
 /// Cycles a parameter-channel task may wait for its reply.
 pub const FPC_TIMEOUT_CYCLES: u32 = 250;
+/// CAN buses one cycle drives at most (each with its own SYNC, PDOs and supervision).
+pub const MAX_BUSES: usize = 8;
+
+/// A CAN frame and the bus it came from or goes to (an index into the machine's buses).
+#[derive(Clone, Copy, Debug)]
+pub struct BusFrame {
+    /// The bus, 0-based, below [`CycleSetup::buses`].
+    pub bus: u8,
+    /// The frame.
+    pub frame: Frame,
+}
+
+impl BusFrame {
+    /// `frame` on `bus`.
+    pub fn new(bus: u8, frame: Frame) -> BusFrame {
+        BusFrame { bus, frame }
+    }
+}
 
 /// How an axis is reached.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Transport {
-    /// CANopen: TPDO1/RPDO1 of this node on the cycle's bus.
+    /// CANopen: TPDO1/RPDO1 of this node on one of the cycle's buses.
     Can {
+        /// The bus, 0-based.
+        bus: u8,
         /// Node-ID 1..=127.
         node: u8,
     },
@@ -121,6 +141,8 @@ pub struct CycleSetup {
     pub cycle_ns: u32,
     /// Send SYNC (producer) or follow one (consumer: no SYNC in the output).
     pub sync_producer: bool,
+    /// CAN buses, 0..=[`MAX_BUSES`]; a producer sends SYNC on each, every cycle.
+    pub buses: u8,
 }
 
 /// Why a machine could not be set up.
@@ -132,9 +154,13 @@ pub enum SetupError {
     /// An axis's drive/profile pair is not supported.
     #[error("axis {0}: {1}")]
     Axis(AxisId, AxisError),
-    /// Two axes share a node-ID, or a node-ID is outside 1..=127.
-    #[error("axis {0}: node-ID in use or invalid")]
+    /// Two axes share a node-ID on one bus, a node-ID is outside 1..=127, or the bus does not
+    /// exist.
+    #[error("axis {0}: node-ID in use or invalid, or no such bus")]
     Node(AxisId),
+    /// More buses than [`MAX_BUSES`].
+    #[error("more than {MAX_BUSES} CAN buses")]
+    Buses,
     /// A group names an axis that does not exist or is already in another group.
     #[error("group {0}: bad member")]
     Member(GroupId),
@@ -158,8 +184,8 @@ pub struct ModbusInput {
 pub struct CycleInput<'a> {
     /// The time of this cycle's SYNC.
     pub now: Instant,
-    /// CAN frames received since the previous step, in arrival order.
-    pub frames: &'a [Frame],
+    /// CAN frames received since the previous step, in arrival order per bus.
+    pub frames: &'a [BusFrame],
     /// Modbus images, by slot.
     pub modbus: &'a [ModbusInput],
 }
@@ -167,8 +193,8 @@ pub struct CycleInput<'a> {
 /// Where the step writes what to send.
 #[derive(Debug)]
 pub struct CycleOutput<'a> {
-    /// CAN frames in transmit order; the step fills `frames[..len]`.
-    pub frames: &'a mut [Frame],
+    /// CAN frames in transmit order (every bus's SYNC first); the step fills `frames[..len]`.
+    pub frames: &'a mut [BusFrame],
     /// Frames written.
     pub len: usize,
     /// Frames that did not fit `frames` (a configuration error: the budget check prevents it).
@@ -178,17 +204,17 @@ pub struct CycleOutput<'a> {
 }
 
 impl CycleOutput<'_> {
-    fn push(&mut self, f: Frame) {
+    fn push(&mut self, bus: u8, f: Frame) {
         match self.frames.get_mut(self.len) {
             Some(slot) => {
-                *slot = f;
+                *slot = BusFrame::new(bus, f);
                 self.len += 1;
             }
             None => self.overflow += 1,
         }
     }
     /// The frames written.
-    pub fn sent(&self) -> &[Frame] {
+    pub fn sent(&self) -> &[BusFrame] {
         &self.frames[..self.len.min(self.frames.len())]
     }
 }
@@ -217,6 +243,25 @@ pub enum Mode {
         /// Enabled after the acknowledge (it was enabled before the fault).
         enable_after: bool,
     },
+}
+
+/// One CAN bus's supervision: its own node-IDs (the same ID may be used on two buses).
+#[derive(Debug, Clone)]
+struct BusRt<const A: usize> {
+    heartbeat: HeartbeatConsumer<A, 32>,
+    guarding: GuardingMaster<A, 32>,
+    /// Node-ID → axis.
+    by_node: [Option<AxisId>; 128],
+}
+
+impl<const A: usize> BusRt<A> {
+    fn new() -> Self {
+        BusRt {
+            heartbeat: HeartbeatConsumer::new(),
+            guarding: GuardingMaster::new(),
+            by_node: [None; 128],
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -306,10 +351,7 @@ pub struct Cycle<'t, const A: usize, const G: usize> {
     setup: CycleSetup,
     axes: Vec<AxisRt, A>,
     groups: Vec<GroupRt<'t>, G>,
-    heartbeat: HeartbeatConsumer<A, 32>,
-    guarding: GuardingMaster<A, 32>,
-    /// Node-ID → axis.
-    by_node: [Option<AxisId>; 128],
+    buses: Vec<BusRt<A>, MAX_BUSES>,
     events: Deque<Event, EVENT_CAPACITY>,
     dropped_events: u64,
     cycle: u64,
@@ -333,9 +375,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             setup,
             axes: Vec::new(),
             groups: Vec::new(),
-            heartbeat: HeartbeatConsumer::new(),
-            guarding: GuardingMaster::new(),
-            by_node: [None; 128],
+            buses: Vec::new(),
             events: Deque::new(),
             dropped_events: 0,
             cycle: 0,
@@ -343,12 +383,16 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             inputs: 0,
             previous_inputs: 0,
         };
+        for _ in 0..setup.buses {
+            c.buses.push(BusRt::new()).map_err(|_| SetupError::Buses)?;
+        }
         for (i, s) in axes.iter().enumerate() {
             let id = i as AxisId;
-            if let Transport::Can { node: n } = s.transport {
+            if let Transport::Can { bus, node: n } = s.transport {
                 let slot = c
-                    .by_node
-                    .get_mut(usize::from(n))
+                    .buses
+                    .get_mut(usize::from(bus))
+                    .and_then(|b| b.by_node.get_mut(usize::from(n)))
                     .ok_or(SetupError::Node(id))?;
                 if n == 0 || slot.is_some() {
                     return Err(SetupError::Node(id));
@@ -489,23 +533,25 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     }
 
     /// Brings a booted axis into the cycle (its supervision starts now), or takes one out
-    /// (boot failed: the axis is faulted with [`FaultReason::BootFailed`]).
+    /// (boot failed: the axis is faulted with [`FaultReason::BootFailed`]). An axis faulted
+    /// before (its drive was lost) keeps that fault until it is acknowledged.
     pub fn set_online(&mut self, axis: AxisId, online: bool, now: Instant) {
+        if !online {
+            self.set_offline(axis, Some(FaultReason::BootFailed));
+            return;
+        }
         let Some(a) = self.axes.get_mut(usize::from(axis)) else {
             return;
         };
-        a.online = online;
+        a.online = true;
         a.missed = 0;
-        if !online {
-            a.fault = FaultReason::BootFailed;
-            return;
-        }
-        if let Transport::Can { node: n } = a.setup.transport
+        if let Transport::Can { bus, node: n } = a.setup.transport
             && let Some(id) = node(n)
+            && let Some(b) = self.buses.get_mut(usize::from(bus))
         {
             match a.setup.supervision {
                 Supervision::Heartbeat { consumer_ms } => {
-                    let _ = self
+                    let _ = b
                         .heartbeat
                         .monitor(id, core::time::Duration::from_millis(consumer_ms.into()));
                 }
@@ -513,10 +559,40 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     guard_ms,
                     life_factor,
                 } => {
-                    let _ = self.guarding.add_node(id, guard_ms, life_factor, now);
+                    let _ = b.guarding.add_node(id, guard_ms, life_factor, now);
                 }
                 Supervision::None => {}
             }
+        }
+    }
+
+    /// Takes an axis out of the cycle while its drive is away, rebooting or refused: no more
+    /// RPDOs, guarding polls or supervision for it until [`Cycle::set_online`]. An axis that is
+    /// not faulted yet is first faulted with `reason` (its group reacts in this call), if given;
+    /// without a reason (a drive that has not appeared yet) it just stays offline.
+    pub fn set_offline(&mut self, axis: AxisId, reason: Option<FaultReason>) {
+        if let Some(r) = reason {
+            self.raise(axis, r);
+        }
+        let Some(a) = self.axes.get_mut(usize::from(axis)) else {
+            return;
+        };
+        if let Some(r) = reason
+            && a.fault == FaultReason::None
+        {
+            // Not online yet, so `raise` ignored it: the fault still belongs to the axis.
+            a.fault = r;
+        }
+        a.online = false;
+        a.missed = 0;
+        a.following = false;
+        a.solo = None;
+        if let Transport::Can { bus, node: n } = a.setup.transport
+            && let Some(id) = node(n)
+            && let Some(b) = self.buses.get_mut(usize::from(bus))
+        {
+            b.heartbeat.remove(id);
+            b.guarding.remove(id);
         }
     }
 
@@ -612,6 +688,15 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 })
             }
             Command::Acknowledge(t) => {
+                // A drive that is not there cannot be acknowledged: its fault stays until it is
+                // back (booted again) and acknowledged then.
+                if let Target::Axis(a) = t
+                    && self.axes.get(usize::from(a)).is_some_and(|x| !x.online)
+                {
+                    return Err(Rejected::WrongState(
+                        "drive offline: acknowledge once it is back",
+                    ));
+                }
                 let (g0, g1) = self.groups_of(t)?;
                 for gi in g0..g1 {
                     self.groups[gi].motion = None;
@@ -619,6 +704,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     self.abort_chain(gi);
                 }
                 self.for_target(t, |a| {
+                    if !a.online {
+                        return Ok(());
+                    }
                     let enable_after = !matches!(a.mode, Mode::Off);
                     if a.fault != FaultReason::None || a.feedback.state == AxisState::Fault {
                         a.fault = FaultReason::None;
@@ -957,12 +1045,16 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     }
 
     fn receive(&mut self, input: &CycleInput<'_>) {
-        for f in input.frames {
+        for bf in input.frames {
+            let f = &bf.frame;
             let Some(cob) = f.cob_id() else { continue };
             let Some((fc, n)) = FunctionCode::split(cob) else {
                 continue;
             };
-            let Some(axis) = self.by_node.get(usize::from(n)).copied().flatten() else {
+            let Some(bus) = self.buses.get_mut(usize::from(bf.bus)) else {
+                continue;
+            };
+            let Some(axis) = bus.by_node.get(usize::from(n)).copied().flatten() else {
                 continue;
             };
             match fc {
@@ -977,8 +1069,14 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     }
                 }
                 FunctionCode::NmtErrorControl => {
-                    let _ = self.heartbeat.handle_frame(f, f.timestamp());
-                    let _ = self.guarding.handle_frame(f, f.timestamp());
+                    // A boot-up from a drive in the cycle: it reset itself (power, watchdog);
+                    // its PDO settings are gone. Fault it now rather than cycles later.
+                    if f.data() == [0] && !f.is_remote() && self.axes[usize::from(axis)].online {
+                        self.raise(axis, FaultReason::DriveReset);
+                        continue;
+                    }
+                    let _ = bus.heartbeat.handle_frame(f, f.timestamp());
+                    let _ = bus.guarding.handle_frame(f, f.timestamp());
                 }
                 FunctionCode::SyncEmcy => {
                     if let Ok(m) = EmcyMessage::from_frame(f)
@@ -1017,22 +1115,25 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     }
 
     fn supervise(&mut self, now: Instant) {
-        let _ = self.heartbeat.handle_timeout(now);
-        let _ = self.guarding.handle_timeout(now);
-        while let Some(e) = self.heartbeat.poll_event() {
-            if let HeartbeatEvent::Lost { node } = e
-                && let Some(a) = self.by_node[usize::from(node.get())]
-            {
-                self.raise(a, FaultReason::HeartbeatLost);
+        for b in 0..self.buses.len() {
+            let bus = &mut self.buses[b];
+            let _ = bus.heartbeat.handle_timeout(now);
+            let _ = bus.guarding.handle_timeout(now);
+            while let Some(e) = self.buses[b].heartbeat.poll_event() {
+                if let HeartbeatEvent::Lost { node } = e
+                    && let Some(a) = self.buses[b].by_node[usize::from(node.get())]
+                {
+                    self.raise(a, FaultReason::HeartbeatLost);
+                }
             }
-        }
-        while let Some(e) = self.guarding.poll_event() {
-            let n = match e {
-                GuardingEvent::Lost { node } | GuardingEvent::ToggleError { node, .. } => node,
-                _ => continue,
-            };
-            if let Some(a) = self.by_node[usize::from(n.get())] {
-                self.raise(a, FaultReason::GuardingLost);
+            while let Some(e) = self.buses[b].guarding.poll_event() {
+                let n = match e {
+                    GuardingEvent::Lost { node } | GuardingEvent::ToggleError { node, .. } => node,
+                    _ => continue,
+                };
+                if let Some(a) = self.buses[b].by_node[usize::from(n.get())] {
+                    self.raise(a, FaultReason::GuardingLost);
+                }
             }
         }
         for i in 0..self.axes.len() {
@@ -1426,20 +1527,23 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     }
 
     fn transmit(&mut self, now: Instant, out: &mut CycleOutput<'_>) {
+        // Every bus's SYNC first, back to back: the buses latch this cycle's RPDOs together.
         if self.setup.sync_producer {
-            out.push(drivers::canopen::sync::encode_sync(0x080, None));
+            for b in 0..self.buses.len() {
+                out.push(b as u8, drivers::canopen::sync::encode_sync(0x080, None));
+            }
         }
         for a in &self.axes {
             if !a.online {
                 continue;
             }
             match a.setup.transport {
-                Transport::Can { node: n } => {
+                Transport::Can { bus, node: n } => {
                     if let Some(id) = node(n)
                         && let Ok(f) =
                             Frame::new_std(FunctionCode::Rpdo(1).cob_id(id), a.out.bytes())
                     {
-                        out.push(f);
+                        out.push(bus, f);
                     }
                 }
                 Transport::Modbus { slot } => {
@@ -1451,16 +1555,18 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         }
         // The parameter channels after every RPDO1: the motion images come first.
         for a in &self.axes {
-            if let (true, Some(client), Transport::Can { node: n }) =
+            if let (true, Some(client), Transport::Can { bus, node: n }) =
                 (a.online, &a.fpc, a.setup.transport)
                 && let Some(id) = node(n)
                 && let Ok(f) = Frame::new_std(FunctionCode::Rpdo(2).cob_id(id), &client.output())
             {
-                out.push(f);
+                out.push(bus, f);
             }
         }
-        while let Some(f) = self.guarding.poll_transmit(now) {
-            out.push(f);
+        for (b, bus) in self.buses.iter_mut().enumerate() {
+            while let Some(f) = bus.guarding.poll_transmit(now) {
+                out.push(b as u8, f);
+            }
         }
     }
 }
@@ -1543,7 +1649,7 @@ mod tests {
         AxisSetup {
             kind: DeviceKind::MtrDci,
             profile: Profile::Fhpp,
-            transport: Transport::Can { node },
+            transport: Transport::Can { bus: 0, node },
             supervision: Supervision::None,
             limits: AxisLimits::new(100_000, 400_000, 8_000_000),
             position_min: 0,
@@ -1557,6 +1663,7 @@ mod tests {
     const SETUP: CycleSetup = CycleSetup {
         cycle_ns: 2_000_000,
         sync_producer: true,
+        buses: 1,
     };
 
     #[test]
@@ -1673,7 +1780,7 @@ mod tests {
         let mut c = Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2), axis(3)], &[]).unwrap();
         c.set_online(0, true, Instant::ZERO);
         c.set_online(2, true, Instant::ZERO);
-        let mut frames = [Frame::std8(0, [0; 8]); 8];
+        let mut frames = [BusFrame::new(0, Frame::std8(0, [0; 8])); 8];
         let mut modbus: [Image; 0] = [];
         let mut out = CycleOutput {
             frames: &mut frames,
@@ -1689,7 +1796,8 @@ mod tests {
             },
             &mut out,
         );
-        let ids: heapless::Vec<u16, 8> = out.sent().iter().filter_map(|f| f.cob_id()).collect();
+        let ids: heapless::Vec<u16, 8> =
+            out.sent().iter().filter_map(|f| f.frame.cob_id()).collect();
         assert_eq!(ids.as_slice(), &[0x080, 0x201, 0x203]);
         assert_eq!(c.cycle(), 1);
     }
@@ -1706,7 +1814,7 @@ mod tests {
         c.set_online(0, true, Instant::ZERO);
         c.set_online(1, true, Instant::ZERO);
         let emcy = Frame::std8(0x082, [0x10, 0x42, 0x01, 0, 0, 0, 0, 0]);
-        let mut frames = [Frame::std8(0, [0; 8]); 8];
+        let mut frames = [BusFrame::new(0, Frame::std8(0, [0; 8])); 8];
         let mut modbus: [Image; 0] = [];
         for _ in 0..2 {
             let mut out = CycleOutput {
@@ -1718,7 +1826,7 @@ mod tests {
             c.step(
                 &CycleInput {
                     now: Instant::ZERO,
-                    frames: &[emcy],
+                    frames: &[BusFrame::new(0, emcy)],
                     modbus: &[],
                 },
                 &mut out,
@@ -1733,5 +1841,80 @@ mod tests {
             c.command(&Command::Home(Target::Axis(1))),
             Reply::Rejected(Rejected::Faulted)
         ));
+    }
+
+    fn step_once<const A: usize, const G: usize>(
+        c: &mut Cycle<'_, A, G>,
+        rx: &[BusFrame],
+        now: Instant,
+    ) -> heapless::Vec<(u8, u16), 16> {
+        let mut frames = [BusFrame::new(0, Frame::std8(0, [0; 8])); 16];
+        let mut modbus: [Image; 0] = [];
+        let mut out = CycleOutput {
+            frames: &mut frames,
+            len: 0,
+            overflow: 0,
+            modbus: &mut modbus,
+        };
+        c.step(
+            &CycleInput {
+                now,
+                frames: rx,
+                modbus: &[],
+            },
+            &mut out,
+        );
+        out.sent()
+            .iter()
+            .filter_map(|f| Some((f.bus, f.frame.cob_id()?)))
+            .collect()
+    }
+
+    #[test]
+    fn two_buses_get_their_sync_first_and_their_own_rpdos_with_one_node_id_on_each() {
+        let setup = CycleSetup { buses: 2, ..SETUP };
+        let on = |bus, node| AxisSetup {
+            transport: Transport::Can { bus, node },
+            ..axis(node)
+        };
+        let mut c = Cycle::<4, 2>::new(setup, &[on(0, 1), on(1, 1), on(1, 2)], &[]).unwrap();
+        for a in 0..3 {
+            c.set_online(a, true, Instant::ZERO);
+        }
+        let sent = step_once(&mut c, &[], Instant::ZERO);
+        assert_eq!(
+            sent.as_slice(),
+            &[(0, 0x080), (1, 0x080), (0, 0x201), (1, 0x201), (1, 0x202)]
+        );
+        // A TPDO from node 1 of bus 1 is axis 1's, not axis 0's.
+        let tpdo = BusFrame::new(1, Frame::std8(0x181, [0; 8]));
+        step_once(&mut c, &[tpdo], Instant::ZERO);
+        // A bus the machine does not have is refused at setup.
+        assert_eq!(
+            Cycle::<4, 2>::new(SETUP, &[on(1, 1)], &[]).err(),
+            Some(SetupError::Node(0))
+        );
+    }
+
+    #[test]
+    fn a_boot_up_from_a_drive_in_the_cycle_faults_it_and_offline_axes_send_nothing() {
+        let mut c = Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2)], &[]).unwrap();
+        c.set_online(0, true, Instant::ZERO);
+        c.set_online(1, true, Instant::ZERO);
+        let boot_up = BusFrame::new(0, Frame::new_std(0x702, &[0]).unwrap());
+        step_once(&mut c, &[boot_up], Instant::ZERO);
+        assert_eq!(c.axis_status(1).unwrap().fault, FaultReason::DriveReset);
+        assert_eq!(c.axis_status(0).unwrap().fault, FaultReason::None);
+        // Waiting for it: out of the cycle, the fault kept until acknowledged.
+        c.set_offline(1, None);
+        let sent = step_once(&mut c, &[], Instant::ZERO);
+        assert_eq!(sent.as_slice(), &[(0, 0x080), (0, 0x201)]);
+        assert_eq!(c.axis_status(1).unwrap().fault, FaultReason::DriveReset);
+        // A drive that never came is offline without a fault; a refused one is faulted.
+        let mut c = Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2)], &[]).unwrap();
+        c.set_offline(0, None);
+        c.set_offline(1, Some(FaultReason::BootFailed));
+        assert_eq!(c.axis_status(0).unwrap().fault, FaultReason::None);
+        assert_eq!(c.axis_status(1).unwrap().fault, FaultReason::BootFailed);
     }
 }

@@ -25,8 +25,11 @@ pub enum FaultReason {
     ModbusTimeout,
     /// The drive's TPDO did not arrive for this many cycles in a row.
     LateTpdo(u16),
-    /// The drive could not be booted.
+    /// The drive could not be booted (or is not the configured device).
     BootFailed,
+    /// The drive sent a boot-up while in the cycle: it reset itself (power, watchdog) and lost
+    /// its configuration; the coordinator configures it again when it is back.
+    DriveReset,
 }
 
 /// What a group does when one of its axes faults.

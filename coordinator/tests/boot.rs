@@ -10,11 +10,13 @@ use std::time::Duration;
 
 use coordinator::axis::DeviceKind;
 use coordinator::command::{Command, Reply, Target};
+use coordinator::cycle::BusFrame;
 use coordinator::drivers;
 use coordinator::event::Event;
 use coordinator::runtime::boot::{
     BootPlan, BootReport, BootSequencer, BootStep, FailureDetail, SupervisionPlan, plan_for,
 };
+use coordinator::runtime::nodes::{NodeReport, Nodes};
 use coordinator::runtime::services::{ServiceEvent, channels, spawn_services};
 use drivers::can::station::{self, Station, Steppable};
 use drivers::can::{Bus, ClockMode, Frame, VirtualBus, VirtualBusConfig, VirtualPort};
@@ -201,7 +203,7 @@ fn three_drives_boot_to_operational_with_pdos_and_supervision() {
 }
 
 #[test]
-fn a_missing_node_fails_at_boot_up_while_the_others_finish() {
+fn a_missing_node_is_reported_waiting_while_the_others_finish() {
     let mut p = plans();
     let mut ghost = plan_for(
         node(9),
@@ -222,10 +224,18 @@ fn a_missing_node_fails_at_boot_up_while_the_others_finish() {
     let f = report(&reports, 9).result.unwrap_err();
     assert_eq!(f.step, BootStep::BootUp);
     assert_eq!(f.detail, FailureDetail::NoBootUp { waited_ms: 800 });
+    assert!(f.detail.is_waiting());
     assert_eq!(
         f.to_string(),
         "node 9: boot-up failed: no boot-up within 800 ms"
     );
+    // Still asked for, every probe period, with reset communication (reported only once).
+    let resets = rig
+        .frames
+        .iter()
+        .filter(|f| f.cob_id() == Some(0x000) && f.data() == [0x82, 9])
+        .count();
+    assert!(resets >= 2, "{resets} resets of node 9");
     assert_eq!(rig.tlc.endpoint.nmt_state(), NmtState::Operational);
 }
 
@@ -299,11 +309,22 @@ fn identity_mismatch_is_reported_with_both_values() {
     assert_eq!(f.step, BootStep::Identity);
     assert_eq!(
         f.detail,
-        FailureDetail::Mismatch {
-            read: 0x0100_002E,
-            expected: 0x1D
+        FailureDetail::WrongDevice {
+            device_type: 0x0002_0192,
+            vendor_id: 0x0100_002E,
+            expected_type: 0x0002_0192,
+            expected_vendor: 0x1D,
         }
     );
+    // Both devices by name: the one found and the one configured.
+    let text = f.to_string();
+    assert!(
+        text.contains("(a Schneider TLC5xx (CiA 402))")
+            && text.contains("(a Festo MTR-DCI or EMCA (CiA 402))"),
+        "{text}"
+    );
+    // Refused, not started: it stays pre-operational.
+    assert_eq!(rig.tlc.endpoint.nmt_state(), NmtState::PreOperational);
 }
 
 #[test]
@@ -357,7 +378,7 @@ fn services_boot_through_the_queues_and_answer_every_request() {
     let stop = Arc::new(AtomicBool::new(false));
     let sims = run_sims(&bus, stop.clone());
     let (mut cycle, service) = channels();
-    let booted: Arc<Mutex<Vec<BootReport>>> = Arc::default();
+    let booted: Arc<Mutex<Vec<NodeReport>>> = Arc::default();
 
     // The stand-in cycle: every 500 µs, forward frames both ways, answer requests, take boot
     // reports, and emit one event per request it answers.
@@ -366,17 +387,17 @@ fn services_boot_through_the_queues_and_answer_every_request() {
     let cycle_booted = booted.clone();
     let cycle_thread = std::thread::spawn(move || {
         let mut n: u64 = 0;
-        let mut held: Option<Frame> = None;
+        let mut held: Option<BusFrame> = None;
         let mut dropped = 0u32;
         while !cycle_stop.load(Ordering::Acquire) {
             n += 1;
             while let Ok(Some(f)) = port.try_recv() {
-                if cycle.offer_received(&f).is_err() {
+                if cycle.offer_received(&BusFrame::new(0, f)).is_err() {
                     dropped += 1;
                 }
             }
-            while let Some(f) = held.take().or_else(|| cycle.tx_frames.dequeue()) {
-                if port.send(&f).is_err() {
+            while let Some(f) = held.take().or_else(|| cycle.tx_frame()) {
+                if port.send(&f.frame).is_err() {
                     held = Some(f);
                     break;
                 }
@@ -388,7 +409,7 @@ fn services_boot_through_the_queues_and_answer_every_request() {
                 });
                 let _ = cycle.event(Event::Acknowledged { cycle: n, axis: 0 });
             }
-            while let Some(r) = cycle.boot_reports.dequeue() {
+            while let Some(r) = cycle.boot_report() {
                 cycle_booted.lock().unwrap().push(r);
             }
             std::thread::sleep(Duration::from_micros(500));
@@ -399,7 +420,7 @@ fn services_boot_through_the_queues_and_answer_every_request() {
     let (etx, erx) = mpsc::channel();
     let handle = spawn_services(
         service,
-        plans(),
+        Nodes::single_bus(plans(), drivers::time::monotonic_now()),
         Box::new(move |e| {
             let _ = etx.send(e);
         }),
@@ -413,14 +434,14 @@ fn services_boot_through_the_queues_and_answer_every_request() {
         let left = deadline.saturating_duration_since(std::time::Instant::now());
         match erx.recv_timeout(left) {
             Ok(ServiceEvent::BootFinished) => break,
-            Ok(ServiceEvent::Boot(r)) => boot_events.push(r),
+            Ok(ServiceEvent::Node(r)) => boot_events.push(r),
             Ok(_) => {}
             Err(e) => panic!("boot did not finish: {e}"),
         }
     }
     assert_eq!(boot_events.len(), 3);
     for r in &boot_events {
-        assert!(r.result.is_ok(), "{r}");
+        assert!(r.report.result.is_ok(), "{}", r.report);
     }
     // The cycle got the same reports.
     let deadline = std::time::Instant::now() + Duration::from_secs(5);

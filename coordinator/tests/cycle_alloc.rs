@@ -72,10 +72,10 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         shm: None,
     };
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
-    run.probe = Some(probe);
+    run.lp.probe = Some(probe);
     let before = allocations();
     let mut out = Vec::new();
-    while run.script.phase() != Phase::Running {
+    while run.lp.script.phase() != Phase::Running {
         run.step(&mut out);
         assert!(
             run.elapsed() < Duration::from_secs(120),
@@ -134,7 +134,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         }
     }
     run.shut_down();
-    while run.script.phase() != Phase::Done {
+    while run.lp.script.phase() != Phase::Done {
         run.step(&mut out);
     }
     let cycles = run.cycles();

@@ -13,6 +13,7 @@ use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::{MachinePlan, plan};
 use coordinator::runtime::run::{RunOptions, VirtualRun, run_virtual};
 use coordinator::runtime::script::{Phase, ScriptOptions};
+use drivers::can::Bus;
 use drivers::can::fault::{FaultRule, IdMatch};
 
 fn example() -> MachinePlan {
@@ -33,7 +34,7 @@ fn quiet(chains: bool) -> RunOptions {
 fn ready(plan: &MachinePlan) -> VirtualRun<'_> {
     let mut run = VirtualRun::new(plan, &quiet(false)).expect("machine builds");
     let mut out = Vec::new();
-    while run.script.phase() != Phase::Running {
+    while run.lp.script.phase() != Phase::Running {
         run.step(&mut out);
         assert!(
             run.elapsed() < Duration::from_secs(60),
@@ -46,8 +47,8 @@ fn ready(plan: &MachinePlan) -> VirtualRun<'_> {
         run.step(&mut out);
     }
     let text = String::from_utf8_lossy(&out);
-    assert!(run.summary.boot_failures.is_empty(), "{text}");
-    assert!(run.summary.faults.is_empty(), "{text}");
+    assert!(run.io.summary.boot_failures.is_empty(), "{text}");
+    assert!(run.io.summary.faults.is_empty(), "{text}");
     for a in 0..plan.axes.len() {
         let s = run.core.cycle.axis_status(a as u16).unwrap();
         assert_eq!(
@@ -142,7 +143,11 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
             "{s:?} vs {target}"
         );
     }
-    assert!(run.summary.faults.is_empty(), "{:?}", run.summary.faults);
+    assert!(
+        run.io.summary.faults.is_empty(),
+        "{:?}",
+        run.io.summary.faults
+    );
 }
 
 #[test]
@@ -248,6 +253,18 @@ fn fault_reaction(
     assert!(text.contains("FAULT"), "{text}");
     heal(&mut run);
     steps(&mut run, 200);
+    // A drive the cycle lost is waited for and configured again when it answers; it comes back
+    // into the cycle still faulted, for the operator to acknowledge.
+    for _ in 0..3000 {
+        if run.core.cycle.axis_status(a).unwrap().online {
+            break;
+        }
+        run.step(&mut out);
+    }
+    let text = String::from_utf8_lossy(&out).to_string();
+    let st = run.core.cycle.axis_status(a).unwrap();
+    assert!(st.online && expect(st.fault), "{st:?}\n{text}");
+    steps(&mut run, 20);
     latched(run.core.cycle.command(&Command::Acknowledge(Target::All)));
     steps(&mut run, 300);
     let st = run.core.cycle.axis_status(a).unwrap();
@@ -261,12 +278,12 @@ fn guarding_loss_quick_stops_the_group_until_acknowledged() {
     fault_reaction(
         "x",
         |run| {
-            let port = run.sims.drive_mut("x").unwrap().port();
-            run.bus.set_disconnected(port, true);
+            let port = run.io.drive_mut("x").unwrap().port();
+            run.io.buses[0].set_disconnected(port, true);
         },
         |run| {
-            let port = run.sims.drive_mut("x").unwrap().port();
-            run.bus.set_disconnected(port, false);
+            let port = run.io.drive_mut("x").unwrap().port();
+            run.io.buses[0].set_disconnected(port, false);
         },
         |r| matches!(r, FaultReason::GuardingLost | FaultReason::LateTpdo(_)),
     );
@@ -278,9 +295,9 @@ fn a_late_tpdo_faults_the_axis() {
         "y",
         |run| {
             // EMCA node 2: drop its TPDO1 (182h).
-            run.bus.add_fault(FaultRule::drop(IdMatch::Exact(0x182)));
+            run.io.buses[0].add_fault(FaultRule::drop(IdMatch::Exact(0x182)));
         },
-        |run| run.bus.clear_faults(),
+        |run| run.io.buses[0].clear_faults(),
         |r| r == FaultReason::LateTpdo(3),
     );
 }
@@ -291,9 +308,9 @@ fn heartbeat_loss_faults_the_tlc5xx() {
         "z",
         |run| {
             // Heartbeats only (703h): the TPDOs still arrive.
-            run.bus.add_fault(FaultRule::drop(IdMatch::Exact(0x703)));
+            run.io.buses[0].add_fault(FaultRule::drop(IdMatch::Exact(0x703)));
         },
-        |run| run.bus.clear_faults(),
+        |run| run.io.buses[0].clear_faults(),
         |r| r == FaultReason::HeartbeatLost,
     );
 }
@@ -303,11 +320,11 @@ fn a_drive_fault_and_its_emcy_fault_the_axis() {
     fault_reaction(
         "y",
         |run| {
-            let d = run.sims.drive_mut("y").unwrap().fhpp_mut().unwrap();
+            let d = run.io.drive_mut("y").unwrap().fhpp_mut().unwrap();
             d.inject(drivers::sim::fhpp_drive::Injection::OverTemperature, true);
         },
         |run| {
-            let d = run.sims.drive_mut("y").unwrap().fhpp_mut().unwrap();
+            let d = run.io.drive_mut("y").unwrap().fhpp_mut().unwrap();
             d.inject(drivers::sim::fhpp_drive::Injection::OverTemperature, false);
         },
         |r| matches!(r, FaultReason::Emcy(_) | FaultReason::DriveFault(_)),
@@ -319,11 +336,11 @@ fn a_following_error_faults_the_axis() {
     fault_reaction(
         "x",
         |run| {
-            let d = run.sims.drive_mut("x").unwrap().fhpp_mut().unwrap();
+            let d = run.io.drive_mut("x").unwrap().fhpp_mut().unwrap();
             d.inject(drivers::sim::fhpp_drive::Injection::Block, true);
         },
         |run| {
-            let d = run.sims.drive_mut("x").unwrap().fhpp_mut().unwrap();
+            let d = run.io.drive_mut("x").unwrap().fhpp_mut().unwrap();
             d.inject(drivers::sim::fhpp_drive::Injection::Block, false);
         },
         |r| {
@@ -341,8 +358,8 @@ fn a_following_error_faults_the_axis() {
 fn a_modbus_timeout_faults_the_cmmo_st() {
     fault_reaction(
         "gripper",
-        |run| run.cmmo[0].1.set_silent(true),
-        |run| run.cmmo[0].1.set_silent(false),
+        |run| run.io.cmmo[0].1.set_silent(true),
+        |run| run.io.cmmo[0].1.set_silent(false),
         |r| r == FaultReason::ModbusTimeout,
     );
 }
@@ -497,7 +514,11 @@ fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
     );
     let st = run.core.cycle.group_status(gantry).unwrap();
     assert!(st.chain.rcc && st.chain.rc1, "{st:?}");
-    assert!(run.summary.faults.is_empty(), "{:?}", run.summary.faults);
+    assert!(
+        run.io.summary.faults.is_empty(),
+        "{:?}",
+        run.io.summary.faults
+    );
 }
 
 #[test]
@@ -634,7 +655,11 @@ fn hold_and_resume_continue_the_move_to_its_target() {
     }
     let s = run.core.cycle.axis_status(x as u16).unwrap();
     assert_eq!(s.setpoint, positions[0]);
-    assert!(run.summary.faults.is_empty(), "{:?}", run.summary.faults);
+    assert!(
+        run.io.summary.faults.is_empty(),
+        "{:?}",
+        run.io.summary.faults
+    );
     assert!(matches!(
         run.core.cycle.command(&Command::SetOverride {
             group: g,
@@ -656,8 +681,8 @@ fn in_sync_consumer_mode_the_cycle_follows_the_received_sync() {
     };
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     let mut out = Vec::new();
-    while run.script.phase() != Phase::Done {
-        if run.elapsed() >= Duration::from_secs(20) && run.script.phase() == Phase::Running {
+    while run.lp.script.phase() != Phase::Done {
+        if run.elapsed() >= Duration::from_secs(20) && run.lp.script.phase() == Phase::Running {
             run.shut_down();
         }
         run.step(&mut out);
@@ -668,7 +693,7 @@ fn in_sync_consumer_mode_the_cycle_follows_the_received_sync() {
         );
     }
     let cycles = run.cycles();
-    let (synced, missed) = (run.synced, run.missed_syncs);
+    let (synced, missed) = (run.io.synced, run.io.missed_syncs);
     let s = run.finish(Duration::ZERO);
     let text = String::from_utf8_lossy(&out);
     // Every cycle was started by a received SYNC, and every SYNC on the bus is the external
@@ -687,14 +712,14 @@ fn in_sync_consumer_mode_the_cycle_follows_the_received_sync() {
 }
 
 #[test]
-fn a_drive_that_fails_to_boot_is_reported_and_the_others_run() {
+fn a_missing_drive_is_waited_for_and_booted_when_it_appears_while_the_others_run() {
     let plan = example();
     let mut run = VirtualRun::new(&plan, &quiet(false)).unwrap();
-    // The TLC5xx (node 3) is not on the bus.
-    let port = run.sims.drive_mut("z").unwrap().port();
-    run.bus.set_disconnected(port, true);
+    // The TLC5xx (node 3) is not on the bus yet.
+    let port = run.io.drive_mut("z").unwrap().port();
+    run.io.buses[0].set_disconnected(port, true);
     let mut out = Vec::new();
-    while run.script.phase() != Phase::Running {
+    while run.lp.script.phase() != Phase::Running {
         run.step(&mut out);
         assert!(
             run.elapsed() < Duration::from_secs(60),
@@ -704,18 +729,19 @@ fn a_drive_that_fails_to_boot_is_reported_and_the_others_run() {
     }
     steps(&mut run, 10);
     let text = String::from_utf8_lossy(&out).to_string();
-    assert_eq!(run.summary.boot_failures.len(), 1, "{text}");
-    assert!(
-        run.summary.boot_failures[0].contains("axis z")
-            && run.summary.boot_failures[0].contains("boot-up"),
-        "{:?}",
-        run.summary.boot_failures
-    );
-    let z = plan.axis("z").unwrap() as u16;
+    // Reported once, by name, bus and kind; not a failure, not a fault.
     assert_eq!(
-        run.core.cycle.axis_status(z).unwrap().fault,
-        FaultReason::BootFailed
+        text.matches("waiting for node 3 (TLC5xx \"z\") on can0 (simulated)")
+            .count(),
+        1,
+        "{text}"
     );
+    assert!(run.io.summary.boot_failures.is_empty(), "{text}");
+    assert_eq!(run.io.summary.waiting.len(), 1, "{text}");
+    let z = plan.axis("z").unwrap() as u16;
+    let st = run.core.cycle.axis_status(z).unwrap();
+    assert!(!st.online && st.fault == FaultReason::None, "{st:?}");
+    // The others run: enabled and homed; the gantry moves.
     for name in ["x", "y", "gripper"] {
         let s = run
             .core
@@ -739,6 +765,86 @@ fn a_drive_that_fails_to_boot_is_reported_and_the_others_run() {
         group: plan.group("gantry").unwrap() as u16,
         record: 13,
     }));
+    // The drive is switched on: the coordinator's next probe finds it, configures it, and the
+    // axis can be enabled and homed.
+    run.io.buses[0].set_disconnected(port, false);
+    for _ in 0..2000 {
+        if run.core.cycle.axis_status(z).unwrap().online {
+            break;
+        }
+        run.step(&mut out);
+    }
+    let text = String::from_utf8_lossy(&out).to_string();
+    assert!(run.core.cycle.axis_status(z).unwrap().online, "{text}");
+    assert!(
+        text.contains("drive ready: node 3 (TLC5xx \"z\") on can0 (simulated)"),
+        "{text}"
+    );
+    latched(run.core.cycle.command(&Command::Enable(Target::Axis(z))));
+    steps(&mut run, 200);
+    latched(run.core.cycle.command(&Command::Home(Target::Axis(z))));
+    for _ in 0..3000 {
+        run.step(&mut out);
+        if run.core.cycle.axis_status(z).unwrap().feedback.homed {
+            break;
+        }
+    }
+    let st = run.core.cycle.axis_status(z).unwrap();
+    assert!(
+        st.feedback.homed && st.fault == FaultReason::None,
+        "{st:?}\n{}",
+        String::from_utf8_lossy(&out)
+    );
+}
+
+#[test]
+fn a_drive_that_resets_itself_is_faulted_configured_again_and_usable_after_acknowledge() {
+    let plan = example();
+    let mut run = ready(&plan);
+    let x = plan.axis("x").unwrap() as u16;
+    let y = plan.axis("y").unwrap() as u16;
+    // Another master on the bus resets node 2 (the EMCA) as a power cycle would: it sends its
+    // boot-up and comes back pre-operational, its PDO settings at their defaults.
+    let mut other = run.io.buses[0].attach("other-master");
+    other
+        .send(&drivers::can::Frame::new_std(0x000, &[0x81, 2]).unwrap())
+        .unwrap();
+    let mut out = Vec::new();
+    for _ in 0..50 {
+        run.step(&mut out);
+        if run.core.cycle.axis_status(y).unwrap().fault != FaultReason::None {
+            break;
+        }
+    }
+    let st = run.core.cycle.axis_status(y).unwrap();
+    assert_eq!(st.fault, FaultReason::DriveReset, "{st:?}");
+    // Its group quick-stops with it.
+    assert_eq!(
+        run.core.cycle.axis_status(x).unwrap().mode,
+        Mode::QuickStopped
+    );
+    // Configured again and back in the cycle, still faulted until acknowledged.
+    for _ in 0..2000 {
+        run.step(&mut out);
+        if run.core.cycle.axis_status(y).unwrap().online {
+            break;
+        }
+    }
+    let text = String::from_utf8_lossy(&out).to_string();
+    assert!(text.contains("drive reset: node 2 (EMCA \"y\")"), "{text}");
+    assert_eq!(
+        text.matches("drive ready: node 2 (EMCA \"y\")").count(),
+        1,
+        "{text}"
+    );
+    let st = run.core.cycle.axis_status(y).unwrap();
+    assert!(st.online && st.fault == FaultReason::DriveReset, "{st:?}");
+    steps(&mut run, 20);
+    latched(run.core.cycle.command(&Command::Acknowledge(Target::All)));
+    steps(&mut run, 300);
+    let st = run.core.cycle.axis_status(y).unwrap();
+    assert_eq!((st.fault, st.mode), (FaultReason::None, Mode::On), "{st:?}");
+    latched(run.core.cycle.command(&Command::Home(Target::Axis(y))));
 }
 
 #[test]

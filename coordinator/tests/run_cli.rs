@@ -29,9 +29,9 @@ fn the_default_machine_runs_in_virtual_time_and_prints_a_summary() {
         String::from_utf8_lossy(&out.stderr)
     );
     for needle in [
-        "machine: 4 axes, 3 groups, cycle 2000 us, virtual time",
-        "boot: axis x: node 1: operational",
-        "boot: axis z: node 3: operational",
+        "machine: 4 axes, 3 groups, 1 bus(es), cycle 2000 us, virtual time",
+        "drive ready: node 1 (MTR-DCI \"x\") on can0 (simulated)",
+        "drive ready: node 3 (TLC5xx \"z\") on can0 (simulated)",
         "summary: 100",
         "axis x:",
         "axis gripper:",
@@ -40,7 +40,7 @@ fn the_default_machine_runs_in_virtual_time_and_prints_a_summary() {
         assert!(text.contains(needle), "{needle:?} missing in:\n{text}");
     }
     // Every axis ends disabled.
-    assert_eq!(text.matches(", Disabled").count(), 4, "{text}");
+    assert_eq!(text.matches(", disabled").count(), 4, "{text}");
 }
 
 #[test]
@@ -90,7 +90,7 @@ fn sigint_stops_the_real_time_run_and_disables_every_drive() {
     );
     assert!(text.contains("summary:"), "{text}");
     assert_eq!(
-        text.matches(", Disabled").count(),
+        text.matches(", disabled").count(),
         4,
         "every drive disabled before exit:\n{text}"
     );

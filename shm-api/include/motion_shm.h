@@ -91,6 +91,7 @@ extern "C" {
 #define MOTION_FAULT_MODBUS_TIMEOUT 6
 #define MOTION_FAULT_LATE_TPDO 7
 #define MOTION_FAULT_BOOT_FAILED 8
+#define MOTION_FAULT_DRIVE_RESET 9
 
 /* MotionGroupState.chain_state */
 #define MOTION_CHAIN_STATE_IDLE 0

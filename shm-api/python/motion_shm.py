@@ -101,6 +101,7 @@ class Fault(enum.IntEnum):
     MODBUS_TIMEOUT = 6
     LATE_TPDO = 7
     BOOT_FAILED = 8
+    DRIVE_RESET = 9
 
 
 class ChainState(enum.IntEnum):

@@ -100,6 +100,8 @@ pub mod fault {
     pub const LATE_TPDO: u8 = 7;
     /// The drive's boot failed.
     pub const BOOT_FAILED: u8 = 8;
+    /// The drive sent a boot-up while in the cycle (it reset itself).
+    pub const DRIVE_RESET: u8 = 9;
 }
 
 /// A group's chain state ([`GroupState::chain_state`]).

@@ -122,7 +122,7 @@ pub fn constants() -> Vec<(&'static str, i64)> {
         axis_flags: [ONLINE, ENABLED, HOMED, MOTION_COMPLETE, WARNING, FOLLOWING, FHPP],
         fault: [
             NONE, HEARTBEAT_LOST, GUARDING_LOST, EMCY, FOLLOWING_ERROR, DRIVE_FAULT,
-            MODBUS_TIMEOUT, LATE_TPDO, BOOT_FAILED,
+            MODBUS_TIMEOUT, LATE_TPDO, BOOT_FAILED, DRIVE_RESET,
         ],
         chain_state: [IDLE, DELAY, MOVING, WAITING, COMPLETE, ABORTED],
         motion_state: [NONE, MOVING, HOLDING, QUICK_STOPPING, STOPPED, DONE],

@@ -68,6 +68,24 @@ pub enum DeviceKind {
     Tlc5xx,
 }
 
+impl DeviceKind {
+    /// The device's name as its manual writes it.
+    pub fn label(self) -> &'static str {
+        match self {
+            DeviceKind::MtrDci => "MTR-DCI",
+            DeviceKind::Emca => "EMCA",
+            DeviceKind::CmmoSt => "CMMO-ST",
+            DeviceKind::Tlc5xx => "TLC5xx",
+        }
+    }
+}
+
+impl core::fmt::Display for DeviceKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.label())
+    }
+}
+
 /// The device profile spoken to a drive.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Profile {
@@ -154,6 +172,28 @@ pub enum AxisState {
     Stopping,
     /// The drive reports a fault.
     Fault,
+}
+
+impl AxisState {
+    /// The state in words, for people.
+    pub fn name(self) -> &'static str {
+        match self {
+            AxisState::Offline => "offline",
+            AxisState::Disabled => "disabled",
+            AxisState::Enabling => "enabling",
+            AxisState::Ready => "ready",
+            AxisState::Homing => "homing",
+            AxisState::Moving => "moving",
+            AxisState::Stopping => "stopping",
+            AxisState::Fault => "fault",
+        }
+    }
+}
+
+impl core::fmt::Display for AxisState {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// What an axis reported this cycle, decoded from its input image.

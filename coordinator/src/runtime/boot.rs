@@ -18,6 +18,22 @@
 //! Nodes boot concurrently, one SDO request at a time per node; a node that fails is reported
 //! with the step, the object and the abort code, and the others go on. Every wait is bounded:
 //! the boot-up by [`BootTimeouts::boot_up`], every SDO exchange by [`BootTimeouts::sdo`].
+//!
+//! After the first report the sequencer keeps looking after each node, as a CiA 302 master
+//! does (the lifecycle):
+//!
+//! - a node that sent no boot-up is *waiting*: reported once ([`FailureDetail::NoBootUp`]),
+//!   then asked again with reset communication every [`BootTimeouts::probe`]; its boot-up
+//!   (answer or power-on) boots it;
+//! - a node that goes silent mid-boot (SDO timeout) waits the same way;
+//! - a running node that sends a boot-up reset itself: it is reported
+//!   ([`FailureDetail::UnexpectedBootUp`]) and configured again from the identity step;
+//! - a running node the cycle lost (heartbeat, guarding, late TPDOs: [`BootSequencer::lost`])
+//!   is reported ([`FailureDetail::Lost`]) and waits;
+//! - a node refused (wrong device, an SDO abort, a read-back mismatch) stays refused until it
+//!   sends a boot-up (it was replaced or power-cycled), which boots it again.
+//!
+//! Every successful (re)configuration ends with another `Ok` report.
 
 use std::collections::VecDeque;
 use std::fmt;
@@ -128,14 +144,18 @@ pub struct BootTimeouts {
     pub boot_up: Duration,
     /// One SDO exchange (the client's silence timeout).
     pub sdo: Duration,
+    /// How often a waiting node is asked again (reset communication) after its first wait.
+    pub probe: Duration,
 }
 
 impl Default for BootTimeouts {
-    /// 5 s for the boot-up (real drives take a few seconds after power-on), 500 ms per SDO.
+    /// 5 s for the boot-up (real drives take a few seconds after power-on), 500 ms per SDO, a
+    /// probe of a waiting node every second.
     fn default() -> Self {
         BootTimeouts {
             boot_up: Duration::from_secs(5),
             sdo: Duration::from_millis(500),
+            probe: Duration::from_secs(1),
         }
     }
 }
@@ -298,6 +318,41 @@ pub enum FailureDetail {
     Request(RequestError),
     /// The node appears twice in the plans; only the first is booted.
     DuplicateNode,
+    /// The cycle lost the running node (heartbeat, guarding, TPDOs); it is waited for.
+    Lost,
+    /// The node is another device than the one configured (1000h and 1018h:01 as read, and as
+    /// expected).
+    WrongDevice {
+        /// 1000h read.
+        device_type: u32,
+        /// 1018h:01 read.
+        vendor_id: u32,
+        /// 1000h expected.
+        expected_type: u32,
+        /// 1018h:01 expected.
+        expected_vendor: u32,
+    },
+}
+
+impl FailureDetail {
+    /// Whether the node is waited for (absent or lost) rather than refused.
+    pub fn is_waiting(&self) -> bool {
+        matches!(
+            self,
+            FailureDetail::NoBootUp { .. } | FailureDetail::SdoTimeout { .. } | FailureDetail::Lost
+        )
+    }
+}
+
+/// The device kinds an identity (1000h, 1018h:01) belongs to, in words.
+pub fn identify(device_type: u32, vendor_id: u32) -> &'static str {
+    match (device_type, vendor_id) {
+        (FESTO_FHPP_DEVICE_TYPE, FESTO_VENDOR_ID) => "a Festo MTR-DCI or EMCA (FHPP)",
+        (CIA402_DEVICE_TYPE, FESTO_VENDOR_ID) => "a Festo MTR-DCI or EMCA (CiA 402)",
+        (CIA402_DEVICE_TYPE, TLC5XX_VENDOR_ID) => "a Schneider TLC5xx (CiA 402)",
+        (CIA402_DEVICE_TYPE, _) => "a CiA 402 drive of another vendor",
+        _ => "an unknown device",
+    }
 }
 
 impl fmt::Display for FailureDetail {
@@ -315,6 +370,18 @@ impl fmt::Display for FailureDetail {
             FailureDetail::Plan(e) => write!(f, "invalid PDO settings: {e}"),
             FailureDetail::Request(e) => write!(f, "{e}"),
             FailureDetail::DuplicateNode => f.write_str("the node is planned twice"),
+            FailureDetail::Lost => f.write_str("lost by the cycle; waiting for it to come back"),
+            FailureDetail::WrongDevice {
+                device_type,
+                vendor_id,
+                expected_type,
+                expected_vendor,
+            } => write!(
+                f,
+                "wrong device: found device type {device_type:08X}h, vendor {vendor_id:08X}h ({}), expected device type {expected_type:08X}h, vendor {expected_vendor:08X}h ({})",
+                identify(*device_type, *vendor_id),
+                identify(*expected_type, *expected_vendor)
+            ),
         }
     }
 }
@@ -414,8 +481,10 @@ enum NodeState {
     WaitBootUp { deadline: Instant },
     /// An SDO request of the current op is with the client.
     Sdo,
-    /// Done (report pushed).
-    Finished,
+    /// Booted and started (report pushed); a boot-up or [`BootSequencer::lost`] restarts it.
+    Running,
+    /// Refused (report pushed); only a boot-up of the node tries again.
+    Refused,
 }
 
 /// SDO client of the sequencer: 2 queued requests (one in use), 16-byte uploads (expedited
@@ -436,6 +505,12 @@ struct NodeBoot {
     /// answer.
     restart: bool,
     restarts: u8,
+    /// The node has had its first report (booted, waiting or refused).
+    reported: bool,
+    /// Waiting has been reported since the last successful boot: probe quietly.
+    waiting: bool,
+    /// An identity value differed from the expected one (reported after both are read).
+    wrong_identity: bool,
 }
 
 /// Boot-ups tolerated during the identity step. The node's power-on boot-up can reach the bus
@@ -642,6 +717,9 @@ impl BootSequencer {
                         vendor_id: None,
                         restart: false,
                         restarts: 0,
+                        reported: false,
+                        waiting: false,
+                        wrong_identity: false,
                     });
                     let i = s.nodes.len() - 1;
                     s.run(i);
@@ -662,27 +740,107 @@ impl BootSequencer {
         &self.reports
     }
 
-    /// Every node has booted or failed.
+    /// Every node has its first report: booted, waiting or refused.
     pub fn is_finished(&self) -> bool {
-        self.nodes.iter().all(|n| n.state == NodeState::Finished)
+        self.nodes.iter().all(|n| n.reported)
     }
 
-    /// Ends node `i` with `result` (once). Its SDO client is still polled for frames, since a
-    /// timed-out client owes the node an abort frame.
+    /// Whether `node` is booted and running.
+    pub fn is_running(&self, node: NodeId) -> bool {
+        self.nodes
+            .iter()
+            .any(|n| n.plan.node == node && n.state == NodeState::Running)
+    }
+
+    /// The cycle lost `node` (heartbeat, guarding or TPDOs): if it was running, it is reported
+    /// ([`FailureDetail::Lost`]) and waited for (asked with reset communication every probe).
+    pub fn lost(&mut self, node: NodeId) {
+        let Some(i) = self.nodes.iter().position(|n| n.plan.node == node) else {
+            return;
+        };
+        if self.nodes[i].state != NodeState::Running {
+            return;
+        }
+        self.finish(
+            i,
+            Err(BootFailure {
+                node,
+                step: BootStep::BootUp,
+                object: None,
+                abort: None,
+                detail: FailureDetail::Lost,
+            }),
+        );
+    }
+
+    /// Node `i` ends its current attempt with `result`: running, waiting (asked again from the
+    /// reset) or refused. Its SDO client is still polled for frames, since a timed-out client
+    /// owes the node an abort frame.
     fn finish(&mut self, i: usize, result: Result<(), BootFailure>) {
         let Some(n) = self.nodes.get_mut(i) else {
             return;
         };
-        if n.state == NodeState::Finished {
+        if matches!(n.state, NodeState::Running | NodeState::Refused) {
             return;
         }
-        n.state = NodeState::Finished;
-        self.reports.push(BootReport {
-            node: n.plan.node,
-            result,
-            device_type: n.device_type,
-            vendor_id: n.vendor_id,
-        });
+        let waiting = result.as_ref().err().is_some_and(|e| e.detail.is_waiting());
+        // A waiting node is reported once, not at every probe.
+        let quiet = waiting && n.waiting;
+        n.reported = true;
+        n.restart = false;
+        n.wrong_identity = false;
+        match &result {
+            Ok(()) => {
+                n.state = NodeState::Running;
+                n.waiting = false;
+                n.restarts = 0;
+            }
+            Err(_) if waiting => {
+                n.waiting = true;
+                n.at = 0;
+            }
+            Err(_) => n.state = NodeState::Refused,
+        }
+        if !quiet {
+            self.reports.push(BootReport {
+                node: n.plan.node,
+                result,
+                device_type: n.device_type,
+                vendor_id: n.vendor_id,
+            });
+        }
+        if waiting {
+            self.run(i);
+        }
+    }
+
+    /// A node that sent a boot-up (it reset, was replaced or came back): configure it again from
+    /// the identity step.
+    fn reboot(&mut self, i: usize) {
+        let Some(n) = self.nodes.get_mut(i) else {
+            return;
+        };
+        if n.state == NodeState::Running {
+            // Reported so that its axis leaves the cycle until it is configured again.
+            let failure = BootFailure {
+                node: n.plan.node,
+                step: BootStep::BootUp,
+                object: None,
+                abort: None,
+                detail: FailureDetail::UnexpectedBootUp,
+            };
+            self.reports.push(BootReport {
+                node: n.plan.node,
+                result: Err(failure),
+                device_type: n.device_type,
+                vendor_id: n.vendor_id,
+            });
+        }
+        n.state = NodeState::Sdo;
+        n.restart = false;
+        n.wrong_identity = false;
+        n.at = 1;
+        self.run(i);
     }
 
     fn fail_at(&mut self, i: usize, op: Option<Op>, abort: Option<AbortCode>, d: FailureDetail) {
@@ -806,8 +964,35 @@ impl BootSequencer {
                                 _ => Ok(()),
                             },
                         };
-                        if let Err((expected, read)) = checked {
-                            self.fail_at(i, op, None, FailureDetail::Mismatch { read, expected });
+                        let identity = matches!(
+                            op,
+                            Some(Op::Read {
+                                step: BootStep::Identity,
+                                ..
+                            })
+                        );
+                        match checked {
+                            // Both identity values are read before a wrong device is named.
+                            Err(_) if identity => n.wrong_identity = true,
+                            Err((expected, read)) => {
+                                self.fail_at(
+                                    i,
+                                    op,
+                                    None,
+                                    FailureDetail::Mismatch { read, expected },
+                                );
+                                continue;
+                            }
+                            Ok(()) => {}
+                        }
+                        if identity && addr == Address::new(0x1018, 1) && n.wrong_identity {
+                            let detail = FailureDetail::WrongDevice {
+                                device_type: n.device_type.unwrap_or(0),
+                                vendor_id: n.vendor_id.unwrap_or(0),
+                                expected_type: n.plan.device_type.unwrap_or(0),
+                                expected_vendor: n.plan.vendor_id.unwrap_or(0),
+                            };
+                            self.fail_at(i, op, None, detail);
                             continue;
                         }
                     }
@@ -832,7 +1017,8 @@ impl BootSequencer {
                     self.run(i);
                 }
                 // Before the reset went out: the power-on boot-up, not ours.
-                Some((NodeState::NmtQueued, Some(Op::Reset))) | Some((NodeState::Finished, _)) => {}
+                Some((NodeState::NmtQueued, Some(Op::Reset))) => {}
+                Some((NodeState::Running | NodeState::Refused, _)) => self.reboot(i),
                 Some((
                     NodeState::Sdo,
                     Some(Op::Read {
@@ -867,8 +1053,13 @@ impl BootSequencer {
             {
                 match n.op() {
                     Some(Op::Reset) => {
+                        let wait = if n.waiting {
+                            n.plan.timeouts.probe
+                        } else {
+                            n.plan.timeouts.boot_up
+                        };
                         n.state = NodeState::WaitBootUp {
-                            deadline: now.saturating_add(n.plan.timeouts.boot_up),
+                            deadline: now.saturating_add(wait),
                         };
                     }
                     Some(Op::Start) => {

@@ -3,15 +3,19 @@
 //! - [`plan`]: configuration → cycle setups, record tables, boot plans;
 //! - [`sim`]: the simulated drives behind a plan;
 //! - [`script`]: the built-in demonstration client;
-//! - [`run`]: `coordinator run` in virtual time, and the cycle iteration shared with
-//! - [`realtime`]: the real-time threads;
+//! - [`cycle_loop`]: the one cycle iteration, behind the I/O seam both clocks implement:
+//! - [`run`]: `coordinator run`, and the virtual clock (simulated drives in lockstep);
+//! - [`realtime`]: the real clock (the cycle thread, the buses as configured, the services);
+//! - [`nodes`]: the drives' boot and lifecycle on every bus, sans-I/O;
 //! - [`rt`]: absolute-deadline wake-ups, SCHED_FIFO, mlockall, Ctrl-C;
 //! - [`modbus`]: the CMMO-ST exchange off the cycle thread;
 //! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy;
 //! - [`shm`]: the machine state, commands and events over shared memory (`shm-api`).
 
 pub mod boot;
+pub mod cycle_loop;
 pub mod modbus;
+pub mod nodes;
 pub mod plan;
 pub mod realtime;
 pub mod rt;

@@ -16,10 +16,7 @@ use crate::records::RecordTable;
 use crate::runtime::boot::{self, BootPlan, PdoPlan, SupervisionPlan};
 use drivers::canopen::pdo::PdoDirection;
 
-/// Axes a configured machine may have (the runtime's capacity; the cycle is generic).
-pub const MAX_AXES: usize = 128;
-/// Groups a configured machine may have.
-pub const MAX_GROUPS: usize = 16;
+pub use crate::config::{MAX_AXES, MAX_BUSES, MAX_GROUPS};
 
 /// One axis, with what the runtime needs beside the cycle's setup.
 #[derive(Clone, Debug)]
@@ -34,8 +31,33 @@ pub struct AxisPlan {
     pub setup: AxisSetup,
     /// The boot plan (CANopen axes).
     pub boot: Option<BootPlan>,
-    /// The Modbus address (Modbus axes).
+    /// The Modbus address to dial (Modbus axes that are not simulated).
     pub modbus: Option<String>,
+    /// The drive is simulated inside the coordinator (an axis on a `simulated` bus, or a
+    /// Modbus axis with `simulated = true`).
+    pub simulated: bool,
+}
+
+/// One CAN bus of the machine, in configuration order (the cycle's bus index).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BusPlan {
+    /// The name (the `vbus:NAME` or the SocketCAN interface).
+    pub name: String,
+    /// Where its drives are.
+    pub kind: BusKind,
+    /// Bit/s.
+    pub bitrate: u32,
+}
+
+impl BusPlan {
+    /// How the user names the bus: `vbus:NAME`, `NAME` (SocketCAN) or `NAME (simulated)`.
+    pub fn label(&self) -> String {
+        match self.kind {
+            BusKind::Vbus => format!("vbus:{}", self.name),
+            BusKind::Socketcan => self.name.clone(),
+            BusKind::Simulated | BusKind::Virtual => format!("{} (simulated)", self.name),
+        }
+    }
 }
 
 /// A machine, ready to run.
@@ -45,8 +67,8 @@ pub struct MachinePlan {
     pub cycle: CycleSetup,
     /// The cycle period.
     pub period: Duration,
-    /// The CAN bus (name, kind, bitrate), if any axis is on one.
-    pub bus: Option<(String, BusKind, u32)>,
+    /// The CAN buses; an axis's `Transport::Can { bus, .. }` indexes this.
+    pub buses: Vec<BusPlan>,
     /// The axes, in configuration order.
     pub axes: Vec<AxisPlan>,
     /// The groups: name, setup, record table.
@@ -61,6 +83,28 @@ impl MachinePlan {
     /// The group index of a name.
     pub fn group(&self, name: &str) -> Option<usize> {
         self.groups.iter().position(|g| g.0 == name)
+    }
+    /// Whether every drive is simulated inside the coordinator (what virtual time needs).
+    pub fn all_simulated(&self) -> bool {
+        self.axes.iter().all(|a| a.simulated)
+            && self.buses.iter().all(|b| b.kind == BusKind::Simulated)
+    }
+    /// The buses whose drives are simulated inside the coordinator, by index.
+    pub fn simulated_buses(&self) -> impl Iterator<Item = (usize, &BusPlan)> {
+        self.buses
+            .iter()
+            .enumerate()
+            .filter(|(_, b)| b.kind == BusKind::Simulated)
+    }
+    /// The axis on node `node` of bus `bus`.
+    pub fn axis_on(&self, bus: usize, node: u8) -> Option<usize> {
+        self.axes.iter().position(|a| {
+            a.setup.transport
+                == Transport::Can {
+                    bus: bus as u8,
+                    node,
+                }
+        })
     }
 }
 
@@ -141,31 +185,25 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     if !report.is_ok() {
         return Err(report.to_string());
     }
-    if cfg.axes.len() > MAX_AXES {
-        return Err(format!(
-            "{} axes: at most {MAX_AXES} per coordinator",
-            cfg.axes.len()
-        ));
-    }
-    if cfg.groups.len() > MAX_GROUPS {
-        return Err(format!("{} groups: at most {MAX_GROUPS}", cfg.groups.len()));
-    }
-    let used: Vec<&str> = cfg.axes.iter().filter_map(|a| a.bus.as_deref()).collect();
-    let bus_cfg = cfg.buses.iter().find(|b| used.contains(&b.name.as_str()));
-    if let Some(extra) = cfg.buses.iter().find(|b| {
-        used.contains(&b.name.as_str()) && Some(b.name.as_str()) != bus_cfg.map(|b| b.name.as_str())
-    }) {
-        return Err(format!(
-            "buses.{}: one coordinator drives one CAN bus; run one coordinator per bus",
-            extra.name
-        ));
-    }
-    let cycle_us = bus_cfg.and_then(|b| b.cycle_us).unwrap_or(cfg.cycle_us);
+    // `check` refused more buses, axes or groups than fit, differing periods and a consumer
+    // beside other buses: one period and one SYNC mode hold for every bus.
+    let first = cfg.buses.first();
+    let cycle_us = first.and_then(|b| b.cycle_us).unwrap_or(cfg.cycle_us);
     let period = Duration::from_micros(cycle_us.into());
     let setup = CycleSetup {
         cycle_ns: cycle_us * 1000,
-        sync_producer: bus_cfg.is_none_or(|b| b.sync == SyncMode::Producer),
+        sync_producer: first.is_none_or(|b| b.sync == SyncMode::Producer),
+        buses: cfg.buses.len() as u8,
     };
+    let buses: Vec<BusPlan> = cfg
+        .buses
+        .iter()
+        .map(|b| BusPlan {
+            name: b.name.clone(),
+            kind: b.kind,
+            bitrate: b.bitrate,
+        })
+        .collect();
     let mut axes = Vec::new();
     let mut modbus_slot = 0u8;
     for a in &cfg.axes {
@@ -179,6 +217,11 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             (Transport::Modbus { slot }, Supervision::None, None)
         } else {
             let n = a.node.unwrap_or(0) as u8;
+            let bus = a
+                .bus
+                .as_deref()
+                .and_then(|b| buses.iter().position(|p| p.name == b))
+                .ok_or_else(|| format!("axes.{}.bus: no such bus", a.name))?;
             let (sup, sp) = match a.supervision() {
                 BusSupervision::Heartbeat { period } if !period.is_zero() => {
                     let ms = period.as_millis().min(u16::MAX as u128 / 2) as u16;
@@ -228,7 +271,14 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             if k == DeviceKind::Emca && p == Profile::Fhpp {
                 bp.parameters = vec![emca_start_interrupts()];
             }
-            (Transport::Can { node: n }, sup, Some(bp))
+            (
+                Transport::Can {
+                    bus: bus as u8,
+                    node: n,
+                },
+                sup,
+                Some(bp),
+            )
         };
         // The default following-error limit: the distance covered at full speed in 100 ms plus
         // 6 cycles. Streamed setpoints lag by a few cycles (FHPP takes one every second cycle,
@@ -253,6 +303,14 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 following_error: fe,
                 late_cycles: if a.device.is_modbus() { 0 } else { 3 },
                 fpc: a.fpc && axis::fpc_mapping(k, p).is_some(),
+            },
+            simulated: if a.device.is_modbus() {
+                a.simulated
+            } else {
+                a.bus
+                    .as_deref()
+                    .and_then(|b| buses.iter().find(|p| p.name == b))
+                    .is_some_and(|b| b.kind == BusKind::Simulated)
             },
             boot,
             modbus: a.modbus.clone(),
@@ -294,7 +352,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     Ok(MachinePlan {
         cycle: setup,
         period,
-        bus: bus_cfg.map(|b| (b.name.clone(), b.kind, b.bitrate)),
+        buses,
         axes,
         groups,
     })

@@ -1,45 +1,220 @@
-//! Real time: the cycle on its own thread, woken at absolute deadlines (`clock_nanosleep`),
-//! with SCHED_FIFO and locked memory where granted; the simulated drives on a thread of their
-//! own on the real-clock virtual bus; each CMMO-ST as a Modbus TCP server on loopback with the
-//! exchange on its own thread; boot, command intake and reports on the services' executor.
-//! The main thread prints what the others report.
+//! Real time: the cycle iteration ([`crate::runtime::cycle_loop`]) on its own thread, woken at
+//! absolute deadlines (`clock_nanosleep`) or by the received SYNC, with SCHED_FIFO and locked
+//! memory where granted; every bus opened as configured:
+//!
+//! - `simulated`: an in-process bus on the real clock, its drives' simulators stepped on a
+//!   `drives` thread;
+//! - `vbus`: the cross-process bus `vbus:NAME` (shared memory), whose drives are other
+//!   processes (`drive-sim`, tools);
+//! - `socketcan`: the Linux CAN interface of that name.
+//!
+//! Each Modbus drive is dialled at its configured address by an exchange thread of its own
+//! (connect timeout, reconnect with back-off); a `simulated = true` one is first started as a
+//! Modbus TCP server on loopback. The drives' boot and lifecycle, command intake and reports
+//! run on the services' executor; the main thread prints what the others report.
 
 use std::io::Write;
+use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
 use drivers::can::bit_timing::frame_duration;
-use drivers::can::{Bus, ClockMode, VirtualBus, VirtualBusConfig};
-use drivers::time::monotonic_now;
-use hdrhistogram::Histogram;
-use heapless::spsc::Queue;
+use drivers::can::shm_bus::ShmBus;
+use drivers::can::socketcan::SocketCanBus;
+use drivers::can::{Bus, ClockMode, VirtualBus, VirtualBusConfig, VirtualPort};
+use drivers::time::{Instant, monotonic_now};
+use heapless::spsc::{Producer, Queue};
 
 use crate::axis::Image;
-use crate::command::Answer;
-use crate::cycle::{ModbusInput, Transport};
-use crate::runtime::modbus::{self as mb, Link, ModbusSettings};
+use crate::command::{Answer, Request};
+use crate::config::BusKind;
+use crate::cycle::{BusFrame, ModbusInput, Transport};
+use crate::event::Event;
+use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
+use crate::runtime::modbus::{self as mb, Link, ModbusCycleSide, ModbusSettings};
+use crate::runtime::nodes::{NodeReport, Nodes};
 use crate::runtime::plan::MachinePlan;
 use crate::runtime::rt::{self, RtSettings, Ticker};
 use crate::runtime::run::{
-    CycleCore, FrameHash, RX_CAPACITY, RunError, RunOptions, SDO_PER_CYCLE, Snapshot, Summary,
-    TX_CAPACITY, axis_of_node, finish_summary, note_event, out_is_tty, print_status, report_boot,
-    say, send_all, status_lines,
+    BusFigures, CycleCore, FrameHash, RX_CAPACITY, RunError, RunOptions, Snapshot, Summary,
+    TX_CAPACITY, finish_summary, note_event, out_is_tty, print_status, report_node, say,
+    status_lines,
 };
-use crate::runtime::script::{Phase, Script};
-use crate::runtime::services::{self, ServiceEvent};
+use crate::runtime::script::Script;
+use crate::runtime::services::{self, CycleEnds, ServiceEvent};
 use crate::runtime::shm::{StateSide, StaticInfo};
 use crate::runtime::sim::{SimBus, spawn_cmmo_server};
 
 /// Snapshots in flight from the cycle thread to the printer.
 const SNAPSHOTS: usize = 4;
 
+/// A bus port the cycle thread owns.
+type Port = Box<dyn Bus>;
+
+/// The real clock's side of the cycle iteration.
+struct RealIo {
+    ports: Vec<Port>,
+    producer: bool,
+    ticker: Ticker,
+    period: Duration,
+    last_sync: Instant,
+    end: Option<Instant>,
+    ends: CycleEnds,
+    exchanges: Vec<(usize, ModbusCycleSide)>,
+    snapshots: Producer<'static, Snapshot>,
+}
+
+impl CycleIo for RealIo {
+    fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
+        if self.producer {
+            let tick = self.ticker.wait();
+            for (b, port) in self.ports.iter_mut().enumerate() {
+                while let Ok(Some(f)) = port.try_recv() {
+                    let bf = BusFrame::new(b as u8, f);
+                    let _ = self.ends.offer_received(&bf);
+                    rx(bf);
+                }
+            }
+            return Wake {
+                now: tick.deadline,
+                late_ns: tick.late.as_nanos() as u64,
+                skipped: tick.skipped,
+            };
+        }
+        // SYNC consumer (the only bus): the received SYNC starts the cycle; what arrives before
+        // it belongs to this cycle. Two periods without SYNC count as missed.
+        let mut deadline = self.last_sync + self.period * 2;
+        let mut skipped = 0;
+        let stop = rt::stop_flag();
+        loop {
+            let Some(port) = self.ports.first_mut() else {
+                rt::sleep_until(deadline);
+                return Wake {
+                    now: monotonic_now(),
+                    late_ns: 0,
+                    skipped: 1,
+                };
+            };
+            match port.recv_until(deadline) {
+                Ok(Some(f)) if f.cob_id() == Some(0x080) => {
+                    let t = f.timestamp();
+                    self.last_sync = t;
+                    return Wake {
+                        now: t,
+                        late_ns: monotonic_now().saturating_duration_since(t).as_nanos() as u64,
+                        skipped,
+                    };
+                }
+                Ok(Some(f)) => {
+                    let bf = BusFrame::new(0, f);
+                    let _ = self.ends.offer_received(&bf);
+                    rx(bf);
+                }
+                Ok(None) | Err(_) => {
+                    skipped += 1;
+                    deadline += self.period;
+                    // No SYNC: a stop (Ctrl-C, the duration) still runs the cycle so that the
+                    // drives are disabled.
+                    let over = self.end.is_some_and(|e| monotonic_now() >= e);
+                    if over || stop.load(Ordering::Relaxed) {
+                        return Wake {
+                            now: monotonic_now(),
+                            late_ns: 0,
+                            skipped,
+                        };
+                    }
+                }
+            }
+        }
+    }
+
+    fn node_report(&mut self) -> Option<NodeReport> {
+        self.ends.boot_report()
+    }
+
+    fn modbus_input(&mut self, k: u64, slot: usize, _last: &Image, _now: Instant) -> ModbusInput {
+        let Some((_, side)) = self.exchanges.iter_mut().find(|(s, _)| *s == slot) else {
+            return ModbusInput::default();
+        };
+        let m = side.take_input(k);
+        ModbusInput {
+            image: Image::from_slice(&m.data).unwrap_or_default(),
+            fresh: m.fresh,
+            late_cycles: m.late_cycles,
+            lost: matches!(m.link, Link::TimedOut(_) | Link::Down(_)),
+        }
+    }
+
+    fn modbus_output(&mut self, k: u64, slot: usize, output: &Image) {
+        if let Some((_, side)) = self.exchanges.iter_mut().find(|(s, _)| *s == slot) {
+            side.put_output(k, &output.data);
+        }
+    }
+
+    fn request(&mut self) -> Option<Request> {
+        self.ends.requests.dequeue()
+    }
+
+    fn answer(&mut self, answer: Answer) {
+        let _ = self.ends.answer(answer);
+    }
+
+    fn send(&mut self, f: &BusFrame) -> bool {
+        self.ports
+            .get_mut(usize::from(f.bus))
+            .is_some_and(|p| p.send(&f.frame).is_ok())
+    }
+
+    fn service_frame(&mut self, _now: Instant) -> Option<BusFrame> {
+        self.ends.tx_frame()
+    }
+
+    fn event(&mut self, e: Event) {
+        let _ = self.ends.event(e);
+    }
+
+    fn status(&mut self, snapshot: Snapshot) {
+        let _ = self.snapshots.enqueue(snapshot);
+    }
+}
+
 /// What the cycle thread hands back when it ends.
 struct CycleResult {
     summary: Summary,
     late: (u64, u64, u64),
     skipped: u64,
+    rt_report: String,
+}
+
+/// A bus as the main thread opens it before the cycle starts.
+enum Opened {
+    /// In-process, with its simulators.
+    Simulated {
+        bus: VirtualBus,
+        port: VirtualPort,
+        monitor: VirtualPort,
+    },
+    /// Across processes: opened on the cycle thread (its ports stay on the thread that opened
+    /// them); the main thread watches it through an endpoint of its own.
+    Vbus,
+    /// A CAN interface.
+    Socketcan(SocketCanBus),
+}
+
+/// The Modbus address of `axis`, resolved.
+fn modbus_address(name: &str, addr: &str) -> Result<SocketAddr, RunError> {
+    let mut all = addr.to_socket_addrs().map_err(|e| {
+        RunError::Io(format!(
+            "axis {name}: modbus = {addr:?}: cannot resolve: {e}"
+        ))
+    })?;
+    all.next().ok_or_else(|| {
+        RunError::Io(format!(
+            "axis {name}: modbus = {addr:?}: the name has no address"
+        ))
+    })
 }
 
 /// Runs `plan` in real time (see the module docs).
@@ -49,55 +224,99 @@ pub fn run_real(
     out: &mut dyn Write,
 ) -> Result<Summary, RunError> {
     let wall0 = std::time::Instant::now();
-    let bitrate = plan.bus.as_ref().map_or(1_000_000, |b| b.2);
-    let bus = VirtualBus::new(VirtualBusConfig {
-        bitrate,
-        clock: ClockMode::Real,
-        rx_capacity: RX_CAPACITY,
-        tx_capacity: TX_CAPACITY,
-        ..VirtualBusConfig::default()
-    })
-    .map_err(|e| RunError::Io(e.to_string()))?;
-    let t0 = bus.now();
-    let mut port = bus.attach("coordinator");
-    let mut monitor = bus.attach_monitor("monitor");
-    let mut sims = SimBus::build(&bus, plan, t0).map_err(RunError::Io)?;
+    let t0 = monotonic_now();
 
-    // The CMMO-STs: a Modbus TCP server each, and the exchange thread each.
+    // The buses, as configured. A SocketCAN interface that cannot be opened stops the run here,
+    // naming the interface and the reason.
+    let mut opened = Vec::new();
+    let mut sims = Vec::new();
+    for (i, b) in plan.buses.iter().enumerate() {
+        opened.push(match b.kind {
+            BusKind::Simulated | BusKind::Virtual => {
+                let bus = VirtualBus::new(VirtualBusConfig {
+                    bitrate: b.bitrate,
+                    clock: ClockMode::Real,
+                    rx_capacity: RX_CAPACITY,
+                    tx_capacity: TX_CAPACITY,
+                    ..VirtualBusConfig::default()
+                })
+                .map_err(|e| RunError::Io(format!("bus {}: {e}", b.name)))?;
+                let port = bus.attach("coordinator");
+                let monitor = bus.attach_monitor("monitor");
+                sims.push((
+                    bus.clone(),
+                    SimBus::build(&bus, plan, i, t0).map_err(RunError::Io)?,
+                ));
+                Opened::Simulated { bus, port, monitor }
+            }
+            BusKind::Vbus => Opened::Vbus,
+            BusKind::Socketcan => Opened::Socketcan(
+                SocketCanBus::open(&b.name)
+                    .map_err(|e| RunError::Io(format!("bus {}: {e}", b.name)))?,
+            ),
+        });
+        say(
+            out,
+            &format!(
+                "bus {}: {} kbit/s, {} drive(s)",
+                b.label(),
+                b.bitrate / 1000,
+                plan.axes
+                    .iter()
+                    .filter(|a| matches!(a.setup.transport, Transport::Can { bus, .. } if usize::from(bus) == i))
+                    .count()
+            ),
+        );
+    }
+
+    // The Modbus drives: each dialled by an exchange thread; a simulated one is served first.
     let mut servers = Vec::new();
     let mut exchanges = Vec::new();
+    let mut exchange_threads = Vec::new();
     for a in &plan.axes {
-        if let Transport::Modbus { slot } = a.setup.transport {
+        let Transport::Modbus { slot } = a.setup.transport else {
+            continue;
+        };
+        let addr = if a.simulated {
             let server = spawn_cmmo_server().map_err(RunError::Io)?;
-            let settings = ModbusSettings {
-                period: plan.period,
-                ..ModbusSettings::default()
-            };
-            let (side, thread) = mb::spawn(server.local_addr(), settings)
-                .map_err(|e| RunError::Io(format!("axis {}: Modbus TCP: {e}", a.name)))?;
+            let addr = server.local_addr();
             say(
                 out,
                 &format!(
-                    "axis {}: simulated CMMO-ST on Modbus TCP {}",
-                    a.name,
-                    server.local_addr()
+                    "axis {}: simulated {} on Modbus TCP {addr}",
+                    a.name, a.setup.kind
                 ),
             );
             servers.push(server);
-            exchanges.push((usize::from(slot), side, thread));
-        }
+            addr
+        } else {
+            let text = a.modbus.as_deref().unwrap_or_default();
+            let addr = modbus_address(&a.name, text)?;
+            say(
+                out,
+                &format!("axis {}: {} on Modbus TCP {text}", a.name, a.setup.kind),
+            );
+            addr
+        };
+        let settings = ModbusSettings {
+            period: plan.period,
+            ..ModbusSettings::default()
+        };
+        let (side, thread) = mb::spawn(addr, settings)
+            .map_err(|e| RunError::Io(format!("axis {}: Modbus TCP: {e}", a.name)))?;
+        exchanges.push((usize::from(slot), side));
+        exchange_threads.push(thread);
     }
 
-    // Services: boot, commands, reports. Their reports reach this thread over a channel.
+    // Services: the drives' boot and lifecycle, commands, reports, on their executor; their
+    // reports reach this thread over a channel.
     let (cycle_ends, service_ends) = services::channels();
     let (report_tx, report_rx) = mpsc::channel::<ServiceEvent>();
-    let (shm_tx, shm_rx) = mpsc::channel::<crate::event::Event>();
+    let (shm_tx, shm_rx) = mpsc::channel::<Event>();
     let shm_tx = opts.shm.as_ref().map(|_| shm_tx);
-    let plans: Vec<_> = plan.axes.iter().filter_map(|a| a.boot.clone()).collect();
-    let boot_count = plans.len();
     let svc = services::spawn_services(
         service_ends,
-        plans,
+        Nodes::new(plan, t0),
         Box::new(move |e| {
             if let (Some(tx), ServiceEvent::Cycle(ev)) = (&shm_tx, &e) {
                 let _ = tx.send(*ev);
@@ -128,64 +347,72 @@ pub fn run_real(
     // The simulated drives, stepped as time passes.
     let stop_sims = Arc::new(AtomicBool::new(false));
     let sim_stop = stop_sims.clone();
-    let sim_bus = bus.clone();
-    let sim_thread = std::thread::Builder::new()
-        .name("drives".into())
-        .spawn(move || {
-            // The simulated drives stand for hardware that never waits for this machine's
-            // other processes: they run just below the cycle thread (a warning is printed by
-            // the cycle thread's own report where real-time scheduling is refused).
-            let _ = rt::enter_realtime(&RtSettings {
-                priority: Some(70),
-                cpu: None,
-                lock_memory: false,
-            });
-            while !sim_stop.load(Ordering::Relaxed) {
-                let next = sims.settle();
-                let now = monotonic_now();
-                // Wake at the drives' next deadline, but look at the bus at least every 200 us
-                // (frames the coordinator sends do not wake this thread).
-                let wake = next
-                    .filter(|&t| t > now)
-                    .unwrap_or(now + Duration::from_micros(200))
-                    .min(now + Duration::from_micros(200));
-                std::thread::sleep(wake.saturating_duration_since(now));
-                sim_bus.advance_to(monotonic_now());
-            }
+    let sim_thread = (!sims.is_empty())
+        .then(|| {
+            std::thread::Builder::new()
+                .name("drives".into())
+                .spawn(move || step_simulated(sims, &sim_stop))
         })
+        .transpose()
         .map_err(|e| RunError::Io(e.to_string()))?;
 
     let snapshots: &'static mut Queue<Snapshot, { SNAPSHOTS + 1 }> =
         Box::leak(Box::new(Queue::new()));
-    let (mut snap_tx, mut snap_rx) = snapshots.split();
-    let stop = rt::stop_flag();
+    let (snap_tx, mut snap_rx) = snapshots.split();
     let period = plan.period;
     let mut summary = Summary::default();
     let tty = out_is_tty();
+
+    // What the cycle thread takes: each bus's port, or what it opens itself.
+    let mut cycle_buses: Vec<Option<Box<dyn Bus + Send>>> = Vec::new();
+    let mut watchers: Vec<Option<Box<dyn Bus>>> = Vec::new();
+    for (b, o) in plan.buses.iter().zip(opened) {
+        match o {
+            Opened::Simulated { bus, port, monitor } => {
+                drop(bus);
+                cycle_buses.push(Some(Box::new(port)));
+                watchers.push(Some(Box::new(monitor)));
+            }
+            Opened::Vbus => {
+                cycle_buses.push(None);
+                watchers.push(
+                    ShmBus::open(&b.name, b.bitrate)
+                        .ok()
+                        .map(|m| Box::new(m) as Box<dyn Bus>),
+                );
+            }
+            Opened::Socketcan(s) => {
+                cycle_buses.push(Some(Box::new(s)));
+                watchers.push(None);
+            }
+        }
+    }
 
     let result = std::thread::scope(|s| -> Result<CycleResult, RunError> {
         let cycle_thread = std::thread::Builder::new()
             .name("cycle".into())
             .stack_size(64 << 20)
-            .spawn_scoped(s, move || -> Result<(CycleResult, String), RunError> {
+            .spawn_scoped(s, move || -> Result<CycleResult, RunError> {
                 let report = rt::enter_realtime(&RtSettings::default());
-                let mut ends = cycle_ends;
-                let mut shm_state = match &opts.shm {
+                let mut ports: Vec<Port> = Vec::with_capacity(cycle_buses.len());
+                for (b, port) in plan.buses.iter().zip(cycle_buses) {
+                    ports.push(match port {
+                        Some(p) => p,
+                        None => Box::new(
+                            ShmBus::open(&b.name, b.bitrate)
+                                .map_err(|e| RunError::Io(format!("bus {}: {e}", b.label())))?,
+                        ),
+                    });
+                }
+                let state = match &opts.shm {
                     Some(prefix) => Some(StateSide::create(prefix, info).map_err(RunError::Io)?),
                     None => None,
                 };
                 let relay_stop = Arc::new(AtomicBool::new(false));
                 let mut relay = None;
-                let mut core = CycleCore::new(plan)?;
-                let mut script = Script::new(opts.script, t0);
-                let mut late = Histogram::<u64>::new_with_bounds(1, 10_000_000_000, 3)
-                    .map_err(|e| RunError::Config(e.to_string()))?;
-                let mut skipped = 0u64;
-                let mut booted = 0usize;
                 let start = monotonic_now() + period;
                 let producer = plan.cycle.sync_producer;
-                let mut ticker = Ticker::new(start, period);
-                if let (Some(st), Some(prefix)) = (&shm_state, &opts.shm)
+                if let (Some(st), Some(prefix)) = (&state, &opts.shm)
                     && producer
                 {
                     // Event-driven clients: a relay wakes 5 µs after each deadline and
@@ -200,117 +427,28 @@ pub fn run_real(
                     )
                     .ok();
                 }
-                let mut last_late_ns = 0u64;
-                let mut last_sync = start;
-                let end = opts.duration.map(|d| start + d);
-                let mut next_status = opts.status_every.map(|d| start + d);
-                let mut exchanges = exchanges;
-                let mut k = 0u64;
-                loop {
-                    let now = if producer {
-                        let tick = ticker.wait();
-                        last_late_ns = tick.late.as_nanos() as u64;
-                        let _ = late.record(last_late_ns.max(1));
-                        skipped += tick.skipped;
-                        while let Ok(Some(f)) = port.try_recv() {
-                            let _ = ends.offer_received(&f);
-                            core.receive(f);
-                        }
-                        tick.deadline
-                    } else {
-                        // SYNC consumer: the received SYNC starts the cycle; what arrives before
-                        // it belongs to this cycle. Two periods without SYNC count as missed.
-                        let mut deadline = last_sync + period * 2;
-                        loop {
-                            match port.recv_until(deadline) {
-                                Ok(Some(f)) if f.cob_id() == Some(0x080) => {
-                                    let t = f.timestamp();
-                                    last_late_ns =
-                                        monotonic_now().saturating_duration_since(t).as_nanos()
-                                            as u64;
-                                    let _ = late.record(last_late_ns.max(1));
-                                    last_sync = t;
-                                    break t;
-                                }
-                                Ok(Some(f)) => {
-                                    let _ = ends.offer_received(&f);
-                                    core.receive(f);
-                                }
-                                Ok(None) | Err(_) => {
-                                    skipped += 1;
-                                    deadline += period;
-                                    // No SYNC: a stop (Ctrl-C, the duration) still runs the
-                                    // cycle so that the drives are disabled.
-                                    let over = end.is_some_and(|e| monotonic_now() >= e);
-                                    if over || stop.load(Ordering::Relaxed) {
-                                        break monotonic_now();
-                                    }
-                                }
-                            }
-                        }
-                    };
-                    while let Some(r) = ends.boot_reports.dequeue() {
-                        booted += 1;
-                        if let Some(a) = axis_of_node(plan, r.node.get()) {
-                            core.cycle.set_online(a, r.result.is_ok(), now);
-                        }
-                    }
-                    for (slot, side, _) in &mut exchanges {
-                        let m = side.take_input(k);
-                        core.modbus_input(
-                            *slot,
-                            ModbusInput {
-                                image: Image::from_slice(&m.data).unwrap_or_default(),
-                                fresh: m.fresh,
-                                late_cycles: m.late_cycles,
-                                lost: matches!(m.link, Link::TimedOut(_) | Link::Down(_)),
-                            },
-                        );
-                    }
-                    while let Some(req) = ends.requests.dequeue() {
-                        let reply = core.cycle.command(&req.command);
-                        let _ = ends.answer(Answer {
-                            tag: req.tag,
-                            reply,
-                        });
-                    }
-                    if end.is_some_and(|e| now >= e) || stop.load(Ordering::Relaxed) {
-                        script.shut_down();
-                    }
-                    script.poll(&mut core.cycle, booted >= boot_count, now);
-                    let frames = core.iterate(now);
-                    let refused = send_all(&mut port, frames);
-                    core.tx_refused += refused;
-                    for _ in 0..SDO_PER_CYCLE {
-                        match ends.tx_frames.dequeue() {
-                            Some(f) => {
-                                core.tx_refused += send_all(&mut port, &[f]);
-                            }
-                            None => break,
-                        }
-                    }
-                    for (slot, side, _) in &mut exchanges {
-                        side.put_output(k, &core.modbus_output(*slot).data);
-                    }
-                    if let Some(st) = &mut shm_state {
-                        let late_us = (last_late_ns / 1000).min(u64::from(u32::MAX)) as u32;
-                        st.counters = core.counters(skipped, late_us);
-                        st.publish(&core.cycle, now.as_nanos());
-                    }
-                    while let Some(e) = core.cycle.poll_event() {
-                        let _ = ends.event(e);
-                    }
-                    if let Some(t) = next_status
-                        && now >= t
-                    {
-                        let _ = snap_tx.enqueue(Snapshot::take(&core.cycle, now - start));
-                        next_status = opts.status_every.map(|d| t + d);
-                    }
-                    k += 1;
-                    if script.phase() == Phase::Done {
-                        break;
-                    }
-                }
+                let mut core = CycleCore::new(plan)?;
+                let mut lp = CycleLoop::new(
+                    plan,
+                    Script::new(opts.script, start),
+                    state,
+                    start,
+                    opts.duration,
+                    opts.status_every,
+                )?;
+                let mut io = RealIo {
+                    ports,
+                    producer,
+                    ticker: Ticker::new(start, period),
+                    period,
+                    last_sync: start,
+                    end: opts.duration.map(|d| start + d),
+                    ends: cycle_ends,
+                    exchanges,
+                    snapshots: snap_tx,
+                };
+                while lp.iterate(&mut core, &mut io).is_some() {}
+                let k = lp.cycles();
                 let mut summary = Summary {
                     cycles: k,
                     machine_time: period * (k as u32),
@@ -319,40 +457,32 @@ pub fn run_real(
                     frames_lost: (core.tx_refused, core.rx_dropped),
                     ..Summary::default()
                 };
-                finish_summary(plan, &core.cycle, &script, &mut summary);
-                for (_, _, thread) in exchanges {
-                    thread.stop();
-                }
+                finish_summary(plan, &core.cycle, &lp.script, &mut summary);
                 relay_stop.store(true, Ordering::Relaxed);
                 if let Some(r) = relay {
                     let _ = r.join();
                 }
-                Ok((
-                    CycleResult {
-                        summary,
-                        late: (
-                            late.value_at_quantile(0.5),
-                            late.value_at_quantile(0.99),
-                            late.max(),
-                        ),
-                        skipped,
-                    },
-                    report.to_string(),
-                ))
+                Ok(CycleResult {
+                    summary,
+                    late: lp.lateness(),
+                    skipped: lp.skipped,
+                    rt_report: report.to_string(),
+                })
             })
             .map_err(|e| RunError::Io(e.to_string()))?;
 
-        // This thread prints: reports, events, status.
+        // This thread prints: reports, events, status; and watches the buses.
         let mut lines = 0usize;
         let mut hash = FrameHash::default();
-        let mut busy = Duration::ZERO;
-        let mut frames = 0u64;
+        let mut busy = vec![Duration::ZERO; plan.buses.len()];
+        let mut frames = vec![0u64; plan.buses.len()];
         loop {
             let finished = cycle_thread.is_finished();
             while let Ok(e) = report_rx.try_recv() {
                 match e {
                     ServiceEvent::Cycle(ev) => note_event(plan, &ev, &mut summary, out),
-                    ServiceEvent::Boot(r) => report_boot(plan, &r, out, &mut summary),
+                    ServiceEvent::Node(r) => report_node(plan, &r, out, &mut summary),
+                    ServiceEvent::BootFinished => {}
                     other => say(out, &format!("services: {other}")),
                 }
                 lines = 0;
@@ -360,30 +490,48 @@ pub fn run_real(
             while let Some(snap) = snap_rx.dequeue() {
                 lines = print_status(out, &status_lines(plan, &snap), tty, lines);
             }
-            while let Ok(Some(f)) = monitor.try_recv() {
-                hash.add(&f);
-                frames += 1;
-                busy += frame_duration(&f, bitrate);
+            for (b, w) in watchers.iter_mut().enumerate() {
+                let Some(w) = w else { continue };
+                while let Ok(Some(f)) = w.try_recv() {
+                    hash.add(&f);
+                    frames[b] += 1;
+                    busy[b] += frame_duration(&f, plan.buses[b].bitrate);
+                }
             }
             if finished {
                 break;
             }
             std::thread::sleep(Duration::from_millis(20));
         }
-        let (mut r, rt_report) = cycle_thread
+        let mut r = cycle_thread
             .join()
             .map_err(|_| RunError::Io("the cycle thread panicked".into()))??;
-        if !rt_report.is_empty() {
-            say(out, &rt_report);
+        if !r.rt_report.is_empty() {
+            say(out, &r.rt_report);
         }
-        r.summary.frames_on_bus = frames;
+        let secs = r.summary.machine_time.as_secs_f64().max(1e-9);
+        r.summary.frames_on_bus = frames.iter().sum();
         r.summary.frame_hash = hash.value();
-        r.summary.bus_load_percent =
-            100.0 * busy.as_secs_f64() / r.summary.machine_time.as_secs_f64().max(1e-9);
+        r.summary.buses = plan
+            .buses
+            .iter()
+            .enumerate()
+            .filter(|(b, _)| watchers[*b].is_some())
+            .map(|(b, p)| BusFigures {
+                label: p.label(),
+                frames: frames[b],
+                load_percent: 100.0 * busy[b].as_secs_f64() / secs,
+            })
+            .collect();
         Ok(r)
     })?;
+    for t in exchange_threads {
+        t.stop();
+    }
     stop_sims.store(true, Ordering::Relaxed);
-    let _ = sim_thread.join();
+    if let Some(t) = sim_thread {
+        let _ = t.join();
+    }
     svc.stop();
     if let Some(t) = shm_thread {
         // The services are gone, so the event channel is closed and the thread ends.
@@ -394,6 +542,7 @@ pub fn run_real(
     }
     let mut s = result.summary;
     s.boot_failures = summary.boot_failures;
+    s.waiting = summary.waiting;
     s.faults = summary.faults;
     s.records_reached = summary.records_reached;
     s.late_modbus = summary.late_modbus;
@@ -401,4 +550,32 @@ pub fn run_real(
     s.skipped_cycles = result.skipped;
     s.wall = wall0.elapsed();
     Ok(s)
+}
+
+/// The `drives` thread: steps the simulators of every simulated bus as time passes.
+fn step_simulated(mut sims: Vec<(VirtualBus, SimBus)>, stop: &AtomicBool) {
+    // The simulated drives stand for hardware that never waits for this machine's other
+    // processes: they run just below the cycle thread (the cycle thread's own report warns
+    // where real-time scheduling is refused).
+    let _ = rt::enter_realtime(&RtSettings {
+        priority: Some(70),
+        cpu: None,
+        lock_memory: false,
+    });
+    while !stop.load(Ordering::Relaxed) {
+        let now = monotonic_now();
+        let mut wake = now + Duration::from_micros(200);
+        for (_, s) in &mut sims {
+            if let Some(t) = s.settle().filter(|&t| t > now) {
+                // Wake at the drives' next deadline, but look at the bus at least every 200 us
+                // (frames the coordinator sends do not wake this thread).
+                wake = wake.min(t);
+            }
+        }
+        std::thread::sleep(wake.saturating_duration_since(now));
+        let now = monotonic_now();
+        for (bus, _) in &sims {
+            bus.advance_to(now);
+        }
+    }
 }

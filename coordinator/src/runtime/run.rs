@@ -10,7 +10,6 @@
 
 use std::fmt::Write as _;
 use std::io::{IsTerminal, Write};
-use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use drivers::can::bit_timing::frame_duration;
@@ -19,24 +18,28 @@ use drivers::time::{Instant, monotonic_now};
 use hdrhistogram::Histogram;
 
 use crate::axis::{AxisState, Image};
+use crate::command::{Answer, Request};
 use crate::command::{AxisId, GroupId};
 use crate::config::{BusKind, Config};
 use crate::cycle::{
-    AxisStatus, Cycle, CycleInput, CycleOutput, GroupStatus, ModbusInput, Transport,
+    AxisStatus, BusFrame, Cycle, CycleInput, CycleOutput, GroupStatus, ModbusInput, Transport,
 };
 use crate::event::Event;
 use crate::fault::FaultReason;
-use crate::runtime::boot::{BootReport, BootSequencer};
-use crate::runtime::plan::{MAX_AXES, MAX_GROUPS, MachinePlan};
+use crate::runtime::boot::FailureDetail;
+use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
+use crate::runtime::nodes::{NodeReport, NodeStatus, Nodes};
+use crate::runtime::plan::{MAX_AXES, MAX_BUSES, MAX_GROUPS, MachinePlan};
 use crate::runtime::script::{Phase, Script, ScriptOptions};
 use crate::runtime::shm::{ServiceSide, StateSide, StaticInfo};
-use crate::runtime::sim::{InMemoryCmmo, SimBus};
+use crate::runtime::sim::{InMemoryCmmo, SimBus, SimDrive};
 
 /// The cycle type of a configured machine.
 pub type MachineCycle<'t> = Cycle<'t, MAX_AXES, MAX_GROUPS>;
 
-/// Frames one cycle may send: SYNC, one RPDO and one guarding poll per axis, plus SDO slots.
-pub(crate) const TX_CAPACITY: usize = 2 * MAX_AXES + 16;
+/// Frames one cycle may send: a SYNC per bus; RPDO1, RPDO2 (the FPC) and a guarding poll per
+/// axis; SDO slots.
+pub(crate) const TX_CAPACITY: usize = 3 * MAX_AXES + MAX_BUSES + 16;
 /// Frames one cycle may receive before the rest waits for the next.
 pub(crate) const RX_CAPACITY: usize = 4096;
 /// SDO/NMT frames sent per cycle after the PDOs (the budget's reserved slots).
@@ -87,20 +90,23 @@ pub struct Summary {
     pub wall: Duration,
     /// Frames the coordinator sent.
     pub frames_sent: u64,
-    /// Frames on the bus (all nodes).
+    /// Frames on the buses (all nodes), where the coordinator could see them.
     pub frames_on_bus: u64,
-    /// SYNC frames on the bus (whoever sent them).
+    /// SYNC frames on the buses (whoever sent them).
     pub syncs_on_bus: u64,
-    /// Bus load over the run, percent (worst-case stuffed frame lengths).
-    pub bus_load_percent: f64,
+    /// Per bus: what crossed it.
+    pub buses: Vec<BusFigures>,
     /// Cycle step compute time, ns: median, p99, max.
     pub step_ns: (u64, u64, u64),
     /// Real time: wake-up lateness, ns: median, p99, max.
     pub wake_late_ns: (u64, u64, u64),
     /// Real time: cycles skipped because a deadline had long passed.
     pub skipped_cycles: u64,
-    /// Nodes that failed to boot, with the reason.
+    /// Drives refused (wrong device, configuration refused), with the reason.
     pub boot_failures: Vec<String>,
+    /// Drives that were not there when first looked for (waited for, and booted if they
+    /// appeared later).
+    pub waiting: Vec<String>,
     /// Faults raised (axis name, reason).
     pub faults: Vec<(String, FaultReason)>,
     /// Chain laps completed.
@@ -121,6 +127,17 @@ pub struct Summary {
     pub phase: Option<Phase>,
 }
 
+/// One bus's traffic over a run.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BusFigures {
+    /// How the user names the bus.
+    pub label: String,
+    /// Frames seen on it (every sender).
+    pub frames: u64,
+    /// Its load, percent of the time (worst-case stuffed frame lengths).
+    pub load_percent: f64,
+}
+
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -132,9 +149,16 @@ impl std::fmt::Display for Summary {
         )?;
         writeln!(
             f,
-            "  bus: {} frames ({} sent by the coordinator), load {:.1} %",
-            self.frames_on_bus, self.frames_sent, self.bus_load_percent
+            "  frames: {} sent by the coordinator, {} on the buses it watched",
+            self.frames_sent, self.frames_on_bus
         )?;
+        for b in &self.buses {
+            writeln!(
+                f,
+                "  bus {}: {} frames, load {:.1} %",
+                b.label, b.frames, b.load_percent
+            )?;
+        }
         if self.frames_lost != (0, 0) {
             writeln!(
                 f,
@@ -162,14 +186,17 @@ impl std::fmt::Display for Summary {
             "  chains: {} laps, {} records reached; {} refused commands; {} late Modbus answers",
             self.laps, self.records_reached, self.refused, self.late_modbus
         )?;
+        for b in &self.waiting {
+            writeln!(f, "  waited for: {b}")?;
+        }
         for b in &self.boot_failures {
-            writeln!(f, "  boot failed: {b}")?;
+            writeln!(f, "  refused: {b}")?;
         }
         for (a, r) in &self.faults {
             writeln!(f, "  fault: {a}: {}", describe(*r))?;
         }
         for (name, unit, pos, state) in &self.axes {
-            writeln!(f, "  axis {name}: {pos:.3} {unit}, {state:?}")?;
+            writeln!(f, "  axis {name}: {pos:.3} {unit}, {}", state)?;
         }
         write!(f, "  frame hash {:016x}", self.frame_hash)
     }
@@ -189,6 +216,7 @@ pub fn describe(r: FaultReason) -> String {
         FaultReason::ModbusTimeout => "Modbus TCP timeout".into(),
         FaultReason::LateTpdo(n) => format!("no TPDO for {n} cycles"),
         FaultReason::BootFailed => "boot failed".into(),
+        FaultReason::DriveReset => "the drive reset itself (boot-up while running)".into(),
     }
 }
 
@@ -280,7 +308,7 @@ pub fn status_lines(plan: &MachinePlan, snap: &Snapshot) -> String {
             s,
             "  {:<8} {:<8} {:<13} pos {:>10.3} {:<3} set {:>10.3}{}{}",
             a.name,
-            format!("{:?}", fb.state),
+            fb.state.name(),
             mode.split_whitespace().next().unwrap_or(""),
             fb.position as f64 / a.scale,
             a.unit,
@@ -315,7 +343,7 @@ pub struct Captured<'t> {
     /// The cycle before the step.
     pub cycle: Box<MachineCycle<'t>>,
     /// The frames received for the step.
-    pub frames: Vec<Frame>,
+    pub frames: Vec<BusFrame>,
     /// The Modbus images for the step.
     pub modbus: Vec<ModbusInput>,
     /// The step's SYNC time.
@@ -327,8 +355,8 @@ pub struct Captured<'t> {
 pub struct CycleCore<'t> {
     /// The cycle.
     pub cycle: Box<MachineCycle<'t>>,
-    rx: Vec<Frame>,
-    tx: Vec<Frame>,
+    rx: Vec<BusFrame>,
+    tx: Vec<BusFrame>,
     modbus_in: Vec<ModbusInput>,
     modbus_out: Vec<Image>,
     step_ns: Histogram<u64>,
@@ -359,7 +387,7 @@ impl<'t> CycleCore<'t> {
             .iter()
             .map(|(_, g, t)| (g.clone(), &**t))
             .collect();
-        let mut cycle = Box::new(
+        let cycle = Box::new(
             MachineCycle::new(plan.cycle, &axes, &groups)
                 .map_err(|e| RunError::Config(e.to_string()))?,
         );
@@ -368,17 +396,11 @@ impl<'t> CycleCore<'t> {
             .iter()
             .filter(|a| matches!(a.setup.transport, Transport::Modbus { .. }))
             .count();
-        // Modbus axes need no boot: they are online from the start (the time only matters to
-        // the guarding of CANopen axes).
-        for (i, a) in plan.axes.iter().enumerate() {
-            if matches!(a.setup.transport, Transport::Modbus { .. }) {
-                cycle.set_online(i as AxisId, true, Instant::ZERO);
-            }
-        }
+        // Modbus axes come online with their first answer (`CycleLoop`).
         Ok(CycleCore {
             cycle,
             rx: Vec::with_capacity(RX_CAPACITY),
-            tx: vec![Frame::std8(0, [0; 8]); TX_CAPACITY],
+            tx: vec![BusFrame::new(0, Frame::std8(0, [0; 8])); TX_CAPACITY],
             modbus_in: vec![ModbusInput::default(); slots],
             modbus_out: vec![Image::default(); slots],
             step_ns: Histogram::new_with_bounds(1, 1_000_000_000, 3)
@@ -402,7 +424,7 @@ impl<'t> CycleCore<'t> {
     }
 
     /// Takes a received frame for the next step.
-    pub fn receive(&mut self, f: Frame) {
+    pub fn receive(&mut self, f: BusFrame) {
         if self.rx.len() < RX_CAPACITY {
             self.rx.push(f);
         } else {
@@ -436,7 +458,7 @@ impl<'t> CycleCore<'t> {
     }
 
     /// One step at `now`; returns the frames to send, in order.
-    pub fn iterate(&mut self, now: Instant) -> &[Frame] {
+    pub fn iterate(&mut self, now: Instant) -> &[BusFrame] {
         let t0 = monotonic_now();
         let mut out = CycleOutput {
             frames: &mut self.tx,
@@ -472,120 +494,303 @@ impl<'t> CycleCore<'t> {
     }
 }
 
-/// Queues `frames` on `port`; returns how many the bus refused.
-pub fn send_all<B: Bus>(port: &mut B, frames: &[Frame]) -> u64 {
-    let mut refused = 0;
-    for f in frames {
-        if port.send(f).is_err() {
-            refused += 1;
-        }
-    }
-    refused
-}
-
-/// The axis on a CAN node.
-pub fn axis_of_node(plan: &MachinePlan, node: u8) -> Option<AxisId> {
-    plan.axes
-        .iter()
-        .position(|a| a.setup.transport == Transport::Can { node })
-        .map(|i| i as AxisId)
-}
-
-/// Runs `cfg`'s machine with simulated drives.
+/// Runs `cfg`'s machine: its buses opened as configured (simulated, `vbus:NAME`, SocketCAN),
+/// its Modbus drives dialled (or simulated where the file says so), in real time; or, with
+/// every drive simulated, in virtual time.
 pub fn run(cfg: &Config, opts: &RunOptions, out: &mut dyn Write) -> Result<Summary, RunError> {
     let plan = crate::runtime::plan::plan(cfg).map_err(RunError::Config)?;
-    if let Some((name, BusKind::Socketcan, _)) = &plan.bus {
-        // Opening the interface tells the user exactly why it cannot work here.
-        drivers::can::socketcan::SocketCanBus::open(name)
-            .map_err(|e| RunError::Io(e.to_string()))?;
-        return Err(RunError::Io(format!(
-            "bus {name}: running real drives over SocketCAN is not wired into `run` yet; use kind = \"virtual\""
-        )));
-    }
     if opts.virtual_time {
+        if let Some(b) = plan.buses.iter().find(|b| b.kind != BusKind::Simulated) {
+            return Err(RunError::Config(format!(
+                "--virtual-time: bus {:?} is of kind \"{}\"; virtual time runs only machines whose drives are all simulated inside the coordinator (kind = \"simulated\"): drives in other processes or on a real bus keep their own clock",
+                b.name, b.kind
+            )));
+        }
+        if let Some(a) = plan.axes.iter().find(|a| !a.simulated) {
+            return Err(RunError::Config(format!(
+                "--virtual-time: axis {:?} dials its drive at {}; virtual time runs only simulated drives (set simulated = true on the axis, or run in real time)",
+                a.name,
+                a.modbus.as_deref().unwrap_or("?")
+            )));
+        }
         run_virtual(&plan, opts, out)
     } else {
         crate::runtime::realtime::run_real(&plan, opts, out)
     }
 }
 
-/// Virtual time: the drives, the bus and the cycle advance in lockstep on one thread, cycle by
-/// cycle. Deterministic: the same plan and the same commands give the same frames, bit for bit.
-pub struct VirtualRun<'p> {
+/// The virtual clock's side of the cycle iteration: the simulated drives of every bus
+/// advanced in lockstep with the cycle (discrete-event), the drives' boot run inline, the
+/// CMMO-STs' Modbus ADUs handed to their sessions in memory, client commands answered between
+/// cycles. Deterministic: the same plan and the same commands give the same frames, bit for
+/// bit.
+pub struct VirtualIo<'p> {
     plan: &'p MachinePlan,
-    /// The bus (for fault injection in tests).
-    pub bus: VirtualBus,
-    port: VirtualPort,
-    monitor: VirtualPort,
-    /// The simulated CANopen drives.
-    pub sims: SimBus,
+    /// The buses, one per configured bus (for fault injection in tests).
+    pub buses: Vec<VirtualBus>,
+    ports: Vec<VirtualPort>,
+    monitors: Vec<VirtualPort>,
+    /// The simulated CANopen drives, one set per bus.
+    pub sims: Vec<SimBus>,
     /// The simulated CMMO-STs, by Modbus slot.
     pub cmmo: Vec<(usize, InMemoryCmmo)>,
     modbus_missed: Vec<u32>,
-    boot: BootSequencer,
-    reported: usize,
-    /// The cycle and its buffers.
-    pub core: CycleCore<'p>,
-    /// The demo script (a built-in client).
-    pub script: Script,
+    nodes: Nodes,
+    t0: Instant,
+    k: u64,
+    commands: Option<ServiceSide>,
+    pending: Vec<(u64, shm_api::PendingCommand)>,
+    next_tag: u64,
+    /// What the run has to say (events, reports, status), printed after each step.
+    text: Vec<u8>,
     /// What happened so far.
     pub summary: Summary,
     hash: FrameHash,
-    busy: Duration,
-    bitrate: u32,
-    t0: Instant,
-    k: u64,
-    ending: bool,
-    next_status: Option<Instant>,
-    status_every: Option<Duration>,
+    busy: Vec<Duration>,
+    frames: Vec<u64>,
     status_lines_printed: usize,
     tty: bool,
     /// Every event of the cycle, as well, while set (tests).
     watch: Option<Vec<Event>>,
-    /// The shared-memory sides (state publisher; command server and events), if published.
-    shm: Option<(StateSide, ServiceSide)>,
     /// SYNC-consumer mode: the SYNC being taken, frames after it, frames for the next cycle.
     held: Option<Frame>,
     later: Vec<Frame>,
     pending_rx: Vec<Frame>,
-    /// SYNC-consumer mode: SYNCs received, and periods that passed without one.
+    /// SYNC-consumer mode: SYNCs received.
     pub synced: u64,
-    /// See [`VirtualRun::synced`].
+    /// SYNC-consumer mode: periods that passed without a SYNC.
     pub missed_syncs: u64,
-    /// When set, the next step keeps a copy of the cycle and its inputs right before the step
-    /// in [`VirtualRun::captured`] (benchmarks replay it) and clears the flag.
-    pub capture: bool,
-    /// The copy [`VirtualRun::capture`] asked for.
-    pub captured: Option<Captured<'p>>,
-    /// Called with `true` right before the cycle thread's work of a cycle (the script's
-    /// commands and the step) and with `false` right after: tests count allocations there.
-    pub probe: Option<fn(bool)>,
 }
 
-impl std::fmt::Debug for VirtualRun<'_> {
+impl std::fmt::Debug for VirtualIo<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("VirtualRun")
+        f.debug_struct("VirtualIo")
             .field("cycle", &self.k)
             .finish_non_exhaustive()
     }
 }
 
+impl VirtualIo<'_> {
+    /// The simulated drive of an axis, on whichever bus it is.
+    pub fn drive_mut(&mut self, axis: &str) -> Option<&mut SimDrive> {
+        self.sims.iter_mut().find_map(|s| s.drive_mut(axis))
+    }
+
+    /// The bus of a simulated drive's axis.
+    pub fn bus_of(&self, axis: &str) -> Option<&VirtualBus> {
+        let i = self.plan.axis(axis)?;
+        match self.plan.axes[i].setup.transport {
+            Transport::Can { bus, .. } => self.buses.get(usize::from(bus)),
+            Transport::Modbus { .. } => None,
+        }
+    }
+
+    fn drain_monitors(&mut self) {
+        for (b, m) in self.monitors.iter_mut().enumerate() {
+            let bitrate = self.plan.buses[b].bitrate;
+            while let Ok(Some(f)) = m.try_recv() {
+                self.hash.add(&f);
+                self.frames[b] += 1;
+                self.summary.syncs_on_bus += u64::from(f.cob_id() == Some(0x080));
+                self.busy[b] += frame_duration(&f, bitrate);
+            }
+        }
+    }
+
+    fn take(&mut self, bus: usize, f: Frame, rx: &mut dyn FnMut(BusFrame)) {
+        let bf = BusFrame::new(bus as u8, f);
+        self.nodes.handle_frame(&bf, f.timestamp());
+        rx(bf);
+    }
+
+    /// SYNC-consumer mode (one bus): runs the bus until the external producer's next SYNC has
+    /// arrived, takes every frame up to it, and returns its time (the cycle's `now`). Frames
+    /// after it wait for the next cycle, as they would on a real bus.
+    fn until_sync(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Instant {
+        for f in std::mem::take(&mut self.pending_rx) {
+            self.take(0, f, rx);
+        }
+        let due = self.t0 + self.plan.period * (self.k as u32 + 1);
+        // SYNC has the highest priority after NMT, but may wait for a frame on the wire.
+        let mut until = due + Duration::from_micros(500);
+        loop {
+            self.sims[0].run_until(&self.buses[0], until);
+            self.drain_monitors();
+            while let Ok(Some(f)) = self.ports[0].try_recv() {
+                if self.held.is_some() {
+                    self.later.push(f);
+                    continue;
+                }
+                if f.cob_id() == Some(0x080) {
+                    self.nodes.handle_frame(&BusFrame::new(0, f), f.timestamp());
+                    self.held = Some(f);
+                    self.synced += 1;
+                } else {
+                    self.take(0, f, rx);
+                }
+            }
+            if let Some(sync) = self.held.take() {
+                // What arrived after the SYNC belongs to the next cycle.
+                self.pending_rx = std::mem::take(&mut self.later);
+                return sync.timestamp();
+            }
+            // No SYNC: the producer is gone. Keep waiting, a period at a time (the cycle
+            // does not run without SYNC; the drives' own supervision notices).
+            self.missed_syncs += 1;
+            until += self.plan.period;
+        }
+    }
+}
+
+impl CycleIo for VirtualIo<'_> {
+    fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
+        let now = if self.plan.cycle.sync_producer {
+            let now = self.t0 + self.plan.period * (self.k as u32);
+            for (sims, bus) in self.sims.iter_mut().zip(&self.buses) {
+                sims.run_until(bus, now);
+            }
+            self.drain_monitors();
+            for b in 0..self.ports.len() {
+                while let Ok(Some(f)) = self.ports[b].try_recv() {
+                    self.take(b, f, rx);
+                }
+            }
+            now
+        } else {
+            self.until_sync(rx)
+        };
+        self.nodes.handle_timeout(now);
+        self.k += 1;
+        Wake {
+            now,
+            late_ns: 0,
+            skipped: 0,
+        }
+    }
+
+    fn node_report(&mut self) -> Option<NodeReport> {
+        let r = self.nodes.poll_report()?;
+        report_node(self.plan, &r, &mut self.text, &mut self.summary);
+        Some(r)
+    }
+
+    fn modbus_input(&mut self, _k: u64, slot: usize, last: &Image, now: Instant) -> ModbusInput {
+        let Some(i) = self.cmmo.iter().position(|(s, _)| *s == slot) else {
+            return ModbusInput::default();
+        };
+        let answer = self.cmmo[i].1.exchange(&last.data, now);
+        let missed = &mut self.modbus_missed[i];
+        *missed = if answer.is_some() {
+            0
+        } else {
+            missed.saturating_add(1)
+        };
+        ModbusInput {
+            image: answer
+                .and_then(|a| Image::from_slice(&a))
+                .unwrap_or_default(),
+            fresh: answer.is_some(),
+            late_cycles: 0,
+            lost: *missed >= MODBUS_TIMEOUT_CYCLES,
+        }
+    }
+
+    fn modbus_output(&mut self, _k: u64, _slot: usize, _output: &Image) {
+        // The next cycle's exchange carries it (see `modbus_input`).
+    }
+
+    fn request(&mut self) -> Option<Request> {
+        let side = self.commands.as_mut()?;
+        loop {
+            let (p, c) = side.receive()?;
+            // A request that does not translate was answered by `receive`.
+            let Ok(command) = c else { continue };
+            let tag = self.next_tag;
+            self.next_tag += 1;
+            self.pending.push((tag, p));
+            return Some(Request { tag, command });
+        }
+    }
+
+    fn answer(&mut self, answer: Answer) {
+        if let Some(i) = self.pending.iter().position(|(t, _)| *t == answer.tag) {
+            let (_, p) = self.pending.swap_remove(i);
+            let tag = p.request().tag;
+            let _ = p.reply(&crate::runtime::shm::to_reply(tag, answer.reply));
+        }
+    }
+
+    fn send(&mut self, f: &BusFrame) -> bool {
+        self.ports
+            .get_mut(usize::from(f.bus))
+            .is_some_and(|p| p.send(&f.frame).is_ok())
+    }
+
+    fn service_frame(&mut self, now: Instant) -> Option<BusFrame> {
+        self.nodes.poll_transmit(now)
+    }
+
+    fn event(&mut self, e: Event) {
+        note_event(self.plan, &e, &mut self.summary, &mut self.text);
+        self.nodes.event(&e);
+        if let Some(svc) = &mut self.commands {
+            svc.event(&e);
+        }
+        if let Some(w) = &mut self.watch {
+            w.push(e);
+        }
+    }
+
+    fn status(&mut self, snapshot: Snapshot) {
+        let text = status_lines(self.plan, &snapshot);
+        self.status_lines_printed =
+            print_status(&mut self.text, &text, self.tty, self.status_lines_printed);
+    }
+}
+
+/// `coordinator run --virtual-time`: the cycle iteration on the virtual clock, one thread, as
+/// fast as the machine allows.
+pub struct VirtualRun<'p> {
+    /// The cycle and its buffers.
+    pub core: CycleCore<'p>,
+    /// The iteration's state (the script, the schedule).
+    pub lp: CycleLoop<'p>,
+    /// The simulated machine around it.
+    pub io: VirtualIo<'p>,
+}
+
+impl std::fmt::Debug for VirtualRun<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualRun")
+            .field("cycle", &self.lp.cycles())
+            .finish_non_exhaustive()
+    }
+}
+
 impl<'p> VirtualRun<'p> {
-    /// Builds the bus, the simulated drives and the cycle; nothing has run yet.
+    /// Builds the buses, the simulated drives and the cycle; nothing has run yet. Every drive
+    /// of `plan` must be simulated (see [`run`]).
     pub fn new(plan: &'p MachinePlan, opts: &RunOptions) -> Result<VirtualRun<'p>, RunError> {
-        let bitrate = plan.bus.as_ref().map_or(1_000_000, |b| b.2);
-        let bus = VirtualBus::new(VirtualBusConfig {
-            bitrate,
-            clock: ClockMode::Virtual,
-            rx_capacity: RX_CAPACITY,
-            tx_capacity: TX_CAPACITY,
-            ..VirtualBusConfig::default()
-        })
-        .map_err(|e| RunError::Io(e.to_string()))?;
-        let t0 = bus.now();
-        let port = bus.attach("coordinator");
-        let monitor = bus.attach_monitor("monitor");
-        let sims = SimBus::build(&bus, plan, t0).map_err(RunError::Io)?;
+        let mut buses = Vec::new();
+        for b in &plan.buses {
+            buses.push(
+                VirtualBus::new(VirtualBusConfig {
+                    bitrate: b.bitrate,
+                    clock: ClockMode::Virtual,
+                    rx_capacity: RX_CAPACITY,
+                    tx_capacity: TX_CAPACITY,
+                    ..VirtualBusConfig::default()
+                })
+                .map_err(|e| RunError::Io(format!("bus {}: {e}", b.name)))?,
+            );
+        }
+        let t0 = buses.first().map_or(Instant::ZERO, |b| b.now());
+        let ports = buses.iter().map(|b| b.attach("coordinator")).collect();
+        let monitors = buses.iter().map(|b| b.attach_monitor("monitor")).collect();
+        let mut sims = Vec::new();
+        for (i, b) in buses.iter().enumerate() {
+            sims.push(SimBus::build(b, plan, i, t0).map_err(RunError::Io)?);
+        }
         let mut cmmo = Vec::new();
         for a in &plan.axes {
             if let Transport::Modbus { slot } = a.setup.transport {
@@ -595,252 +800,135 @@ impl<'p> VirtualRun<'p> {
                 ));
             }
         }
-        let plans: Vec<_> = plan.axes.iter().filter_map(|a| a.boot.clone()).collect();
-        let boot = BootSequencer::new(plans, t0);
         let core = CycleCore::new(plan)?;
-        let shm = match &opts.shm {
+        let (state, commands) = match &opts.shm {
             Some(prefix) => {
                 let _ = shm_api::publisher::cleanup_dead_nodes();
                 let info = StaticInfo::new(plan, true);
-                Some((
-                    StateSide::create(prefix, info.clone()).map_err(RunError::Io)?,
-                    ServiceSide::create(prefix, info).map_err(RunError::Io)?,
-                ))
+                (
+                    Some(StateSide::create(prefix, info.clone()).map_err(RunError::Io)?),
+                    Some(ServiceSide::create(prefix, info).map_err(RunError::Io)?),
+                )
             }
-            None => None,
+            None => (None, None),
         };
-        Ok(VirtualRun {
+        let lp = CycleLoop::new(
             plan,
-            bus,
-            port,
-            monitor,
-            sims,
-            modbus_missed: vec![0; cmmo.len()],
-            cmmo,
-            boot,
-            reported: 0,
-            core,
-            script: Script::new(opts.script, t0),
-            summary: Summary::default(),
-            hash: FrameHash::default(),
-            busy: Duration::ZERO,
-            bitrate,
+            Script::new(opts.script, t0),
+            state,
             t0,
-            k: 0,
-            ending: false,
-            next_status: opts.status_every.map(|d| t0 + d),
-            status_every: opts.status_every,
-            status_lines_printed: 0,
-            tty: out_is_tty(),
-            capture: false,
-            captured: None,
-            watch: None,
-            shm,
-            held: None,
-            later: Vec::with_capacity(RX_CAPACITY),
-            pending_rx: Vec::with_capacity(RX_CAPACITY),
-            synced: 0,
-            missed_syncs: 0,
-            probe: None,
+            None,
+            opts.status_every,
+        )?;
+        let n = plan.buses.len();
+        Ok(VirtualRun {
+            core,
+            lp,
+            io: VirtualIo {
+                plan,
+                buses,
+                ports,
+                monitors,
+                sims,
+                modbus_missed: vec![0; cmmo.len()],
+                cmmo,
+                nodes: Nodes::new(plan, t0),
+                t0,
+                k: 0,
+                commands,
+                pending: Vec::new(),
+                next_tag: 1,
+                text: Vec::new(),
+                summary: Summary::default(),
+                hash: FrameHash::default(),
+                busy: vec![Duration::ZERO; n],
+                frames: vec![0; n],
+                status_lines_printed: 0,
+                tty: out_is_tty(),
+                watch: None,
+                held: None,
+                later: Vec::with_capacity(RX_CAPACITY),
+                pending_rx: Vec::with_capacity(RX_CAPACITY),
+                synced: 0,
+                missed_syncs: 0,
+            },
         })
     }
 
     /// The time of the next cycle's SYNC (producer mode: the coordinator's schedule; consumer
     /// mode: when the external producer is due to send it).
     pub fn now(&self) -> Instant {
-        let k = if self.plan.cycle.sync_producer {
-            self.k
-        } else {
-            self.k + 1
-        };
-        self.t0 + self.plan.period * (k as u32)
+        let k = self.io.k + u64::from(!self.io.plan.cycle.sync_producer);
+        self.io.t0 + self.io.plan.period * (k as u32)
     }
 
     /// Machine time since the start.
     pub fn elapsed(&self) -> Duration {
-        self.now() - self.t0
+        self.now() - self.io.t0
     }
 
     /// Cycles run.
     pub fn cycles(&self) -> u64 {
-        self.k
+        self.lp.cycles()
     }
 
-    /// Whether the boot has finished (every CANopen node has a report).
+    /// Whether every drive has had its first report.
     pub fn booted(&self) -> bool {
-        self.boot.is_finished()
+        self.lp.booted()
     }
 
     /// Asks the script for the orderly end (stop, disable).
     pub fn shut_down(&mut self) {
-        self.ending = true;
-        self.script.shut_down();
+        self.lp.shut_down();
     }
 
-    fn drain_monitor(&mut self) {
-        while let Ok(Some(f)) = self.monitor.try_recv() {
-            self.hash.add(&f);
-            self.summary.frames_on_bus += 1;
-            self.summary.syncs_on_bus += u64::from(f.cob_id() == Some(0x080));
-            self.busy += frame_duration(&f, self.bitrate);
-        }
-    }
-
-    /// Runs one cycle: the drives up to this SYNC, receive, boot, Modbus, script, step, send.
-    /// Events are noted in the summary and printed to `out`.
+    /// Runs one cycle: the drives up to this SYNC, receive, boot, Modbus, commands, script,
+    /// step, send. Events, reports and status are printed to `out`.
     pub fn step(&mut self, out: &mut dyn Write) {
-        let plan = self.plan;
-        let now = if plan.cycle.sync_producer {
-            let now = self.now();
-            self.sims.run_until(&self.bus, now);
-            self.drain_monitor();
-            while let Ok(Some(f)) = self.port.try_recv() {
-                self.boot.handle_frame(&f, f.timestamp());
-                self.core.receive(f);
-            }
-            now
-        } else {
-            self.until_sync()
-        };
-        self.boot.handle_timeout(now);
-        for r in &self.boot.reports()[self.reported..] {
-            report_boot(plan, r, out, &mut self.summary);
-            if let Some(a) = axis_of_node(plan, r.node.get()) {
-                self.core.cycle.set_online(a, r.result.is_ok(), now);
-            }
-        }
-        self.reported = self.boot.reports().len();
-        for (i, (slot, dev)) in self.cmmo.iter_mut().enumerate() {
-            let o = self.core.modbus_output(*slot).data;
-            let answer = dev.exchange(&o, now);
-            let missed = &mut self.modbus_missed[i];
-            *missed = if answer.is_some() {
-                0
-            } else {
-                missed.saturating_add(1)
-            };
-            self.core.modbus_input(
-                *slot,
-                ModbusInput {
-                    image: answer
-                        .and_then(|a| Image::from_slice(&a))
-                        .unwrap_or_default(),
-                    fresh: answer.is_some(),
-                    late_cycles: 0,
-                    lost: *missed >= MODBUS_TIMEOUT_CYCLES,
-                },
-            );
-        }
-        if let Some(p) = self.probe {
-            p(true);
-        }
-        self.script
-            .poll(&mut self.core.cycle, self.boot.is_finished(), now);
-        if std::mem::take(&mut self.capture) {
-            self.captured = Some(self.core.capture(now));
-        }
-        let frames = self.core.iterate(now);
-        if let Some(p) = self.probe {
-            p(false);
-        }
-        let refused = send_all(&mut self.port, frames);
-        self.core.tx_refused += refused;
-        for _ in 0..SDO_PER_CYCLE {
-            match self.boot.poll_transmit(now) {
-                Some(f) => {
-                    self.core.tx_refused += send_all(&mut self.port, &[f]);
-                }
-                None => break,
-            }
-        }
-        if let Some((state, _)) = &mut self.shm {
-            state.counters = self.core.counters(0, 0);
-            state.publish(&self.core.cycle, now.as_nanos());
-        }
-        while let Some(e) = self.core.cycle.poll_event() {
-            note_event(plan, &e, &mut self.summary, out);
-            if let Some((_, svc)) = &mut self.shm {
-                svc.event(&e);
-            }
-            if let Some(w) = &mut self.watch {
-                w.push(e);
-            }
-        }
-        if let Some(t) = self.next_status
-            && now >= t
-        {
-            let text = status_lines(plan, &Snapshot::take(&self.core.cycle, now - self.t0));
-            self.status_lines_printed =
-                print_status(out, &text, self.tty, self.status_lines_printed);
-            self.next_status = self.status_every.map(|d| t + d);
-        }
-        self.k += 1;
-    }
-
-    /// SYNC-consumer mode: runs the bus until the external producer's next SYNC has arrived,
-    /// takes every frame up to it, and returns its time (the cycle's `now`). Frames after it
-    /// wait for the next cycle, as they would on a real bus.
-    fn until_sync(&mut self) -> Instant {
-        for f in std::mem::take(&mut self.pending_rx) {
-            self.boot.handle_frame(&f, f.timestamp());
-            self.core.receive(f);
-        }
-        let due = self.now();
-        // SYNC has the highest priority after NMT, but may wait for a frame on the wire.
-        let mut until = due + Duration::from_micros(500);
-        loop {
-            self.sims.run_until(&self.bus, until);
-            self.drain_monitor();
-            while let Ok(Some(f)) = self.port.try_recv() {
-                if self.held.is_some() {
-                    self.later.push(f);
-                    continue;
-                }
-                self.boot.handle_frame(&f, f.timestamp());
-                if f.cob_id() == Some(0x080) {
-                    self.held = Some(f);
-                    self.synced += 1;
-                } else {
-                    self.core.receive(f);
-                }
-            }
-            if let Some(sync) = self.held.take() {
-                let now = sync.timestamp();
-                // What arrived after the SYNC belongs to the next cycle.
-                let later = std::mem::take(&mut self.later);
-                self.pending_rx = later;
-                return now;
-            }
-            // No SYNC: the producer is gone. Keep waiting, a period at a time (the cycle
-            // does not run without SYNC; the drives' own supervision notices).
-            self.missed_syncs += 1;
-            until += self.plan.period;
+        self.lp.iterate(&mut self.core, &mut self.io);
+        if !self.io.text.is_empty() {
+            let _ = out.write_all(&self.io.text);
+            let _ = out.flush();
+            self.io.text.clear();
         }
     }
 
     /// As [`VirtualRun::step`], and appends the cycle's events of this step to `events`.
     pub fn step_with_events(&mut self, out: &mut dyn Write, events: &mut Vec<Event>) {
-        self.watch = Some(std::mem::take(events));
+        self.io.watch = Some(std::mem::take(events));
         self.step(out);
-        *events = self.watch.take().unwrap_or_default();
+        *events = self.io.watch.take().unwrap_or_default();
     }
 
-    /// Ends the run: lets the bus settle and fills the summary.
+    /// Ends the run: lets the buses settle and fills the summary.
     pub fn finish(mut self, wall: Duration) -> Summary {
         let last = self.now();
-        self.sims.run_until(&self.bus, last + self.plan.period);
-        self.drain_monitor();
-        let mut summary = std::mem::take(&mut self.summary);
-        summary.cycles = self.k;
-        summary.machine_time = last - self.t0;
+        let plan = self.io.plan;
+        for (sims, bus) in self.io.sims.iter_mut().zip(&self.io.buses) {
+            sims.run_until(bus, last + plan.period);
+        }
+        self.io.drain_monitors();
+        let mut summary = std::mem::take(&mut self.io.summary);
+        summary.cycles = self.lp.cycles();
+        summary.machine_time = last - self.io.t0;
         summary.wall = wall;
         summary.frames_sent = self.core.frames_sent;
-        summary.bus_load_percent =
-            100.0 * self.busy.as_secs_f64() / summary.machine_time.as_secs_f64().max(1e-9);
+        summary.buses = plan
+            .buses
+            .iter()
+            .enumerate()
+            .map(|(b, p)| BusFigures {
+                label: p.label(),
+                frames: self.io.frames[b],
+                load_percent: 100.0 * self.io.busy[b].as_secs_f64()
+                    / summary.machine_time.as_secs_f64().max(1e-9),
+            })
+            .collect();
+        summary.frames_on_bus = self.io.frames.iter().sum();
         summary.step_ns = self.core.step_figures();
         summary.frames_lost = (self.core.tx_refused, self.core.rx_dropped);
-        summary.frame_hash = self.hash.value();
-        finish_summary(self.plan, &self.core.cycle, &self.script, &mut summary);
+        summary.frame_hash = self.io.hash.value();
+        finish_summary(plan, &self.core.cycle, &self.lp.script, &mut summary);
         summary
     }
 }
@@ -856,19 +944,20 @@ pub fn run_virtual(
     say(
         out,
         &format!(
-            "machine: {} axes, {} groups, cycle {} us, virtual time",
+            "machine: {} axes, {} groups, {} bus(es), cycle {} us, virtual time",
             plan.axes.len(),
             plan.groups.len(),
+            plan.buses.len(),
             plan.period.as_micros()
         ),
     );
     loop {
         let over = opts.duration.is_some_and(|d| run.elapsed() >= d);
-        if (over || crate::runtime::rt::stop_flag().load(Ordering::Relaxed)) && !run.ending {
+        if over && !run.lp.ending() {
             run.shut_down();
         }
         run.step(out);
-        if run.script.phase() == Phase::Done {
+        if run.lp.script.phase() == Phase::Done {
             break;
         }
     }
@@ -901,16 +990,43 @@ pub fn finish_summary<const A: usize, const G: usize>(
         .collect();
 }
 
-/// Prints a boot report and records a failure.
-pub fn report_boot(plan: &MachinePlan, r: &BootReport, out: &mut dyn Write, summary: &mut Summary) {
-    let name = axis_of_node(plan, r.node.get())
-        .and_then(|a| plan.axes.get(usize::from(a)))
-        .map_or("?", |a| a.name.as_str());
-    match &r.result {
-        Ok(()) => say(out, &format!("boot: axis {name}: {r}")),
-        Err(_) => {
-            say(out, &format!("boot FAILED: axis {name}: {r}"));
-            summary.boot_failures.push(format!("axis {name}: {r}"));
+/// Prints a drive report and records it in the summary: booted, waiting (once), lost, reset,
+/// refused.
+pub fn report_node(plan: &MachinePlan, r: &NodeReport, out: &mut dyn Write, summary: &mut Summary) {
+    let Some(a) = plan.axes.get(usize::from(r.axis)) else {
+        return;
+    };
+    let bus = plan
+        .buses
+        .get(usize::from(r.bus))
+        .map_or_else(|| "?".into(), |b| b.label());
+    let node = r.report.node;
+    let what = format!("node {node} ({} {:?}) on {bus}", a.setup.kind, a.name);
+    match (r.status(), &r.report.result) {
+        (NodeStatus::Running, _) => {
+            let identity = match (r.report.device_type, r.report.vendor_id) {
+                (Some(t), Some(v)) => format!(": device type {t:08X}h, vendor {v:08X}h"),
+                _ => String::new(),
+            };
+            say(out, &format!("drive ready: {what}{identity}"))
+        }
+        (NodeStatus::Waiting, Err(e)) if e.detail == FailureDetail::Lost => say(
+            out,
+            &format!("drive lost: {what}; waiting for it to come back"),
+        ),
+        (NodeStatus::Waiting, _) => {
+            say(out, &format!("waiting for {what}"));
+            summary.waiting.push(format!("axis {}: {what}", a.name));
+        }
+        (NodeStatus::Reset, _) => say(
+            out,
+            &format!("drive reset: {what} sent a boot-up while running; configuring it again"),
+        ),
+        (NodeStatus::Refused, _) => {
+            say(out, &format!("drive REFUSED: {what}: {}", r.report));
+            summary
+                .boot_failures
+                .push(format!("axis {}: {}", a.name, r.report));
         }
     }
 }

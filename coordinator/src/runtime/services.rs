@@ -6,11 +6,12 @@
 //! cycle thread's halves ([`CycleEnds`]) and the services' halves ([`ServiceEnds`]).
 //! [`spawn_services`] starts the executor thread with three tasks:
 //!
-//! - **boot**: runs the [`BootSequencer`] over the frame queues (it sends SDO/NMT frames the
-//!   cycle puts on the bus after its PDOs, and receives the SDO answers, boot-ups and EMCYs
-//!   the cycle forwards), with embassy timers for its timeouts, and hands every
-//!   [`BootReport`] to the cycle so it brings a booted axis online. After the boot it keeps
-//!   draining the received frames and reports EMCYs.
+//! - **boot**: runs the drives' boot and lifecycle ([`Nodes`]: a boot sequencer per bus) over
+//!   the frame queues (it sends SDO/NMT frames the cycle puts on their bus after its PDOs, and
+//!   receives the SDO answers, boot-ups and EMCYs the cycle forwards), with embassy timers for
+//!   its timeouts, and hands every [`NodeReport`] to the cycle so it brings a booted axis
+//!   online or takes a lost one out. Drives the cycle loses (its fault events) are waited for
+//!   and configured again when they come back. It also reports EMCYs.
 //! - **commands**: takes [`Command`]s from [`CommandClient`]s, tags them, queues them for the
 //!   cycle and routes each [`Answer`] back to its caller by tag. A request the cycle's queue
 //!   cannot take is answered at once with `Rejected::Busy`, so every request gets an answer.
@@ -33,8 +34,9 @@ use drivers::canopen::ids;
 use drivers::time::monotonic_now;
 use heapless::spsc::{Consumer, Producer, Queue};
 
-use super::boot::{BootPlan, BootReport, BootSequencer};
+use super::nodes::{NodeReport, Nodes};
 use crate::command::{Answer, Command, Rejected, Reply, Request};
+use crate::cycle::BusFrame;
 use crate::event::Event;
 
 /// Requests the cycle can have waiting (services → cycle).
@@ -62,9 +64,23 @@ struct Queues {
     requests: Queue<Request, { REQUESTS + 1 }>,
     answers: Queue<Answer, { ANSWERS + 1 }>,
     events: Queue<Event, { EVENTS + 1 }>,
-    tx_frames: Queue<Frame, { TX_FRAMES + 1 }>,
-    rx_frames: Queue<Frame, { RX_FRAMES + 1 }>,
-    boot_reports: Queue<BootReport, { BOOT_REPORTS + 1 }>,
+    tx_frames: Queue<BusFrame, { TX_FRAMES + 1 }>,
+    rx_frames: Queue<BusFrame, { RX_FRAMES + 1 }>,
+    boot_reports: Queue<QueuedReport, { BOOT_REPORTS + 1 }>,
+}
+
+/// A drive report on its way to the cycle, with how many frames the services had queued for
+/// the buses when it was made. A drive is done when its NMT start has been handed out, but that
+/// frame still waits in [`TX_FRAMES`] behind others (the cycle sends only a few per cycle): the
+/// cycle brings the axis online, and starts expecting its TPDOs, only once it has sent that
+/// many. (Without this, six drives booted in lockstep came online up to two cycles before their
+/// NMT start went out and all faulted `no TPDO for 3 cycles`.)
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QueuedReport {
+    /// The report.
+    pub report: NodeReport,
+    /// Frames queued for the cycle to send (counted from the start) when it was made.
+    pub after_frames: u64,
 }
 
 /// A queue was full: the item was not queued (and is handed back where that helps).
@@ -86,12 +102,14 @@ pub struct CycleEnds {
     pub answers: Producer<'static, Answer>,
     /// Events to the services.
     pub events: Producer<'static, Event>,
-    /// SDO/NMT frames to put on the bus after the cycle's PDOs.
-    pub tx_frames: Consumer<'static, Frame>,
+    /// SDO/NMT frames to put on their bus after the cycle's PDOs ([`CycleEnds::tx_frame`]).
+    tx_frames: Consumer<'static, BusFrame>,
     /// Received frames for the services (see [`is_service_frame`]).
-    pub rx_frames: Producer<'static, Frame>,
-    /// Boot results: bring a booted axis online.
-    pub boot_reports: Consumer<'static, BootReport>,
+    pub rx_frames: Producer<'static, BusFrame>,
+    /// Drive reports ([`CycleEnds::boot_report`]).
+    boot_reports: Consumer<'static, QueuedReport>,
+    /// Frames taken from `tx_frames` so far.
+    sent: u64,
 }
 
 impl core::fmt::Debug for CycleEnds {
@@ -101,10 +119,26 @@ impl core::fmt::Debug for CycleEnds {
 }
 
 impl CycleEnds {
+    /// The next SDO/NMT frame to put on its bus after the cycle's PDOs.
+    pub fn tx_frame(&mut self) -> Option<BusFrame> {
+        let f = self.tx_frames.dequeue()?;
+        self.sent += 1;
+        Some(f)
+    }
+
+    /// The next drive report, once every frame queued before it (the node's NMT start among
+    /// them) has been taken with [`CycleEnds::tx_frame`].
+    pub fn boot_report(&mut self) -> Option<NodeReport> {
+        if self.boot_reports.peek()?.after_frames > self.sent {
+            return None;
+        }
+        self.boot_reports.dequeue().map(|q| q.report)
+    }
+
     /// Hands a received frame to the services if it is theirs ([`is_service_frame`]); `Ok(false)`
     /// if it is not, `Err` if their queue is full (the frame is dropped; count it).
-    pub fn offer_received(&mut self, frame: &Frame) -> Result<bool, QueueFull> {
-        if !is_service_frame(frame) {
+    pub fn offer_received(&mut self, frame: &BusFrame) -> Result<bool, QueueFull> {
+        if !is_service_frame(&frame.frame) {
             return Ok(false);
         }
         self.rx_frames
@@ -142,11 +176,11 @@ pub struct ServiceEnds {
     /// Events from the cycle.
     pub events: Consumer<'static, Event>,
     /// SDO/NMT frames for the cycle to send.
-    pub tx_frames: Producer<'static, Frame>,
+    pub tx_frames: Producer<'static, BusFrame>,
     /// Frames the cycle received for the services.
-    pub rx_frames: Consumer<'static, Frame>,
-    /// Boot results for the cycle.
-    pub boot_reports: Producer<'static, BootReport>,
+    pub rx_frames: Consumer<'static, BusFrame>,
+    /// Drive reports for the cycle.
+    pub boot_reports: Producer<'static, QueuedReport>,
 }
 
 impl core::fmt::Debug for ServiceEnds {
@@ -180,6 +214,7 @@ pub fn channels() -> (CycleEnds, ServiceEnds) {
             tx_frames: tx_c,
             rx_frames: rx_p,
             boot_reports: br_c,
+            sent: 0,
         },
         ServiceEnds {
             requests: req_p,
@@ -208,9 +243,9 @@ pub fn is_service_frame(frame: &Frame) -> bool {
 pub enum ServiceEvent {
     /// An event of the cycle.
     Cycle(Event),
-    /// A node finished booting (or failed).
-    Boot(BootReport),
-    /// Every planned node has a report.
+    /// A drive booted, is waited for, was lost, reset itself or was refused.
+    Node(NodeReport),
+    /// Every planned drive has its first report.
     BootFinished,
     /// An EMCY frame arrived (after the boot): node, error code, error register.
     Emcy {
@@ -227,7 +262,7 @@ impl core::fmt::Display for ServiceEvent {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             ServiceEvent::Cycle(e) => write!(f, "{e:?}"),
-            ServiceEvent::Boot(r) => write!(f, "{r}"),
+            ServiceEvent::Node(r) => write!(f, "{}", r.report),
             ServiceEvent::BootFinished => f.write_str("boot finished"),
             ServiceEvent::Emcy {
                 node,
@@ -336,6 +371,8 @@ struct Shared {
     stop: Arc<AtomicBool>,
     live: Arc<AtomicUsize>,
     sink: RefCell<Sink>,
+    /// The cycle's fault events, for the boot task's lifecycle (lost drives).
+    faults: RefCell<Vec<Event>>,
 }
 
 impl Shared {
@@ -365,46 +402,56 @@ async fn tick(d: Duration) {
 #[embassy_executor::task(pool_size = 4)]
 async fn boot_task(
     shared: Rc<Shared>,
-    plans: Vec<BootPlan>,
-    mut tx: Producer<'static, Frame>,
-    mut rx: Consumer<'static, Frame>,
-    mut reports: Producer<'static, BootReport>,
+    mut nodes: Nodes,
+    mut tx: Producer<'static, BusFrame>,
+    mut rx: Consumer<'static, BusFrame>,
+    mut reports: Producer<'static, QueuedReport>,
 ) {
     let _alive = Alive(shared.live.clone());
-    let mut seq = BootSequencer::new(plans, monotonic_now());
-    let mut held: Option<Frame> = None;
-    let mut handed = 0usize;
+    let mut held: Option<BusFrame> = None;
+    let mut queued = 0u64;
+    let mut waiting: Option<NodeReport> = None;
     let mut finished_told = false;
     while !shared.stopping() {
         let now = monotonic_now();
         while let Some(f) = rx.dequeue() {
-            if let Some(code) = emcy_of(&f) {
+            if let Some(code) = emcy_of(&f.frame) {
                 shared.report(code);
             }
-            seq.handle_frame(&f, now);
+            nodes.handle_frame(&f, now);
         }
-        if seq.poll_timeout().is_some_and(|t| t <= now) {
-            seq.handle_timeout(now);
+        for e in shared.faults.borrow_mut().drain(..) {
+            nodes.event(&e);
+        }
+        if nodes.poll_timeout().is_some_and(|t| t <= now) {
+            nodes.handle_timeout(now);
         }
         // Out to the cycle; a frame the queue cannot take waits for the next tick.
-        while let Some(f) = held.take().or_else(|| seq.poll_transmit(now)) {
+        while let Some(f) = held.take().or_else(|| nodes.poll_transmit(now)) {
             if let Err(f) = tx.enqueue(f) {
                 held = Some(f);
                 break;
             }
+            queued += 1;
         }
-        while let Some(r) = seq.reports().get(handed).copied() {
-            if reports.enqueue(r).is_err() {
+        // Every frame handed out so far, the held one included.
+        let after_frames = queued + u64::from(held.is_some());
+        while let Some(r) = waiting.take().or_else(|| nodes.poll_report()) {
+            let q = QueuedReport {
+                report: r,
+                after_frames,
+            };
+            if reports.enqueue(q).is_err() {
+                waiting = Some(r);
                 break;
             }
-            shared.report(ServiceEvent::Boot(r));
-            handed += 1;
+            shared.report(ServiceEvent::Node(r));
         }
-        if !finished_told && seq.is_finished() && handed == seq.reports().len() {
+        if !finished_told && nodes.is_finished() && waiting.is_none() {
             finished_told = true;
             shared.report(ServiceEvent::BootFinished);
         }
-        let wait = seq
+        let wait = nodes
             .poll_timeout()
             .map(|t| t.saturating_duration_since(monotonic_now()))
             .map_or(SERVICE_TICK, |d| d.min(SERVICE_TICK));
@@ -468,6 +515,9 @@ async fn event_task(shared: Rc<Shared>, mut events: Consumer<'static, Event>) {
     let _alive = Alive(shared.live.clone());
     while !shared.stopping() {
         while let Some(e) = events.dequeue() {
+            if matches!(e, Event::Fault { .. }) {
+                shared.faults.borrow_mut().push(e);
+            }
             shared.report(ServiceEvent::Cycle(e));
         }
         tick(SERVICE_TICK).await;
@@ -478,7 +528,7 @@ async fn event_task(shared: Rc<Shared>, mut events: Consumer<'static, Event>) {
 /// every report. At most 4 instances may run at once (the static task pools).
 pub fn spawn_services(
     ends: ServiceEnds,
-    plans: Vec<BootPlan>,
+    nodes: Nodes,
     sink: Sink,
 ) -> Result<ServicesHandle, SpawnError> {
     let (ctx, crx) = mpsc::sync_channel(CLIENT_QUEUE);
@@ -487,7 +537,7 @@ pub fn spawn_services(
     let stop2 = stop.clone();
     let thread = std::thread::Builder::new()
         .name("services".into())
-        .spawn(move || run_executor(ends, plans, sink, crx, stop2, live))?;
+        .spawn(move || run_executor(ends, nodes, sink, crx, stop2, live))?;
     Ok(ServicesHandle {
         client: CommandClient { tx: ctx },
         stop,
@@ -497,7 +547,7 @@ pub fn spawn_services(
 
 fn run_executor(
     ends: ServiceEnds,
-    plans: Vec<BootPlan>,
+    nodes: Nodes,
     sink: Sink,
     clients: mpsc::Receiver<ClientRequest>,
     stop: Arc<AtomicBool>,
@@ -507,6 +557,7 @@ fn run_executor(
         stop: stop.clone(),
         live: live.clone(),
         sink: RefCell::new(sink),
+        faults: RefCell::new(Vec::new()),
     });
     // The executor must be 'static; one small leak per services instance.
     let executor: &'static mut embassy_executor::Executor =
@@ -537,7 +588,7 @@ fn run_executor(
                     Err(_) => stop.store(true, Ordering::Release),
                 }
             }
-            let t = boot_task(shared.clone(), plans, tx_frames, rx_frames, boot_reports);
+            let t = boot_task(shared.clone(), nodes, tx_frames, rx_frames, boot_reports);
             go(spawner, t, &live, &stop);
             let t = command_task(shared.clone(), clients, requests, answers);
             go(spawner, t, &live, &stop);
@@ -570,12 +621,13 @@ mod tests {
     #[test]
     fn full_queues_return_errors() {
         let (mut cycle, mut service) = channels();
-        assert_eq!(cycle.offer_received(&frame(0x183)), Ok(false));
+        let on = |id| BusFrame::new(0, frame(id));
+        assert_eq!(cycle.offer_received(&on(0x183)), Ok(false));
         for _ in 0..RX_FRAMES {
-            assert_eq!(cycle.offer_received(&frame(0x583)), Ok(true));
+            assert_eq!(cycle.offer_received(&on(0x583)), Ok(true));
         }
         assert_eq!(
-            cycle.offer_received(&frame(0x583)),
+            cycle.offer_received(&on(0x583)),
             Err(QueueFull {
                 queue: "received frames",
                 capacity: RX_FRAMES
@@ -608,6 +660,45 @@ mod tests {
     }
 
     #[test]
+    fn a_boot_report_waits_for_the_frames_queued_before_it() {
+        let (mut cycle, mut service) = channels();
+        let report = NodeReport {
+            axis: 2,
+            bus: 0,
+            report: crate::runtime::boot::BootReport {
+                node: drivers::canopen::NodeId::new(3).unwrap(),
+                result: Ok(()),
+                device_type: None,
+                vendor_id: None,
+            },
+        };
+        // Two SDO requests of other nodes, then this node's NMT start, then its report.
+        for id in [0x601, 0x602, 0x000] {
+            service
+                .tx_frames
+                .enqueue(BusFrame::new(0, frame(id)))
+                .unwrap();
+        }
+        service
+            .boot_reports
+            .enqueue(QueuedReport {
+                report,
+                after_frames: 3,
+            })
+            .unwrap();
+        // The cycle sends two frames per cycle: the node is not online before its NMT start
+        // went out.
+        let id = |f: Option<BusFrame>| f.map(|f| f.frame.raw_id());
+        assert_eq!(cycle.boot_report(), None);
+        assert_eq!(id(cycle.tx_frame()), Some(0x601));
+        assert_eq!(id(cycle.tx_frame()), Some(0x602));
+        assert_eq!(cycle.boot_report(), None);
+        assert_eq!(id(cycle.tx_frame()), Some(0x000));
+        assert_eq!(cycle.boot_report(), Some(report));
+        assert_eq!(cycle.boot_report(), None);
+    }
+
+    #[test]
     fn a_full_client_queue_is_an_error_not_a_wait() {
         let (tx, _rx) = mpsc::sync_channel(CLIENT_QUEUE);
         let c = CommandClient { tx };
@@ -628,7 +719,7 @@ mod tests {
     #[test]
     fn requests_the_cycle_cannot_take_are_answered_busy_and_the_rest_by_tag() {
         let (mut cycle, service) = channels();
-        let h = spawn_services(service, Vec::new(), Box::new(|_| {})).unwrap();
+        let h = spawn_services(service, Nodes::none(), Box::new(|_| {})).unwrap();
         let c = h.client();
         // The cycle takes nothing yet: REQUESTS fit its queue, the rest are refused at once.
         let waiting: Vec<_> = (0..REQUESTS + 8)

@@ -171,6 +171,7 @@ fn fault(f: FaultReason) -> (u8, u16, i64, i64) {
         FaultReason::ModbusTimeout => (w::MODBUS_TIMEOUT, 0, 0, 0),
         FaultReason::LateTpdo(n) => (w::LATE_TPDO, 0, i64::from(n), 0),
         FaultReason::BootFailed => (w::BOOT_FAILED, 0, 0, 0),
+        FaultReason::DriveReset => (w::DRIVE_RESET, 0, 0, 0),
     }
 }
 

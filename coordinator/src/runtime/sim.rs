@@ -120,13 +120,22 @@ pub struct SimBus {
 }
 
 impl SimBus {
-    /// Builds a simulator for every CANopen axis of `plan` on `bus`, powered on at `now`.
-    pub fn build(bus: &VirtualBus, plan: &MachinePlan, now: Instant) -> Result<SimBus, String> {
+    /// Builds a simulator for every CANopen axis of `plan` on bus `index`, attached to `bus`,
+    /// powered on at `now`.
+    pub fn build(
+        bus: &VirtualBus,
+        plan: &MachinePlan,
+        index: usize,
+        now: Instant,
+    ) -> Result<SimBus, String> {
         let mut drives = Vec::new();
         for a in &plan.axes {
-            let Transport::Can { node } = a.setup.transport else {
+            let Transport::Can { bus: b, node } = a.setup.transport else {
                 continue;
             };
+            if usize::from(b) != index {
+                continue;
+            }
             let id = NodeId::new(node).ok_or_else(|| format!("node {node}"))?;
             let port = bus.attach(&format!("sim-{}", a.name));
             let err = |e: &dyn std::fmt::Display| format!("simulator of {}: {e}", a.name);

@@ -47,7 +47,7 @@ pub fn config_with_cycle(n: usize, group_size: usize, cycle_ms: usize) -> String
     let _ = writeln!(s, "cycle_us = {}", cycle_ms * 1000);
     let _ = writeln!(
         s,
-        "\n[[buses]]\nname = \"can0\"\nkind = \"virtual\"\nbitrate = 1000000\nsdo_slots = 2"
+        "\n[[buses]]\nname = \"can0\"\nkind = \"simulated\"\nbitrate = 1000000\nsdo_slots = 2"
     );
     let mut node = 0u32;
     for (i, k) in kinds.iter().enumerate() {

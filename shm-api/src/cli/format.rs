@@ -108,6 +108,7 @@ pub fn fault_text(axis: &AxisState) -> String {
         fault::MODBUS_TIMEOUT => "Modbus timeout".into(),
         fault::LATE_TPDO => format!("TPDOs missing for {} cycles", axis.fault_value),
         fault::BOOT_FAILED => "boot failed".into(),
+        fault::DRIVE_RESET => "drive reset itself".into(),
         other => format!("fault kind {other} code {}", axis.fault_code),
     }
 }

@@ -1,0 +1,279 @@
+//! One cycle iteration for both clocks, behind one I/O seam.
+//!
+//! [`CycleLoop::iterate`] is everything the coordinator does once per cycle: wait for the
+//! cycle and take what arrived, bring drives in and out of the cycle, take the Modbus images and
+//! client commands, let the script (the built-in client) act, step, send the frames (PDOs first,
+//! then a bounded number of SDO/NMT frames), hand out the Modbus outputs, publish the state and
+//! the events. Where those come from and go to is a [`CycleIo`]: [`crate::runtime::run`]'s
+//! virtual clock (the simulated drives advanced in lockstep, the boot inline) or
+//! [`crate::runtime::realtime`]'s real clock (absolute deadlines, the bus ports, the services'
+//! queues, the Modbus exchange threads). Nothing here allocates after [`CycleLoop::new`].
+
+use std::time::Duration;
+
+use drivers::time::Instant;
+use hdrhistogram::Histogram;
+
+use crate::axis::Image;
+use crate::command::{Answer, Request};
+use crate::cycle::{BusFrame, ModbusInput, Transport};
+use crate::event::Event;
+use crate::runtime::nodes::{self, NodeReport};
+use crate::runtime::plan::MachinePlan;
+use crate::runtime::run::{CycleCore, RunError, SDO_PER_CYCLE, Snapshot};
+use crate::runtime::script::{Phase, Script};
+use crate::runtime::shm::StateSide;
+
+/// When a cycle starts, as the clock saw it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Wake {
+    /// The cycle's time (its SYNC).
+    pub now: Instant,
+    /// How late the wake-up was, ns (0 in virtual time).
+    pub late_ns: u64,
+    /// Cycles the clock skipped before this one because the coordinator was not there (an
+    /// overrun: the host stalled it).
+    pub skipped: u64,
+}
+
+/// What one cycle iteration talks to. Every method is called on the cycle thread and must not
+/// allocate, lock or block (except [`CycleIo::wait`], which is where the cycle sleeps).
+pub trait CycleIo {
+    /// Waits for the next cycle (real time: its deadline or its received SYNC; virtual time:
+    /// runs the simulated drives up to it) and hands every frame received since the last cycle
+    /// to `rx`, bus by bus in arrival order.
+    fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake;
+    /// The next drive report (booted, waiting, lost, refused), if any.
+    fn node_report(&mut self) -> Option<NodeReport>;
+    /// Modbus slot `slot`'s input for cycle `k`; `last_output` is what the cycle wrote to it
+    /// last.
+    fn modbus_input(
+        &mut self,
+        k: u64,
+        slot: usize,
+        last_output: &Image,
+        now: Instant,
+    ) -> ModbusInput;
+    /// Modbus slot `slot`'s output of cycle `k`.
+    fn modbus_output(&mut self, k: u64, slot: usize, output: &Image);
+    /// The next client request, if any.
+    fn request(&mut self) -> Option<Request>;
+    /// The answer to a request.
+    fn answer(&mut self, answer: Answer);
+    /// Sends one frame; `false` if the bus refused it.
+    fn send(&mut self, frame: &BusFrame) -> bool;
+    /// The next SDO/NMT frame of the drives' boot, if any.
+    fn service_frame(&mut self, now: Instant) -> Option<BusFrame>;
+    /// One event of the cycle.
+    fn event(&mut self, e: Event);
+    /// A status snapshot is due.
+    fn status(&mut self, snapshot: Snapshot);
+}
+
+/// The per-run state of the cycle iteration: the schedule, the script, the published state,
+/// the drives reported so far, the clock's figures.
+pub struct CycleLoop<'p> {
+    plan: &'p MachinePlan,
+    /// The built-in client (the demonstration script).
+    pub script: Script,
+    state: Option<StateSide>,
+    /// Per axis: whether its drive has had its first report.
+    reported: Vec<bool>,
+    unreported: usize,
+    /// Modbus slot, its axis, and whether it has answered yet.
+    modbus_slots: Vec<(usize, crate::command::AxisId, bool)>,
+    start: Instant,
+    end: Option<Instant>,
+    next_status: Option<Instant>,
+    status_every: Option<Duration>,
+    k: u64,
+    ending: bool,
+    /// Cycles the clock skipped (overruns).
+    pub skipped: u64,
+    /// Ctrl-C (installed before the first cycle: installing allocates).
+    stop: &'static std::sync::atomic::AtomicBool,
+    late: Histogram<u64>,
+    /// When set, the next iteration keeps a copy of the cycle and its inputs right before the
+    /// step (benchmarks replay it) and clears the flag.
+    pub capture: bool,
+    /// The copy [`CycleLoop::capture`] asked for.
+    pub captured: Option<crate::runtime::run::Captured<'p>>,
+    /// Called with `true` right before the cycle thread's own work of a cycle (the script's
+    /// commands and the step) and with `false` right after: tests count allocations there.
+    pub probe: Option<fn(bool)>,
+}
+
+impl std::fmt::Debug for CycleLoop<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CycleLoop")
+            .field("cycle", &self.k)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'p> CycleLoop<'p> {
+    /// The iteration of `plan`, its first cycle at `start`; it ends `duration` after it (then
+    /// the script stops and disables), or at Ctrl-C.
+    pub fn new(
+        plan: &'p MachinePlan,
+        script: Script,
+        state: Option<StateSide>,
+        start: Instant,
+        duration: Option<Duration>,
+        status_every: Option<Duration>,
+    ) -> Result<CycleLoop<'p>, RunError> {
+        let reported: Vec<bool> = plan.axes.iter().map(|a| a.boot.is_none()).collect();
+        Ok(CycleLoop {
+            plan,
+            script,
+            state,
+            unreported: reported.iter().filter(|r| !**r).count(),
+            reported,
+            modbus_slots: plan
+                .axes
+                .iter()
+                .enumerate()
+                .filter_map(|(i, a)| match a.setup.transport {
+                    Transport::Modbus { slot } => Some((usize::from(slot), i as u16, false)),
+                    Transport::Can { .. } => None,
+                })
+                .collect(),
+            start,
+            end: duration.map(|d| start + d),
+            next_status: status_every.map(|d| start + d),
+            status_every,
+            k: 0,
+            ending: false,
+            skipped: 0,
+            stop: crate::runtime::rt::stop_flag(),
+            late: Histogram::new_with_bounds(1, 10_000_000_000, 3)
+                .map_err(|e| RunError::Config(e.to_string()))?,
+            capture: false,
+            captured: None,
+            probe: None,
+        })
+    }
+
+    /// Cycles run.
+    pub fn cycles(&self) -> u64 {
+        self.k
+    }
+
+    /// When the first cycle was due.
+    pub fn start(&self) -> Instant {
+        self.start
+    }
+
+    /// Every drive has had its first report.
+    pub fn booted(&self) -> bool {
+        self.unreported == 0
+    }
+
+    /// Whether the orderly end has been asked for.
+    pub fn ending(&self) -> bool {
+        self.ending
+    }
+
+    /// Asks for the orderly end (stop, disable) now.
+    pub fn shut_down(&mut self) {
+        self.ending = true;
+        self.script.shut_down();
+    }
+
+    /// Wake-up lateness: median, p99, max, ns.
+    pub fn lateness(&self) -> (u64, u64, u64) {
+        let h = &self.late;
+        (h.value_at_quantile(0.5), h.value_at_quantile(0.99), h.max())
+    }
+
+    /// The published state, if the machine is published.
+    pub fn state_side(&self) -> Option<&StateSide> {
+        self.state.as_ref()
+    }
+
+    /// One cycle; returns its time, or `None` once the script has finished (the run is over).
+    pub fn iterate<I: CycleIo>(&mut self, core: &mut CycleCore<'p>, io: &mut I) -> Option<Instant> {
+        let wake = io.wait(&mut |f| core.receive(f));
+        let now = wake.now;
+        self.skipped += wake.skipped;
+        let _ = self.late.record(wake.late_ns.max(1));
+        while let Some(r) = io.node_report() {
+            nodes::apply(&mut core.cycle, &r, now);
+            if let Some(seen) = self.reported.get_mut(usize::from(r.axis))
+                && !*seen
+            {
+                *seen = true;
+                self.unreported -= 1;
+            }
+        }
+        for (slot, axis, seen) in &mut self.modbus_slots {
+            let last = core.modbus_output(*slot);
+            let m = io.modbus_input(self.k, *slot, &last, now);
+            // A Modbus drive needs no boot: it joins the cycle with its first answer, and from
+            // then on a lost link faults it.
+            if m.fresh && !*seen {
+                *seen = true;
+                core.cycle.set_online(*axis, true, now);
+            }
+            core.modbus_input(*slot, m);
+        }
+        if let Some(p) = self.probe {
+            p(true);
+        }
+        while let Some(req) = io.request() {
+            let reply = core.cycle.command(&req.command);
+            io.answer(Answer {
+                tag: req.tag,
+                reply,
+            });
+        }
+        let over = self.end.is_some_and(|e| now >= e);
+        if (over || self.stop.load(std::sync::atomic::Ordering::Relaxed)) && !self.ending {
+            self.shut_down();
+        }
+        let booted = self.booted();
+        self.script.poll(&mut core.cycle, booted, now);
+        if std::mem::take(&mut self.capture) {
+            self.captured = Some(core.capture(now));
+        }
+        let frames = core.iterate(now);
+        if let Some(p) = self.probe {
+            p(false);
+        }
+        let mut refused = 0;
+        for f in frames {
+            refused += u64::from(!io.send(f));
+        }
+        for _ in 0..SDO_PER_CYCLE {
+            match io.service_frame(now) {
+                Some(f) => refused += u64::from(!io.send(&f)),
+                None => break,
+            }
+        }
+        core.tx_refused += refused;
+        for &(slot, _, _) in &self.modbus_slots {
+            io.modbus_output(self.k, slot, &core.modbus_output(slot));
+        }
+        if let Some(st) = &mut self.state {
+            let late_us = (wake.late_ns / 1000).min(u64::from(u32::MAX)) as u32;
+            st.counters = core.counters(self.skipped, late_us);
+            st.publish(&core.cycle, now.as_nanos());
+        }
+        while let Some(e) = core.cycle.poll_event() {
+            io.event(e);
+        }
+        if let Some(t) = self.next_status
+            && now >= t
+        {
+            io.status(Snapshot::take(&core.cycle, now - self.start));
+            self.next_status = self.status_every.map(|d| t + d);
+        }
+        self.k += 1;
+        (self.script.phase() != Phase::Done).then_some(now)
+    }
+
+    /// The plan.
+    pub fn plan(&self) -> &'p MachinePlan {
+        self.plan
+    }
+}
