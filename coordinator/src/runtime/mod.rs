@@ -11,6 +11,7 @@
 //! - [`shm`]: the machine state, commands and events over shared memory (`shm-api`).
 
 pub mod boot;
+pub mod capture;
 pub mod modbus;
 pub mod plan;
 pub mod realtime;
