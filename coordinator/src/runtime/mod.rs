@@ -10,9 +10,11 @@
 //! - [`rt`]: absolute-deadline wake-ups, SCHED_FIFO, mlockall, Ctrl-C;
 //! - [`modbus`]: the CMMO-ST exchange off the cycle thread;
 //! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy;
-//! - [`shm`]: the machine state, commands and events over shared memory (`shm-api`).
+//! - [`shm`]: the machine state, commands and events over shared memory (`shm-api`);
+//! - [`capture`]: `--capture DIR`, a candump log and a pcap per bus, off the cycle thread.
 
 pub mod boot;
+pub mod capture;
 pub mod cycle_loop;
 pub mod modbus;
 pub mod nodes;

@@ -9,15 +9,20 @@
 //!
 //! `dump` prints each frame as the interactive `candump` does (`  vbus:test  605   [8]  40 00
 //! 10 00 00 00 00 00`), and writes candump `-l` logs and pcap files with wall-clock (Unix epoch)
-//! timestamps, so other tools show real dates. Once it listens it prints `listening on IFACE` to
-//! stderr. With `--count N` it stops after N frames; with `--timeout SECS` it stops after that
-//! long, and fails (exit 1) if `--count` was not reached. Errors go to stderr with exit status
-//! 1; a SocketCAN interface on a kernel without CAN names the problem and suggests `vbus:NAME`.
+//! timestamps, so other tools show real dates. On `vbus:` it writes frames in timestamp order:
+//! each is held for the bus's reorder window (`drivers::can::reorder`, 60 ms at 1 Mbit/s) so
+//! that frames of other senders stamped earlier can precede it. Once it listens it prints
+//! `listening on IFACE` to stderr. With `--count N` it stops after N frames; with `--timeout
+//! SECS` it stops after that long, and fails (exit 1) if `--count` was not reached; Ctrl-C
+//! (SIGINT) or SIGTERM stop it too. However it stops, it writes every frame it holds first.
+//! Errors go to stderr with exit status 1; a SocketCAN interface on a kernel without CAN names
+//! the problem and suggests `vbus:NAME`.
 
 use clap::{Parser, Subcommand};
 use drivers::can::candump::{self, CandumpWriter};
 use drivers::can::pcap::PcapWriter;
-use drivers::can::shm_bus::ShmBus;
+use drivers::can::reorder::{self, ReorderBuffer};
+use drivers::can::shm_bus::{self, ShmBus};
 use drivers::can::socketcan::SocketCanBus;
 use drivers::can::{Bus, BusError, Frame};
 use drivers::time::{Instant, monotonic_now};
@@ -25,6 +30,7 @@ use std::fs::File;
 use std::io::{BufReader, BufWriter, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 /// How long `send` and `replay` stay on the bus after their last frame by default. A `vbus:`
@@ -128,6 +134,64 @@ fn sleep_until(t: Instant) {
     }
 }
 
+/// Set by SIGINT and SIGTERM: `dump` stops, writes what it still holds, and exits normally.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    STOP.store(true, Ordering::Relaxed);
+}
+
+fn install_signal_handlers() {
+    let handler: extern "C" fn(libc::c_int) = on_signal;
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGINT, handler as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, handler as libc::sighandler_t);
+    }
+}
+
+/// Where `dump` writes each frame: stdout, and optionally a candump log and a pcap file.
+struct DumpOutput<'a> {
+    iface: &'a str,
+    offset: u64,
+    stdout: std::io::Stdout,
+    log: Option<CandumpWriter<BufWriter<File>>>,
+    pcap: Option<PcapWriter<BufWriter<File>>>,
+}
+
+impl DumpOutput<'_> {
+    fn write(&mut self, frame: &Frame) -> Result<(), String> {
+        let wall = Instant::from_nanos(frame.timestamp().as_nanos().saturating_add(self.offset));
+        let _ = writeln!(
+            self.stdout.lock(),
+            "{}",
+            candump::format_live(self.iface, frame)
+        );
+        if let Some(w) = self.log.as_mut() {
+            w.write(wall, self.iface, frame)
+                .map_err(|e| format!("writing log: {e}"))?;
+        }
+        if let Some(w) = self.pcap.as_mut() {
+            w.write(wall, frame)
+                .map_err(|e| format!("writing pcap: {e}"))?;
+        }
+        Ok(())
+    }
+
+    /// Called after each batch of released frames: a dump killed from outside still leaves
+    /// complete files (minus what the reorder buffer held).
+    fn flush(&mut self) -> Result<(), String> {
+        let _ = self.stdout.lock().flush();
+        if let Some(w) = self.log.as_mut() {
+            w.flush().map_err(|e| format!("writing log: {e}"))?;
+        }
+        if let Some(w) = self.pcap.as_mut() {
+            w.flush().map_err(|e| format!("writing pcap: {e}"))?;
+        }
+        Ok(())
+    }
+}
+
 fn dump(
     iface: &str,
     bitrate: u32,
@@ -142,25 +206,73 @@ fn dump(
             .map(BufWriter::new)
             .map_err(|e| format!("cannot create {}: {e}", p.display()))
     };
-    let mut log = log
+    let log = log
         .as_ref()
         .map(create)
         .transpose()?
         .map(CandumpWriter::new);
-    let mut pcap = match pcap.as_ref().map(create).transpose()? {
+    let pcap = match pcap.as_ref().map(create).transpose()? {
         Some(w) => Some(PcapWriter::new(w).map_err(|e| format!("writing pcap: {e}"))?),
         None => None,
     };
-    let offset = wall_offset();
     let end = match timeout {
         Some(s) if s.is_finite() && s >= 0.0 => monotonic_now() + Duration::from_secs_f64(s),
         Some(s) => return Err(format!("--timeout {s} is not a number of seconds")),
         None => Instant::MAX,
     };
+    let mut out = DumpOutput {
+        iface,
+        offset: wall_offset(),
+        stdout: std::io::stdout(),
+        log,
+        pcap,
+    };
+    // vbus senders stamp frames with modelled completion times and deliver them on arrival,
+    // so frames of different senders arrive out of order: hold them for the bus's window.
+    // SocketCAN stamps frames as they are read, already in order: release at once.
+    let mut reorder = if iface.starts_with("vbus:") {
+        ReorderBuffer::for_shm_bus(bitrate)
+    } else {
+        ReorderBuffer::new(Duration::ZERO, reorder::DEFAULT_CAPACITY)
+    };
+    install_signal_handlers();
     eprintln!("listening on {iface}");
-    let stdout = std::io::stdout();
+    let received = receive(bus.as_mut(), iface, &mut reorder, &mut out, count, end);
+    // Whatever stopped the dump (count, timeout, Ctrl-C, an error), write what is held.
+    let flushed = std::iter::from_fn(|| reorder.pop_oldest())
+        .try_for_each(|f| out.write(&f))
+        .and_then(|()| out.flush());
+    if reorder.released_early() > 0 {
+        eprintln!(
+            "canbus: warning: {} frames were written before their reorder window had passed \
+             (more than {} held); the output may be out of order there",
+            reorder.released_early(),
+            reorder.capacity()
+        );
+    }
+    if reorder.late() > 0 {
+        eprintln!(
+            "canbus: warning: {} frames arrived more than {} ms after their timestamp and are \
+             out of order",
+            reorder.late(),
+            reorder.window().as_millis()
+        );
+    }
+    received.and(flushed)
+}
+
+/// Receives into the reorder buffer and writes what it releases, until `count` frames, `end`,
+/// or a signal.
+fn receive(
+    bus: &mut dyn Bus,
+    iface: &str,
+    reorder: &mut ReorderBuffer,
+    out: &mut DumpOutput<'_>,
+    count: Option<u64>,
+    end: Instant,
+) -> Result<(), String> {
     let mut seen = 0u64;
-    while count.is_none_or(|n| seen < n) {
+    while count.is_none_or(|n| seen < n) && !STOP.load(Ordering::Relaxed) {
         let now = monotonic_now();
         if now >= end {
             if let Some(n) = count {
@@ -168,27 +280,45 @@ fn dump(
             }
             break;
         }
-        let Some(frame) = bus
-            .recv_until(end.min(now + Duration::from_millis(200)))
+        // Wake for the next release and, at the latest, to look at the stop flag.
+        let wake = end
+            .min(now + Duration::from_millis(20))
+            .min(reorder.next_release().unwrap_or(Instant::MAX));
+        if let Some(frame) = bus
+            .recv_until(wake)
             .map_err(|e| format!("receiving on {iface}: {e}"))?
-        else {
-            continue;
-        };
-        seen += 1;
-        let wall = Instant::from_nanos(frame.timestamp().as_nanos().saturating_add(offset));
-        let mut out = stdout.lock();
-        let _ = writeln!(out, "{}", candump::format_live(iface, &frame));
-        let _ = out.flush();
-        // Flush per frame: a dump killed from outside still leaves a complete file.
-        if let Some(w) = log.as_mut() {
-            w.write(wall, iface, &frame)
-                .and_then(|()| w.flush())
-                .map_err(|e| format!("writing log: {e}"))?;
+        {
+            seen += 1;
+            if let Some(early) = reorder.push(frame) {
+                out.write(&early)?;
+            }
         }
-        if let Some(w) = pcap.as_mut() {
-            w.write(wall, &frame)
-                .and_then(|()| w.flush())
-                .map_err(|e| format!("writing pcap: {e}"))?;
+        let mut released = false;
+        while let Some(f) = reorder.pop_ready(monotonic_now()) {
+            out.write(&f)?;
+            released = true;
+        }
+        if released {
+            out.flush()?;
+        }
+    }
+    if STOP.load(Ordering::Relaxed) {
+        // Frames that arrived before the signal are part of the capture: take them too (at
+        // most a receive buffer's worth, so a busy bus cannot keep the dump alive).
+        for _ in 0..shm_bus::SUBSCRIBER_BUFFER {
+            if count.is_some_and(|n| seen >= n) {
+                break;
+            }
+            let Some(frame) = bus
+                .try_recv()
+                .map_err(|e| format!("receiving on {iface}: {e}"))?
+            else {
+                break;
+            };
+            seen += 1;
+            if let Some(early) = reorder.push(frame) {
+                out.write(&early)?;
+            }
         }
     }
     Ok(())

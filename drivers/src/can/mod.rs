@@ -3,7 +3,7 @@
 //! Backends (with the `std` feature): `socketcan` for real interfaces and vcan, `virtual_bus`
 //! (deterministic, in one process, virtual or real time, with fault injection), `shm_bus`
 //! (the same bus across processes over iceoryx2, named `vbus:NAME`); capture as candump logs and
-//! pcap files.
+//! pcap files, in timestamp order through `reorder`.
 
 pub mod bit_timing;
 mod bus;
@@ -12,6 +12,8 @@ pub mod candump;
 mod frame;
 #[cfg(feature = "std")]
 pub mod pcap;
+#[cfg(feature = "std")]
+pub mod reorder;
 #[cfg(feature = "shm")]
 pub mod shm_bus;
 #[cfg(feature = "socketcan")]

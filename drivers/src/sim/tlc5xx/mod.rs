@@ -200,7 +200,7 @@ impl Scaling {
     }
 }
 
-/// A fault the simulator can raise (digest §6). Codes marked [ASSUMPTION] in the digest: the
+/// A fault the simulator can raise (digest §6). Codes marked \[ASSUMPTION\] in the digest: the
 /// manual gives no EMCY table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum TlcFault {
@@ -231,7 +231,7 @@ impl TlcFault {
         }
     }
     /// The device error number (2400h, SDO abort 0800 xxxxh). The manual's numbers are in the
-    /// device manual, not this one: the simulator uses the EMCY code [ASSUMPTION].
+    /// device manual, not this one: the simulator uses the EMCY code \[ASSUMPTION\].
     pub const fn error_number(self) -> u16 {
         self.emcy_code()
     }
@@ -582,7 +582,7 @@ impl Tlc5xx {
 
     /// Raises `f` as the manual reports a fault: EMCY, 1001h, 1003h, 603Fh, 2400h, then the
     /// reaction of its class (1: quick stop, stay enabled, warning; 2: quick stop, then Fault;
-    /// 3: power stage off, then Fault — classes are [ASSUMPTION], §3.9).
+    /// 3: power stage off, then Fault — classes are \[ASSUMPTION\], §3.9).
     pub fn raise_fault(&mut self, f: TlcFault) {
         if self.faults.contains(&f) {
             return;
