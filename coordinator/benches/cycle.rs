@@ -39,6 +39,7 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
             home: true,
         },
         shm: None,
+        capture: None,
     };
     let mut run = VirtualRun::new(plan, &opts).expect("builds");
     let mut out = Vec::new();

@@ -28,6 +28,7 @@ fn running(plan: &MachinePlan) -> VirtualRun<'_> {
             home: true,
         },
         shm: None,
+        capture: None,
     };
     let mut run = VirtualRun::new(plan, &opts).unwrap();
     let mut out = Vec::new();

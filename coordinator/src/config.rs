@@ -52,6 +52,9 @@ pub struct Config {
     /// Refuse a bus whose worst cycle exceeds this share of the cycle (percent, 1..=100).
     #[serde(default = "default_load_limit")]
     pub load_limit_percent: u32,
+    /// What the coordinator does when it missed cycles itself (the host stalled it).
+    #[serde(default)]
+    pub overrun_reaction: OverrunReactionConfig,
     /// The CAN buses.
     #[serde(default)]
     pub buses: Vec<BusConfig>,
@@ -111,6 +114,17 @@ impl fmt::Display for BusKind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
     }
+}
+
+/// `overrun_reaction`: what a stall of the coordinator itself does.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OverrunReactionConfig {
+    /// Report it and carry on (the default).
+    #[default]
+    Report,
+    /// Report it and quick-stop every axis.
+    QuickStop,
 }
 
 /// Who produces the SYNC on a bus.

@@ -32,7 +32,7 @@ use heapless::{Deque, Vec};
 use crate::axis::{AxisError, AxisState, Demand, DeviceKind, DriveAxis, Feedback, Image, Profile};
 use crate::command::{AxisId, Command, GroupId, Rejected, Reply, Target};
 use crate::event::Event;
-use crate::fault::{FaultReason, Reaction};
+use crate::fault::{FaultReason, OverrunReaction, Reaction};
 use crate::profile::{AxisLimits, Group, GroupState, Shape, Target as PathTarget};
 use crate::records::{
     AxisTarget, Chain, ChainAction, ChainInputs, ChainStatus, MAX_GROUP_AXES, RecordMode,
@@ -143,6 +143,8 @@ pub struct CycleSetup {
     pub sync_producer: bool,
     /// CAN buses, 0..=[`MAX_BUSES`]; a producer sends SYNC on each, every cycle.
     pub buses: u8,
+    /// What an overrun of the coordinator itself does ([`Cycle::overrun`]).
+    pub overrun: OverrunReaction,
 }
 
 /// Why a machine could not be set up.
@@ -563,6 +565,26 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 Supervision::None => {}
             }
+        }
+    }
+
+    /// The coordinator itself missed `skipped` cycles before this one (the host stalled it for
+    /// `late_ns`). The drives could not answer SYNCs that were never sent, so the late-TPDO
+    /// count starts again for every axis; heartbeats and guarding replies that came meanwhile
+    /// are in the frames of the next step with their times. Reported as an event, and the
+    /// configured reaction applied.
+    pub fn overrun(&mut self, skipped: u64, late_ns: u64) {
+        for a in self.axes.iter_mut() {
+            a.missed = 0;
+        }
+        let cycle = self.cycle;
+        self.emit(Event::Overrun {
+            cycle,
+            skipped,
+            late_us: late_ns / 1000,
+        });
+        if self.setup.overrun == OverrunReaction::QuickStop {
+            let _ = self.apply(&Command::QuickStop(Target::All));
         }
     }
 
@@ -1664,6 +1686,7 @@ mod tests {
         cycle_ns: 2_000_000,
         sync_producer: true,
         buses: 1,
+        overrun: OverrunReaction::Report,
     };
 
     #[test]
@@ -1916,5 +1939,42 @@ mod tests {
         c.set_offline(1, Some(FaultReason::BootFailed));
         assert_eq!(c.axis_status(0).unwrap().fault, FaultReason::None);
         assert_eq!(c.axis_status(1).unwrap().fault, FaultReason::BootFailed);
+    }
+
+    #[test]
+    fn an_overrun_of_the_coordinator_is_not_counted_against_the_drives() {
+        let mut c = Cycle::<4, 2>::new(SETUP, &[axis(1)], &[]).unwrap();
+        c.set_online(0, true, Instant::ZERO);
+        // Two cycles without a TPDO: one short of the fault.
+        step_once(&mut c, &[], Instant::ZERO);
+        step_once(&mut c, &[], Instant::ZERO);
+        // The coordinator was away 200 ms: the drive could not answer SYNCs never sent.
+        c.overrun(100, 200_000_000);
+        step_once(&mut c, &[], Instant::ZERO);
+        step_once(&mut c, &[], Instant::ZERO);
+        assert_eq!(c.axis_status(0).unwrap().fault, FaultReason::None);
+        let events: heapless::Vec<Event, 8> = core::iter::from_fn(|| c.poll_event()).collect();
+        assert!(events.contains(&Event::Overrun {
+            cycle: 2,
+            skipped: 100,
+            late_us: 200_000
+        }));
+        // The count still works: a third cycle without a TPDO faults it.
+        step_once(&mut c, &[], Instant::ZERO);
+        assert_eq!(c.axis_status(0).unwrap().fault, FaultReason::LateTpdo(3));
+
+        // With the quick-stop reaction every enabled axis stops.
+        let setup = CycleSetup {
+            overrun: OverrunReaction::QuickStop,
+            ..SETUP
+        };
+        let mut c = Cycle::<4, 2>::new(setup, &[axis(1)], &[]).unwrap();
+        c.set_online(0, true, Instant::ZERO);
+        assert!(matches!(
+            c.command(&Command::Enable(Target::All)),
+            Reply::Latched { .. }
+        ));
+        c.overrun(3, 8_000_000);
+        assert_eq!(c.axis_status(0).unwrap().mode, Mode::QuickStopped);
     }
 }

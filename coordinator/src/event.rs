@@ -9,6 +9,16 @@ use crate::fault::FaultReason;
 /// One event of the cycle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Event {
+    /// The coordinator itself missed cycles (the host stalled it): supervision did not count
+    /// them against the drives; the configured reaction was applied.
+    Overrun {
+        /// The first cycle after the stall.
+        cycle: u64,
+        /// Cycles skipped.
+        skipped: u64,
+        /// How long the coordinator was away, µs (the wake-up's lateness).
+        late_us: u64,
+    },
     /// An axis changed state.
     AxisState {
         /// The cycle.

@@ -32,6 +32,18 @@ pub enum FaultReason {
     DriveReset,
 }
 
+/// What the coordinator does when it missed cycles itself (an overrun: the host stalled it).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum OverrunReaction {
+    /// Report it (an event, the count and the longest in the summary) and carry on: the drives
+    /// kept their last setpoints and their own supervision (life guarding, heartbeat) watches
+    /// the coordinator.
+    #[default]
+    Report,
+    /// Report it and quick-stop every axis: the path was not followed for the cycles missed.
+    QuickStop,
+}
+
 /// What a group does when one of its axes faults.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Reaction {

@@ -45,6 +45,10 @@ enum Command {
         /// Do not publish over shared memory.
         #[arg(long)]
         no_shm: bool,
+        /// Write a candump log (DIR/BUS.log) and a pcap (DIR/BUS.pcap) of every bus, in
+        /// timestamp order.
+        #[arg(long, value_name = "DIR")]
+        capture: Option<std::path::PathBuf>,
     },
     /// Print a commented example configuration (the embedded default machine).
     ConfigExample,
@@ -72,6 +76,7 @@ fn main() -> ExitCode {
             quiet,
             shm_prefix,
             no_shm,
+            capture,
         } => {
             if let Some(d) = duration
                 && !(d.is_finite() && d > 0.0 && d <= 31_536_000.0)
@@ -109,6 +114,7 @@ fn main() -> ExitCode {
                     home: true,
                 },
                 shm: (!no_shm).then_some(shm_prefix),
+                capture,
             };
             let mut stdout = std::io::stdout();
             match run(&cfg, &opts, &mut stdout) {

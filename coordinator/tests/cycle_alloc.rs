@@ -70,6 +70,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
             home: true,
         },
         shm: None,
+        capture: None,
     };
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     run.lp.probe = Some(probe);

@@ -27,6 +27,7 @@ fn quiet(chains: bool) -> RunOptions {
         status_every: None,
         script: ScriptOptions { chains, home: true },
         shm: None,
+        capture: None,
     }
 }
 
@@ -426,7 +427,8 @@ fn event_cycle(e: &coordinator::event::Event) -> u64 {
         | E::ChainComplete { cycle, .. }
         | E::ChainAborted { cycle, .. }
         | E::LateModbus { cycle, .. }
-        | E::Parameter { cycle, .. } => cycle,
+        | E::Parameter { cycle, .. }
+        | E::Overrun { cycle, .. } => cycle,
     }
 }
 

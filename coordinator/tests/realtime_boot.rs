@@ -36,6 +36,7 @@ fn six_drives_booted_together_come_online_without_a_fault() {
             home: false,
         },
         shm: None,
+        capture: None,
     };
     let mut out = Vec::new();
     let summary = run(&cfg, &opts, &mut out).expect("runs");

@@ -154,6 +154,7 @@ extern "C" {
 #define MOTION_EVENT_ID_ACKNOWLEDGED 6
 #define MOTION_EVENT_ID_PARAMETER 7
 #define MOTION_EVENT_ID_SHUTDOWN 8
+#define MOTION_EVENT_ID_OVERRUN 10
 
 /* ---- payloads ----------------------------------------------------------------------------- */
 

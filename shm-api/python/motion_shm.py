@@ -182,6 +182,7 @@ class EventId(enum.IntEnum):
     ACKNOWLEDGED = 6
     PARAMETER = 7
     SHUTDOWN = 8
+    OVERRUN = 10
 
 
 #: The Rust module each constant class mirrors (the layout test compares them by these names).

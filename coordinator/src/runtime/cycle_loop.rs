@@ -90,6 +90,8 @@ pub struct CycleLoop<'p> {
     ending: bool,
     /// Cycles the clock skipped (overruns).
     pub skipped: u64,
+    /// Overruns (wake-ups that skipped cycles), and the longest, ns.
+    pub overruns: (u64, u64),
     /// Ctrl-C (installed before the first cycle: installing allocates).
     stop: &'static std::sync::atomic::AtomicBool,
     late: Histogram<u64>,
@@ -145,6 +147,7 @@ impl<'p> CycleLoop<'p> {
             k: 0,
             ending: false,
             skipped: 0,
+            overruns: (0, 0),
             stop: crate::runtime::rt::stop_flag(),
             late: Histogram::new_with_bounds(1, 10_000_000_000, 3)
                 .map_err(|e| RunError::Config(e.to_string()))?,
@@ -197,6 +200,15 @@ impl<'p> CycleLoop<'p> {
         let now = wake.now;
         self.skipped += wake.skipped;
         let _ = self.late.record(wake.late_ns.max(1));
+        if wake.skipped > 0 {
+            // The coordinator itself was away: not the drives' fault (see `Cycle::overrun`).
+            // The clock skipped whole periods; the lateness is past the last one skipped.
+            let period = self.plan.period.as_nanos() as u64;
+            let away = wake.late_ns + wake.skipped.saturating_mul(period);
+            self.overruns.0 += 1;
+            self.overruns.1 = self.overruns.1.max(away);
+            core.cycle.overrun(wake.skipped, away);
+        }
         while let Some(r) = io.node_report() {
             nodes::apply(&mut core.cycle, &r, now);
             if let Some(seen) = self.reported.get_mut(usize::from(r.axis))

@@ -194,6 +194,10 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
         cycle_ns: cycle_us * 1000,
         sync_producer: first.is_none_or(|b| b.sync == SyncMode::Producer),
         buses: cfg.buses.len() as u8,
+        overrun: match cfg.overrun_reaction {
+            config::OverrunReactionConfig::Report => crate::fault::OverrunReaction::Report,
+            config::OverrunReactionConfig::QuickStop => crate::fault::OverrunReaction::QuickStop,
+        },
     };
     let buses: Vec<BusPlan> = cfg
         .buses

@@ -32,6 +32,7 @@ use crate::command::{Answer, Request};
 use crate::config::BusKind;
 use crate::cycle::{BusFrame, ModbusInput, Transport};
 use crate::event::Event;
+use crate::runtime::capture::{self, CaptureBus, CaptureSource};
 use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
 use crate::runtime::modbus::{self as mb, Link, ModbusCycleSide, ModbusSettings};
 use crate::runtime::nodes::{NodeReport, Nodes};
@@ -39,8 +40,8 @@ use crate::runtime::plan::MachinePlan;
 use crate::runtime::rt::{self, RtSettings, Ticker};
 use crate::runtime::run::{
     BusFigures, CycleCore, FrameHash, RX_CAPACITY, RunError, RunOptions, Snapshot, Summary,
-    TX_CAPACITY, finish_summary, note_event, out_is_tty, print_status, report_node, say,
-    status_lines,
+    TX_CAPACITY, capture_lines, finish_summary, note_event, out_is_tty, print_status, report_node,
+    say, status_lines,
 };
 use crate::runtime::script::Script;
 use crate::runtime::services::{self, CycleEnds, ServiceEvent};
@@ -363,6 +364,38 @@ pub fn run_real(
     let mut summary = Summary::default();
     let tty = out_is_tty();
 
+    // `--capture DIR`: a thread per bus with a monitor endpoint of its own.
+    let capture = match &opts.capture {
+        Some(dir) => {
+            let mut sources = Vec::new();
+            for (b, o) in plan.buses.iter().zip(&opened) {
+                sources.push(match o {
+                    Opened::Simulated { bus, .. } => CaptureBus {
+                        name: b.name.clone(),
+                        bitrate: b.bitrate,
+                        monitor: Box::new(bus.attach_monitor("capture")),
+                    }
+                    .into(),
+                    Opened::Vbus => CaptureSource::shm(&b.name, b.bitrate),
+                    Opened::Socketcan(_) => {
+                        let name = b.name.clone();
+                        CaptureSource {
+                            name: b.name.clone(),
+                            bitrate: b.bitrate,
+                            open: Box::new(move || {
+                                SocketCanBus::open(&name)
+                                    .map(|s| Box::new(s) as Box<dyn Bus>)
+                                    .map_err(|e| e.to_string())
+                            }),
+                        }
+                    }
+                });
+            }
+            Some(capture::start_sources(dir, sources).map_err(RunError::Io)?)
+        }
+        None => None,
+    };
+
     // What the cycle thread takes: each bus's port, or what it opens itself.
     let mut cycle_buses: Vec<Option<Box<dyn Bus + Send>>> = Vec::new();
     let mut watchers: Vec<Option<Box<dyn Bus>>> = Vec::new();
@@ -462,6 +495,7 @@ pub fn run_real(
                 if let Some(r) = relay {
                     let _ = r.join();
                 }
+                summary.overruns = lp.overruns;
                 Ok(CycleResult {
                     summary,
                     late: lp.lateness(),
@@ -528,6 +562,10 @@ pub fn run_real(
     for t in exchange_threads {
         t.stop();
     }
+    let captures = match (capture, &opts.capture) {
+        (Some(c), Some(dir)) => capture_lines(dir, c.stop()),
+        _ => Vec::new(),
+    };
     stop_sims.store(true, Ordering::Relaxed);
     if let Some(t) = sim_thread {
         let _ = t.join();
@@ -549,6 +587,7 @@ pub fn run_real(
     s.wake_late_ns = result.late;
     s.skipped_cycles = result.skipped;
     s.wall = wall0.elapsed();
+    s.captures = captures;
     Ok(s)
 }
 

@@ -27,6 +27,7 @@ use crate::cycle::{
 use crate::event::Event;
 use crate::fault::FaultReason;
 use crate::runtime::boot::FailureDetail;
+use crate::runtime::capture::InlineCapture;
 use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
 use crate::runtime::nodes::{NodeReport, NodeStatus, Nodes};
 use crate::runtime::plan::{MAX_AXES, MAX_BUSES, MAX_GROUPS, MachinePlan};
@@ -62,6 +63,8 @@ pub struct RunOptions {
     /// Publish the machine over shared memory under this prefix (`shm-api`); `None`: not at
     /// all.
     pub shm: Option<String>,
+    /// Write a candump log and a pcap of every bus into this directory.
+    pub capture: Option<std::path::PathBuf>,
 }
 
 impl Default for RunOptions {
@@ -75,6 +78,7 @@ impl Default for RunOptions {
                 home: true,
             },
             shm: None,
+            capture: None,
         }
     }
 }
@@ -102,6 +106,8 @@ pub struct Summary {
     pub wake_late_ns: (u64, u64, u64),
     /// Real time: cycles skipped because a deadline had long passed.
     pub skipped_cycles: u64,
+    /// Real time: overruns (stalls of the coordinator itself) and the longest, ns.
+    pub overruns: (u64, u64),
     /// Drives refused (wrong device, configuration refused), with the reason.
     pub boot_failures: Vec<String>,
     /// Drives that were not there when first looked for (waited for, and booted if they
@@ -125,6 +131,8 @@ pub struct Summary {
     pub axes: Vec<(String, String, f64, AxisState)>,
     /// The script's last phase.
     pub phase: Option<Phase>,
+    /// What the capture wrote, a line per bus.
+    pub captures: Vec<String>,
 }
 
 /// One bus's traffic over a run.
@@ -181,11 +189,22 @@ impl std::fmt::Display for Summary {
                 self.skipped_cycles
             )?;
         }
+        if self.overruns.0 > 0 {
+            writeln!(
+                f,
+                "  overruns of the coordinator itself: {}, the longest {:.1} ms (not counted against the drives)",
+                self.overruns.0,
+                self.overruns.1 as f64 / 1e6
+            )?;
+        }
         writeln!(
             f,
             "  chains: {} laps, {} records reached; {} refused commands; {} late Modbus answers",
             self.laps, self.records_reached, self.refused, self.late_modbus
         )?;
+        for c in &self.captures {
+            writeln!(f, "  capture: {c}")?;
+        }
         for b in &self.waiting {
             writeln!(f, "  waited for: {b}")?;
         }
@@ -552,6 +571,9 @@ pub struct VirtualIo<'p> {
     tty: bool,
     /// Every event of the cycle, as well, while set (tests).
     watch: Option<Vec<Event>>,
+    /// `--capture DIR`: the buses' frames as they pass the monitors.
+    capture: Option<InlineCapture>,
+    capture_dir: Option<std::path::PathBuf>,
     /// SYNC-consumer mode: the SYNC being taken, frames after it, frames for the next cycle.
     held: Option<Frame>,
     later: Vec<Frame>,
@@ -589,6 +611,9 @@ impl VirtualIo<'_> {
         for (b, m) in self.monitors.iter_mut().enumerate() {
             let bitrate = self.plan.buses[b].bitrate;
             while let Ok(Some(f)) = m.try_recv() {
+                if let Some(c) = &mut self.capture {
+                    c.write(b, &f);
+                }
                 self.hash.add(&f);
                 self.frames[b] += 1;
                 self.summary.syncs_on_bus += u64::from(f.cob_id() == Some(0x080));
@@ -821,6 +846,13 @@ impl<'p> VirtualRun<'p> {
             opts.status_every,
         )?;
         let n = plan.buses.len();
+        let capture = match &opts.capture {
+            Some(dir) => {
+                let names: Vec<String> = plan.buses.iter().map(|b| b.name.clone()).collect();
+                Some(InlineCapture::create(dir, &names).map_err(RunError::Io)?)
+            }
+            None => None,
+        };
         Ok(VirtualRun {
             core,
             lp,
@@ -846,6 +878,8 @@ impl<'p> VirtualRun<'p> {
                 status_lines_printed: 0,
                 tty: out_is_tty(),
                 watch: None,
+                capture,
+                capture_dir: opts.capture.clone(),
                 held: None,
                 later: Vec::with_capacity(RX_CAPACITY),
                 pending_rx: Vec::with_capacity(RX_CAPACITY),
@@ -929,8 +963,39 @@ impl<'p> VirtualRun<'p> {
         summary.frames_lost = (self.core.tx_refused, self.core.rx_dropped);
         summary.frame_hash = self.io.hash.value();
         finish_summary(plan, &self.core.cycle, &self.lp.script, &mut summary);
+        if let (Some(c), Some(dir)) = (self.io.capture.take(), &self.io.capture_dir) {
+            summary.captures = capture_lines(dir, c.finish());
+        }
         summary
     }
+}
+
+/// The summary's lines for what a capture wrote.
+pub fn capture_lines(
+    dir: &std::path::Path,
+    stats: Vec<crate::runtime::capture::CaptureStats>,
+) -> Vec<String> {
+    stats
+        .into_iter()
+        .map(|s| {
+            let files = format!(
+                "{} and {}",
+                dir.join(format!("{}.log", s.name)).display(),
+                dir.join(format!("{}.pcap", s.name)).display()
+            );
+            match s.error {
+                Some(e) => format!(
+                    "bus {}: {} frames in {files}; FAILED: {e}",
+                    s.name, s.frames
+                ),
+                None if s.dropped > 0 => format!(
+                    "bus {}: {} frames in {files}; {} frames lost by the monitor",
+                    s.name, s.frames, s.dropped
+                ),
+                None => format!("bus {}: {} frames in {files}", s.name, s.frames),
+            }
+        })
+        .collect()
 }
 
 /// Virtual time: runs the script to its end (duration or Ctrl-C, then stop and disable).
@@ -1108,6 +1173,17 @@ pub fn note_event(plan: &MachinePlan, e: &Event, summary: &mut Summary, out: &mu
             ),
         },
         Event::AxisState { .. } => {}
+        Event::Overrun {
+            cycle,
+            skipped,
+            late_us,
+        } => say(
+            out,
+            &format!(
+                "cycle {cycle}: OVERRUN: the coordinator was away {:.1} ms ({skipped} cycles skipped); the drives are not blamed",
+                late_us as f64 / 1000.0
+            ),
+        ),
     }
 }
 

@@ -490,6 +490,18 @@ pub fn to_record(e: &Event) -> EventRecord {
         reserved1: 0,
     };
     match *e {
+        Event::Overrun {
+            cycle,
+            skipped,
+            late_us,
+        } => {
+            (r.cycle, r.id, r.value, r.code) = (
+                cycle,
+                id::OVERRUN as u16,
+                i64::try_from(late_us).unwrap_or(i64::MAX),
+                skipped.min(u64::from(u16::MAX)) as u16,
+            );
+        }
         Event::AxisState { cycle, axis, state } => {
             (r.cycle, r.id, r.axis, r.state) =
                 (cycle, id::STATE_CHANGED as u16, axis, axis_state(state));
