@@ -101,3 +101,12 @@ fn node_guard_timeout_raises_47h_and_it_can_be_acknowledged() {
     until(&mut c, [0x0A, 0x01, 0, 0, 0, 0, 0, 0], |i| i[0] & 0x08 == 0);
     assert_eq!(fc07(&mut c), 0);
 }
+
+/// The coordinator streams targets as STARTs while moving, which only a drive commissioned with
+/// PNU 583 = 1 follows; the factory drive keeps 0 (ignore such a START).
+#[test]
+fn commissioned_drive_takes_a_start_while_moving() {
+    let pnu = drive::PNU_DIRECT_START_CONDITION;
+    assert_eq!(drive::new_drive().unwrap().read_pnu(pnu, 1), Ok(0));
+    assert_eq!(drive::commissioned().unwrap().read_pnu(pnu, 1), Ok(1));
+}

@@ -228,7 +228,7 @@ impl InMemoryCmmo {
     pub fn new(now: Instant) -> Result<InMemoryCmmo, String> {
         let mut session =
             Session::new(cmmo_st::Config::default()).map_err(|e| format!("CMMO-ST: {e}"))?;
-        let mut drive = commissioned_cmmo()?;
+        let mut drive = cmmo_st::drive::commissioned().map_err(|e| e.to_string())?;
         session.connect(&mut drive, now);
         Ok(InMemoryCmmo {
             session,
@@ -274,21 +274,9 @@ impl InMemoryCmmo {
     }
 }
 
-/// A CMMO-ST as commissioned for the coordinator (with FCT, before it goes on the network): PNU
-/// 583 "direct start condition" = 1, so that a START while moving takes the new target (the
-/// factory 0 ignores it, and the coordinator streams targets as STARTs while moving). The
-/// 8-byte Modbus profile has no parameter channel to set it from the coordinator.
-fn commissioned_cmmo() -> Result<FhppDrive, String> {
-    let mut drive = cmmo_st::drive::new_drive().map_err(|e| format!("CMMO-ST: {e}"))?;
-    drive
-        .set_pnu(583, 1, 1)
-        .map_err(|e| format!("CMMO-ST PNU 583: {e:?}"))?;
-    Ok(drive)
-}
-
 /// Starts a simulated CMMO-ST Modbus TCP server on 127.0.0.1 (an OS-chosen port).
 pub fn spawn_cmmo_server() -> Result<Server, String> {
-    let drive = commissioned_cmmo()?;
+    let drive = cmmo_st::drive::commissioned().map_err(|e| e.to_string())?;
     Server::spawn(ServerConfig::loopback(0), Arc::new(Mutex::new(drive)))
         .map_err(|e| format!("CMMO-ST server: {e}"))
 }

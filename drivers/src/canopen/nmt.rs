@@ -81,6 +81,16 @@ pub enum Service {
 }
 
 impl NmtState {
+    /// The state's name as CiA 301 writes it, for people.
+    pub const fn name(self) -> &'static str {
+        match self {
+            NmtState::Initialising => "initialising",
+            NmtState::Stopped => "stopped",
+            NmtState::Operational => "operational",
+            NmtState::PreOperational => "pre-operational",
+        }
+    }
+
     /// The state byte of heartbeat and guarding messages (without the guarding toggle bit).
     pub const fn to_byte(self) -> u8 {
         match self {

@@ -254,6 +254,20 @@ pub enum StateError {
 }
 
 impl State {
+    /// The state's name as CiA 402 writes it, for people.
+    pub const fn name(self) -> &'static str {
+        match self {
+            State::NotReadyToSwitchOn => "Not ready to switch on",
+            State::SwitchOnDisabled => "Switch on disabled",
+            State::ReadyToSwitchOn => "Ready to switch on",
+            State::SwitchedOn => "Switched on",
+            State::OperationEnabled => "Operation enabled",
+            State::QuickStopActive => "Quick stop active",
+            State::FaultReactionActive => "Fault reaction active",
+            State::Fault => "Fault",
+        }
+    }
+
     /// The state bits (0..3, 5, 6) the device shows in this state. Fault follows `coding`.
     pub const fn pattern(self, coding: FaultCoding) -> Statusword {
         Statusword(match self {

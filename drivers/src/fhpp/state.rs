@@ -37,6 +37,18 @@ pub enum State {
 }
 
 impl State {
+    /// The main state's name as the manuals write it (without "Sn"), for people.
+    pub const fn name(self) -> &'static str {
+        match self {
+            State::SwitchedOn => "Controller switched on",
+            State::DriveBlocked => "Drive blocked",
+            State::DriveEnabled => "Drive enabled",
+            State::OperationEnabled(_) => "Operation enabled",
+            State::FaultReaction => "Reaction to fault",
+            State::Fault => "Fault",
+        }
+    }
+
     /// The manual's number n of "Sn".
     pub const fn number(self) -> u8 {
         match self {
@@ -88,6 +100,18 @@ pub enum Sub {
 }
 
 impl Sub {
+    /// The sub-state's name as the manuals write it, for people.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Sub::Ready => "Ready",
+            Sub::Positioning => "Positioning",
+            Sub::Halted => "Intermediate stop",
+            Sub::Homing => "Homing",
+            Sub::JogPositive => "Jog positive",
+            Sub::JogNegative => "Jog negative",
+        }
+    }
+
     /// The SA number the variant's manual gives: MTR-DCI and EMCA number homing SA4, jog + SA5,
     /// jog − SA6; the CMMO-ST manual numbers jog + SA4, jog − SA5, homing SA6. The TA numbers
     /// are the same in all three (TA7 starts homing, TA9 jog +, TA11 jog −).

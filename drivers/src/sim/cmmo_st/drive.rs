@@ -3,12 +3,47 @@
 
 use super::{ConnectionLost, FhppDevice, Identification};
 use crate::fhpp::Variant;
-use crate::sim::fhpp_drive::{DriveConfig, DriveError, FhppDrive};
+use crate::sim::fhpp_drive::{DriveConfig, DriveError, FhppDrive, PnuError};
 use crate::time::Instant;
+
+/// PNU 583 "direct start condition": 1 = a START while moving takes the new target.
+pub const PNU_DIRECT_START_CONDITION: u16 = 583;
 
 /// A CMMO-ST with the factory configuration of the FHPP drive model.
 pub fn new_drive() -> Result<FhppDrive, DriveError> {
     FhppDrive::new(DriveConfig::new(Variant::CmmoSt))
+}
+
+/// Why [`commissioned`] could not build the drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum CommissionError {
+    /// The drive model itself.
+    #[error("CMMO-ST: {0}")]
+    Drive(#[from] DriveError),
+    /// A commissioning parameter was refused.
+    #[error("CMMO-ST: PNU {pnu}: {source}")]
+    Pnu {
+        /// The PNU written.
+        pnu: u16,
+        /// The drive's refusal.
+        source: PnuError,
+    },
+}
+
+/// A CMMO-ST as commissioned for the coordinator (with FCT, before it goes on the network):
+/// PNU 583 "direct start condition" = 1, so that a START while moving takes the new target.
+/// The factory 0 ignores such a START, and the coordinator streams targets as STARTs while
+/// moving; the 8-byte Modbus profile has no parameter channel to set it from the coordinator.
+/// Every simulated CMMO-ST the coordinator drives (in memory, or `drive-sim`) is built here.
+pub fn commissioned() -> Result<FhppDrive, CommissionError> {
+    let mut drive = new_drive()?;
+    drive
+        .set_pnu(PNU_DIRECT_START_CONDITION, 1, 1)
+        .map_err(|source| CommissionError::Pnu {
+            pnu: PNU_DIRECT_START_CONDITION,
+            source,
+        })?;
+    Ok(drive)
 }
 
 /// One status line for a running simulator: state, position, fault.

@@ -1,0 +1,715 @@
+//! `drive-sim`: simulated drives as their own process, as real devices would be.
+//!
+//! ```text
+//! drive-sim --config machine.toml [--only AXIS]...     # the drives a configuration dials
+//! drive-sim --device tlc5xx  --bus vbus:NAME --node 1 [--node 2 ...]
+//! drive-sim --device mtr-dci --bus vbus:NAME --node 3 [--profile fhpp|cia402]
+//! drive-sim --device emca    --bus vbus:NAME --node 4
+//! drive-sim --device cmmo-st --modbus 127.0.0.1:PORT
+//! ```
+//!
+//! With `--config`, every drive the coordinator would dial starts: each CANopen axis on a bus of
+//! kind `vbus` (on `vbus:BUS` at the bus's bitrate) and each CMMO-ST without `simulated = true`
+//! (a Modbus TCP server on its `modbus` address). Axes the coordinator simulates itself, and axes
+//! on real (SocketCAN) buses, are skipped with a line saying why. `--only` narrows the set, so a
+//! drive can be stopped and started again on its own.
+//!
+//! CANopen drives run on the shared-memory virtual bus in real time (one bus endpoint per
+//! drive). A status line per drive goes to stderr every `--status-every` seconds; Ctrl-C,
+//! SIGTERM or `--duration` ends the run.
+
+use std::collections::HashSet;
+use std::net::{SocketAddr, ToSocketAddrs};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use clap::{ArgGroup, Parser, ValueEnum};
+use coordinator::config::{BusKind, Config, DeviceKind, Profile, SyncMode};
+use coordinator::drivers;
+use drivers::can::Bus;
+use drivers::can::shm_bus::ShmBus;
+use drivers::can::station::Station;
+use drivers::canopen::NodeId;
+use drivers::canopen::endpoint::Endpoint;
+use drivers::fhpp::state::State as FhppState;
+use drivers::sim::cmmo_st::{self, Server, ServerConfig};
+use drivers::sim::emca::Emca;
+use drivers::sim::fhpp_drive::FhppDrive;
+use drivers::sim::mtr_dci::{FestoNode, MtrDci, Profile as MtrProfile};
+use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
+use drivers::time::{Instant, monotonic_now};
+
+/// `--duration`: the same range as `coordinator run --duration`.
+const MAX_DURATION_S: f64 = 31_536_000.0;
+/// `--status-every`: 0 (never), or at least this often...
+const MIN_STATUS_S: f64 = 0.01;
+/// ...and at most this (one line a day).
+const MAX_STATUS_S: f64 = 86_400.0;
+/// The shared-memory bus has no wake-up event: poll it at least this often.
+const CAN_POLL: Duration = Duration::from_micros(200);
+/// Without CAN drives the loop only prints status lines and watches for the end.
+const IDLE_POLL: Duration = Duration::from_millis(20);
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DeviceArg {
+    /// Festo MTR-DCI (CANopen, FHPP or CiA 402).
+    MtrDci,
+    /// Festo EMCA (CANopen, FHPP + FPC).
+    Emca,
+    /// TLC5xx (CANopen DS301 / DSP402).
+    Tlc5xx,
+    /// Festo CMMO-ST (Modbus TCP, FHPP).
+    CmmoSt,
+}
+
+impl DeviceArg {
+    fn kind(self) -> DeviceKind {
+        match self {
+            DeviceArg::MtrDci => DeviceKind::MtrDci,
+            DeviceArg::Emca => DeviceKind::Emca,
+            DeviceArg::Tlc5xx => DeviceKind::Tlc5xx,
+            DeviceArg::CmmoSt => DeviceKind::CmmoSt,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ProfileArg {
+    /// Festo Handling and Positioning Profile.
+    Fhpp,
+    /// CiA 402 (MTR-DCI only).
+    Cia402,
+}
+
+/// Simulated drives as their own process: the drives of a coordinator configuration
+/// (`--config`), or drives of one kind (`--device`).
+#[derive(Debug, Parser)]
+#[command(version, group(ArgGroup::new("what").required(true).args(["config", "device"])))]
+struct Cli {
+    /// A coordinator configuration: start every drive it dials (the axes on `vbus` buses and
+    /// the CMMO-STs without `simulated = true`).
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["device", "bus", "nodes", "modbus", "profile", "bitrate"])]
+    config: Option<PathBuf>,
+    /// With --config: start only this axis (repeat for more).
+    #[arg(long = "only", value_name = "AXIS", requires = "config")]
+    only: Vec<String>,
+    /// The device to simulate.
+    #[arg(long, value_enum)]
+    device: Option<DeviceArg>,
+    /// The CAN bus: `vbus:NAME` (the shared-memory virtual bus).
+    #[arg(long, required_if_eq_any([("device", "mtr-dci"), ("device", "emca"), ("device", "tlc5xx")]))]
+    bus: Option<String>,
+    /// Node-ID(s), 1..=127; one drive per `--node`.
+    #[arg(long = "node", num_args = 1.., value_parser = clap::value_parser!(u8).range(1..=127))]
+    nodes: Vec<u8>,
+    /// Bus bitrate, bit/s.
+    #[arg(long, default_value_t = 1_000_000)]
+    bitrate: u32,
+    /// The MTR-DCI's profile.
+    #[arg(long, value_enum, default_value_t = ProfileArg::Fhpp)]
+    profile: ProfileArg,
+    /// Modbus TCP address to serve (CMMO-ST), e.g. 127.0.0.1:1502.
+    #[arg(long, required_if_eq("device", "cmmo-st"))]
+    modbus: Option<SocketAddr>,
+    /// End after this many seconds (default: run until Ctrl-C).
+    // Text, checked by `timing`: the message then quotes what the user wrote, and a negative
+    // number gets that message rather than clap's "unexpected argument".
+    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true)]
+    duration: Option<String>,
+    /// Print a status line per drive this often, in seconds (0 = never).
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        default_value = "1",
+        allow_hyphen_values = true
+    )]
+    status_every: String,
+}
+
+/// A CANopen drive to start.
+#[derive(Debug, Clone)]
+struct CanSpec {
+    /// The axis name (`--config`), for the status lines.
+    axis: Option<String>,
+    kind: DeviceKind,
+    profile: Profile,
+    node: NodeId,
+    /// The bus name without `vbus:`.
+    bus: String,
+    bitrate: u32,
+}
+
+/// A CMMO-ST to serve.
+#[derive(Debug, Clone)]
+struct ModbusSpec {
+    axis: Option<String>,
+    /// The address as configured (for messages).
+    text: String,
+    addr: SocketAddr,
+}
+
+/// Everything one run starts.
+#[derive(Debug, Default)]
+struct Plan {
+    can: Vec<CanSpec>,
+    modbus: Vec<ModbusSpec>,
+}
+
+/// `name: ` for a configured axis, nothing otherwise.
+fn prefix(axis: &Option<String>) -> String {
+    axis.as_ref().map_or_else(String::new, |a| format!("{a}: "))
+}
+
+/// The device's name as its manual writes it.
+fn device_name(kind: DeviceKind) -> &'static str {
+    match kind {
+        DeviceKind::MtrDci => "MTR-DCI",
+        DeviceKind::Emca => "EMCA",
+        DeviceKind::CmmoSt => "CMMO-ST",
+        DeviceKind::Tlc5xx => "TLC5xx",
+    }
+}
+
+fn profile_name(profile: Profile) -> &'static str {
+    match profile {
+        Profile::Fhpp => "FHPP",
+        Profile::Cia402 => "CiA 402",
+    }
+}
+
+/// Checks `--duration` and `--status-every` before anything uses them: a user's number must
+/// never reach `Duration::from_secs_f64` out of range (it panics on NaN, negative, overflow).
+fn timing(cli: &Cli) -> Result<(Option<Duration>, Option<Duration>), String> {
+    let duration = match &cli.duration {
+        None => None,
+        Some(text) => match text.trim().parse::<f64>() {
+            Ok(d) if d.is_finite() && d > 0.0 && d <= MAX_DURATION_S => {
+                Some(Duration::from_secs_f64(d))
+            }
+            _ => {
+                return Err(format!(
+                    "--duration {text}: give seconds, more than 0 and at most {MAX_DURATION_S} \
+                     (leave --duration out to run until Ctrl-C)"
+                ));
+            }
+        },
+    };
+    let text = &cli.status_every;
+    let every = match text.trim().parse::<f64>() {
+        Ok(0.0) => None,
+        Ok(s) if s.is_finite() && (MIN_STATUS_S..=MAX_STATUS_S).contains(&s) => {
+            Some(Duration::from_secs_f64(s))
+        }
+        _ => {
+            return Err(format!(
+                "--status-every {text}: give seconds, 0 (never) or {MIN_STATUS_S} to \
+                 {MAX_STATUS_S}"
+            ));
+        }
+    };
+    Ok((duration, every))
+}
+
+/// The plan of `--device ...`.
+fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
+    let kind = device.kind();
+    if kind.is_modbus() {
+        let addr = cli
+            .modbus
+            .ok_or("the CMMO-ST speaks Modbus TCP: give --modbus ADDR")?;
+        return Ok(Plan {
+            can: Vec::new(),
+            modbus: vec![ModbusSpec {
+                axis: None,
+                text: addr.to_string(),
+                addr,
+            }],
+        });
+    }
+    // The MTR-DCI is the one simulator with two profiles; the others have their first.
+    let profile = match (kind, cli.profile) {
+        (DeviceKind::MtrDci, ProfileArg::Cia402) => Profile::Cia402,
+        (_, ProfileArg::Cia402) => {
+            return Err(format!(
+                "--profile cia402 is the MTR-DCI's alternative profile, not the {}'s",
+                device_name(kind)
+            ));
+        }
+        (_, ProfileArg::Fhpp) => kind.profiles()[0],
+    };
+    let bus = cli.bus.as_deref().ok_or("give --bus vbus:NAME")?;
+    let name = match bus.strip_prefix("vbus:") {
+        Some(n) if !n.is_empty() => n,
+        _ => {
+            return Err(format!(
+                "--bus {bus}: drive-sim runs on the shared-memory virtual bus, name it vbus:NAME \
+                 (SocketCAN is not offered: a simulated drive on a real bus would answer for a \
+                 real device)"
+            ));
+        }
+    };
+    if cli.nodes.is_empty() {
+        return Err("give at least one --node".into());
+    }
+    let mut seen = HashSet::new();
+    let mut can = Vec::new();
+    for &n in &cli.nodes {
+        if !seen.insert(n) {
+            return Err(format!(
+                "--node {n} is given twice: two drives with one node-ID would both answer its \
+                 frames"
+            ));
+        }
+        let node = NodeId::new(n).ok_or(format!("--node {n}: not a node-ID (1..=127)"))?;
+        can.push(CanSpec {
+            axis: None,
+            kind,
+            profile,
+            node,
+            bus: name.to_owned(),
+            bitrate: cli.bitrate,
+        });
+    }
+    Ok(Plan {
+        can,
+        modbus: Vec::new(),
+    })
+}
+
+fn read_config(file: &Path) -> Result<Config, String> {
+    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let config = Config::parse(&text).map_err(|e| format!("{}: {e}", file.display()))?;
+    let report = config.check();
+    if !report.is_ok() {
+        // Every refusal, as `coordinator check` prints them.
+        for e in &report.errors {
+            eprintln!("error: {e}");
+        }
+        return Err(format!(
+            "{}: refused: {} error(s) (`coordinator check {}` says the same)",
+            file.display(),
+            report.errors.len(),
+            file.display()
+        ));
+    }
+    Ok(config)
+}
+
+/// The plan of `--config FILE [--only AXIS]...`: the drives the coordinator dials. Says on
+/// stderr which axes are skipped and why.
+fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
+    let config = read_config(file)?;
+    for name in only {
+        if !config.axes.iter().any(|a| &a.name == name) {
+            let names: Vec<&str> = config.axes.iter().map(|a| a.name.as_str()).collect();
+            return Err(format!(
+                "--only {name}: {} has no axis of that name; its axes: {}",
+                file.display(),
+                if names.is_empty() {
+                    "none".to_owned()
+                } else {
+                    names.join(", ")
+                }
+            ));
+        }
+    }
+    let mut plan = Plan::default();
+    let mut consumer_buses = Vec::new();
+    for (i, a) in config.axes.iter().enumerate() {
+        if !only.is_empty() && !only.contains(&a.name) {
+            continue;
+        }
+        let device = device_name(a.device);
+        let key = format!("axes[{i}]");
+        if a.device.is_modbus() {
+            let Some(text) = a.modbus.as_ref().filter(|_| !a.simulated) else {
+                eprintln!(
+                    "drive-sim: {}: {device} skipped: simulated = true, the coordinator simulates \
+                     it itself",
+                    a.name
+                );
+                continue;
+            };
+            let addr = text
+                .to_socket_addrs()
+                .map_err(|e| format!("{key}.modbus = {text:?} (axis {}): {e}", a.name))?
+                .next()
+                .ok_or_else(|| {
+                    format!(
+                        "{key}.modbus = {text:?} (axis {}): the name has no address",
+                        a.name
+                    )
+                })?;
+            plan.modbus.push(ModbusSpec {
+                axis: Some(a.name.clone()),
+                text: text.clone(),
+                addr,
+            });
+            continue;
+        }
+        // `check` accepted the file: a CANopen axis names an existing bus and a valid node.
+        let bus_name = a.bus.as_deref().unwrap_or_default();
+        let Some(bus) = config.buses.iter().find(|b| b.name == bus_name) else {
+            return Err(format!("{key}.bus: no bus {bus_name:?}"));
+        };
+        match bus.kind {
+            BusKind::Vbus => {}
+            BusKind::Simulated | BusKind::Virtual => {
+                eprintln!(
+                    "drive-sim: {}: {device} skipped: bus {} is kind = \"simulated\", the \
+                     coordinator simulates its drives itself",
+                    a.name, bus.name
+                );
+                continue;
+            }
+            BusKind::Socketcan => {
+                eprintln!(
+                    "drive-sim: {}: {device} skipped: bus {} is kind = \"socketcan\", a real bus; \
+                     drive-sim does not answer there (it would answer for the real drive)",
+                    a.name, bus.name
+                );
+                continue;
+            }
+        }
+        let node = a
+            .node
+            .and_then(|n| u8::try_from(n).ok())
+            .and_then(NodeId::new)
+            .ok_or_else(|| format!("{key}.node: not a node-ID"))?;
+        if a.device == DeviceKind::Emca && a.profile() == Profile::Cia402 {
+            return Err(format!(
+                "{key}.profile (axis {}): the EMCA simulator speaks FHPP only (its CiA 402 \
+                 firmware is not simulated); leave this axis out with --only",
+                a.name
+            ));
+        }
+        if bus.sync == SyncMode::Consumer && !consumer_buses.contains(&bus.name) {
+            consumer_buses.push(bus.name.clone());
+        }
+        plan.can.push(CanSpec {
+            axis: Some(a.name.clone()),
+            kind: a.device,
+            profile: a.profile(),
+            node,
+            bus: bus.name.clone(),
+            bitrate: bus.bitrate,
+        });
+    }
+    for b in consumer_buses {
+        eprintln!(
+            "drive-sim: bus {b} has sync = \"consumer\": the coordinator follows another node's \
+             SYNC there, which drive-sim does not produce"
+        );
+    }
+    if plan.can.is_empty() && plan.modbus.is_empty() {
+        return Err(format!(
+            "{}: nothing to start: {} (drive-sim starts the axes on buses of kind \"vbus\" and \
+             the CMMO-STs with a modbus address)",
+            file.display(),
+            if only.is_empty() {
+                "no axis is one the coordinator dials"
+            } else {
+                "no axis named by --only is one the coordinator dials"
+            }
+        ));
+    }
+    Ok(plan)
+}
+
+/// A simulated CANopen drive with a one-line status.
+trait SimDrive: Endpoint {
+    /// NMT and drive state, position, fault: for people.
+    fn status(&self) -> String;
+}
+
+impl SimDrive for Tlc5xx {
+    fn status(&self) -> String {
+        format!(
+            "NMT {} | {} (statusword {:04X}h) | pos {} usr",
+            self.nmt_state().name(),
+            self.drive_state().name(),
+            self.statusword(),
+            self.actual_usr()
+        )
+    }
+}
+
+/// An FHPP drive's state as the manuals write it: "S4 Operation enabled (Ready)".
+fn fhpp_state(d: &FhppDrive) -> String {
+    let s = d.machine().state;
+    match s {
+        FhppState::OperationEnabled(sub) => format!("S4 {} ({})", s.name(), sub.name()),
+        _ => format!("S{} {}", s.number(), s.name()),
+    }
+}
+
+/// The drive state, position and fault of a Festo drive. The MTR-DCI manual numbers its faults
+/// in decimal, the EMCA and CMMO-ST manuals in hex.
+fn festo_status(d: &FhppDrive, kind: DeviceKind) -> String {
+    let fault = match d.fault_number() {
+        None => "none".to_owned(),
+        Some(n) if kind == DeviceKind::MtrDci => n.to_string(),
+        Some(n) => format!("{n:02X}h"),
+    };
+    let i = d.input();
+    format!(
+        "{} | SCON {:02X}h SPOS {:02X}h | {} | pos {} inc | fault {fault}",
+        fhpp_state(d),
+        i[0],
+        i[1],
+        if d.is_referenced() {
+            "referenced"
+        } else {
+            "not referenced"
+        },
+        d.axis().status().position
+    )
+}
+
+fn festo_node_status(node: &FestoNode, kind: DeviceKind) -> String {
+    let nmt = node.device().state().name();
+    match node.cia402_state() {
+        // The CiA 402 face: its state, with the FHPP core's position and fault.
+        Some(s) => {
+            let d = node.drive();
+            let fault = d
+                .fault_number()
+                .map_or_else(|| "none".to_owned(), |n| n.to_string());
+            format!(
+                "NMT {nmt} | CiA 402 {} | pos {} inc | fault {fault}",
+                s.name(),
+                d.axis().status().position
+            )
+        }
+        None => format!("NMT {nmt} | {}", festo_status(node.drive(), kind)),
+    }
+}
+
+impl SimDrive for MtrDci {
+    fn status(&self) -> String {
+        festo_node_status(self, DeviceKind::MtrDci)
+    }
+}
+
+impl SimDrive for Emca {
+    fn status(&self) -> String {
+        festo_node_status(self, DeviceKind::Emca)
+    }
+}
+
+fn build_can_drive(spec: &CanSpec, now: Instant) -> Result<Box<dyn SimDrive>, String> {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    match (spec.kind, spec.profile) {
+        (DeviceKind::Tlc5xx, _) => Tlc5xx::new(TlcConfig::new(spec.node), now)
+            .map(|d| Box::new(d) as Box<dyn SimDrive>)
+            .map_err(|e| err(&e)),
+        (DeviceKind::MtrDci, p) => {
+            let p = match p {
+                Profile::Fhpp => MtrProfile::Fhpp,
+                Profile::Cia402 => MtrProfile::Cia402,
+            };
+            MtrDci::new(spec.node, p, now)
+                .map(|d| Box::new(d) as Box<dyn SimDrive>)
+                .map_err(|e| err(&e))
+        }
+        (DeviceKind::Emca, Profile::Fhpp) => Emca::new(spec.node, now)
+            .map(|d| Box::new(d) as Box<dyn SimDrive>)
+            .map_err(|e| err(&e)),
+        (kind, profile) => Err(format!(
+            "the {} simulator has no {} profile",
+            device_name(kind),
+            profile_name(profile)
+        )),
+    }
+}
+
+/// A running CANopen drive.
+struct CanRun {
+    spec: CanSpec,
+    station: Station<ShmBus, Box<dyn SimDrive>>,
+}
+
+/// A running CMMO-ST.
+struct ModbusRun {
+    spec: ModbusSpec,
+    device: Arc<Mutex<FhppDrive>>,
+    server: Server,
+}
+
+fn start_can(spec: &CanSpec, now: Instant) -> Result<CanRun, String> {
+    let what = format!(
+        "{}{} node {} on vbus:{}",
+        prefix(&spec.axis),
+        device_name(spec.kind),
+        spec.node.get(),
+        spec.bus
+    );
+    let bus = ShmBus::open(&spec.bus, spec.bitrate).map_err(|e| format!("{what}: {e}"))?;
+    let drive = build_can_drive(spec, now).map_err(|e| format!("{what}: {e}"))?;
+    eprintln!(
+        "drive-sim: {what}, {}, at {} kbit/s",
+        profile_name(spec.profile),
+        spec.bitrate / 1000
+    );
+    Ok(CanRun {
+        spec: spec.clone(),
+        station: Station::new(bus, drive),
+    })
+}
+
+fn start_modbus(spec: &ModbusSpec) -> Result<ModbusRun, String> {
+    let what = format!("{}CMMO-ST on {}", prefix(&spec.axis), spec.text);
+    let drive = cmmo_st::drive::commissioned().map_err(|e| format!("{what}: {e}"))?;
+    let device = Arc::new(Mutex::new(drive));
+    let config = ServerConfig {
+        addr: spec.addr,
+        ..ServerConfig::loopback(0)
+    };
+    let server = Server::spawn(config, device.clone()).map_err(|e| format!("{what}: {e}"))?;
+    eprintln!(
+        "drive-sim: {}CMMO-ST serving Modbus TCP on {}",
+        prefix(&spec.axis),
+        server.local_addr()
+    );
+    Ok(ModbusRun {
+        spec: spec.clone(),
+        device,
+        server,
+    })
+}
+
+fn can_status(r: &CanRun) -> String {
+    format!(
+        "{}{} node {} on vbus:{} | {}",
+        prefix(&r.spec.axis),
+        device_name(r.spec.kind),
+        r.spec.node.get(),
+        r.spec.bus,
+        r.station.endpoint.status()
+    )
+}
+
+fn modbus_status(r: &ModbusRun) -> String {
+    let state = r
+        .device
+        .lock()
+        .map(|d| festo_status(&d, DeviceKind::CmmoSt))
+        .unwrap_or_else(|_| "the simulator stopped".to_owned());
+    format!(
+        "{}CMMO-ST on {} | client {} | {state}",
+        prefix(&r.spec.axis),
+        r.server.local_addr(),
+        if r.server.is_connected() {
+            "connected"
+        } else {
+            "none"
+        }
+    )
+}
+
+fn sleep_until(t: Instant) {
+    let now = monotonic_now();
+    if t > now {
+        std::thread::sleep(t - now);
+    }
+}
+
+/// Starts every drive of `plan` and runs them until the stop flag, or `duration`.
+fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Result<(), String> {
+    let stop = coordinator::runtime::rt::stop_flag();
+    let start = monotonic_now();
+    // Servers first: a taken port is the likeliest failure, and nothing has joined a bus yet.
+    let mut servers = Vec::new();
+    for m in &plan.modbus {
+        servers.push(start_modbus(m)?);
+    }
+    let mut stations = Vec::new();
+    for c in &plan.can {
+        stations.push(start_can(c, start)?);
+    }
+    eprintln!(
+        "drive-sim: {} drive(s) running; Ctrl-C to stop",
+        stations.len() + servers.len()
+    );
+    let end = duration.map(|d| start + d);
+    let mut next_status = every.map(|e| start + e);
+    let poll = if stations.is_empty() {
+        IDLE_POLL
+    } else {
+        CAN_POLL
+    };
+    while !stop.load(Ordering::Relaxed) {
+        for s in stations.iter_mut() {
+            s.station.step();
+        }
+        let now = monotonic_now();
+        if end.is_some_and(|e| now >= e) {
+            break;
+        }
+        if let (Some(t), Some(e)) = (next_status, every)
+            && now >= t
+        {
+            for s in &stations {
+                eprintln!("{}", can_status(s));
+            }
+            for m in &servers {
+                eprintln!("{}", modbus_status(m));
+            }
+            // From now, not from `t`: a stalled process prints one line, not a burst.
+            next_status = Some(now + e);
+        }
+        let mut wake = now + poll;
+        for s in &stations {
+            if let Some(t) = s.station.next_deadline() {
+                wake = wake.min(t);
+            }
+        }
+        if let Some(t) = end {
+            wake = wake.min(t);
+        }
+        sleep_until(wake);
+    }
+    let ran = monotonic_now() - start;
+    if !stations.is_empty() {
+        let errors: u64 = stations.iter().map(|s| s.station.errors()).sum();
+        let sent: u64 = stations.iter().map(|s| s.station.bus.counters().sent).sum();
+        let received: u64 = stations
+            .iter()
+            .map(|s| s.station.bus.counters().received)
+            .sum();
+        eprintln!("drive-sim: CAN: {sent} frames sent, {received} received, {errors} bus errors");
+    }
+    for m in servers {
+        let prefix = prefix(&m.spec.axis);
+        let s = m.server.shutdown();
+        eprintln!(
+            "drive-sim: {prefix}CMMO-ST: {} connection(s) ({} refused), {} answers, {} \
+             exceptions, {} dropped frames, {} node-guard timeouts",
+            s.connections, s.refused, s.responses, s.exceptions, s.dropped, s.timeouts
+        );
+    }
+    eprintln!("drive-sim: stopped after {:.1} s", ran.as_secs_f64());
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = timing(&cli).and_then(|(duration, every)| {
+        let plan = match (&cli.config, cli.device) {
+            (Some(file), _) => plan_from_config(file, &cli.only)?,
+            (None, Some(device)) => plan_from_args(&cli, device)?,
+            (None, None) => return Err("give --config FILE or --device".into()),
+        };
+        run(&plan, duration, every)
+    });
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("drive-sim: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
