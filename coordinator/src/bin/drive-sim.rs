@@ -630,6 +630,18 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     for c in &plan.can {
         stations.push(start_can(c, start)?);
     }
+    // Simulated drives stand for hardware, which never waits for this machine's other
+    // processes: run just below the coordinator's cycle thread (SCHED_FIFO 80), as the
+    // in-process simulators do. Where real-time scheduling is refused, say so: a loaded machine
+    // can then starve the drives into late TPDOs.
+    let rt = coordinator::runtime::rt::enter_realtime(&coordinator::runtime::rt::RtSettings {
+        priority: Some(70),
+        cpu: None,
+        lock_memory: false,
+    });
+    for w in &rt.warnings {
+        eprintln!("drive-sim: warning: {w}");
+    }
     eprintln!(
         "drive-sim: {} drive(s) running; Ctrl-C to stop",
         stations.len() + servers.len()
