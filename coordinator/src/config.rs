@@ -30,6 +30,21 @@ use crate::records::{
 /// kind, on the virtual bus and Modbus TCP, a group and a few records.
 pub const EXAMPLE: &str = include_str!("../examples/machine.toml");
 
+/// The example machine with its drives in other processes (`coordinator config-example --vbus`):
+/// the bus of kind `vbus` and the CMMO-ST dialled on loopback, where `drive-sim --config` serves
+/// them. Derived from [`EXAMPLE`], so the two never drift apart.
+pub fn example_vbus() -> String {
+    EXAMPLE
+        .replacen(
+            "# The coordinator's configuration: the embedded default machine.",
+            "# The coordinator's configuration: the embedded default machine, its drives in other\n\
+             # processes. Start them with `drive-sim --config FILE`, then `coordinator run --config FILE`.",
+            1,
+        )
+        .replacen("kind = \"simulated\"       #", "kind = \"vbus\"            #", 1)
+        .replacen("simulated = true", "modbus = \"127.0.0.1:1502\"", 1)
+}
+
 /// Allowed cycle periods in microseconds (the same range as `coordinator run --cycle-us`).
 pub const CYCLE_US: core::ops::RangeInclusive<u32> = 250..=100_000;
 /// Axes one coordinator drives at most.
@@ -1931,6 +1946,22 @@ mod tests {
     fn errors(text: &str) -> Vec<String> {
         let c = Config::parse(text).unwrap();
         c.check().errors.iter().map(|e| e.to_string()).collect()
+    }
+
+    #[test]
+    fn the_vbus_example_is_the_same_machine_with_its_drives_elsewhere() {
+        let c = Config::parse(&example_vbus()).unwrap();
+        assert!(c.check().is_ok(), "{}", c.check());
+        let e = Config::parse(EXAMPLE).unwrap();
+        assert_eq!(c.buses[0].kind, BusKind::Vbus);
+        assert_eq!(e.buses[0].kind, BusKind::Simulated);
+        let g = c.axes.iter().find(|a| a.name == "gripper").unwrap();
+        assert_eq!(
+            (g.simulated, g.modbus.as_deref()),
+            (false, Some("127.0.0.1:1502"))
+        );
+        assert_eq!(c.axes.len(), e.axes.len());
+        assert_eq!(c.groups.len(), e.groups.len());
     }
 
     #[test]

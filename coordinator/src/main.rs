@@ -51,7 +51,12 @@ enum Command {
         capture: Option<std::path::PathBuf>,
     },
     /// Print a commented example configuration (the embedded default machine).
-    ConfigExample,
+    ConfigExample {
+        /// The same machine with its drives in other processes: the bus on `vbus:can0` and the
+        /// CMMO-ST dialled at 127.0.0.1:1502, as `drive-sim --config` serves them.
+        #[arg(long)]
+        vbus: bool,
+    },
     /// Validate a configuration file and print each bus's worst-case load per cycle; exit
     /// status 1 if anything is refused.
     Check {
@@ -63,8 +68,12 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
-        Command::ConfigExample => {
-            print!("{}", coordinator::config::EXAMPLE);
+        Command::ConfigExample { vbus } => {
+            if vbus {
+                print!("{}", coordinator::config::example_vbus());
+            } else {
+                print!("{}", coordinator::config::EXAMPLE);
+            }
             ExitCode::SUCCESS
         }
         Command::Check { file } => check(&file),

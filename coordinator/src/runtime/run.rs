@@ -1180,7 +1180,7 @@ pub fn note_event(plan: &MachinePlan, e: &Event, summary: &mut Summary, out: &mu
         } => say(
             out,
             &format!(
-                "cycle {cycle}: OVERRUN: the coordinator was away {:.1} ms ({skipped} cycles skipped); the drives are not blamed",
+                "cycle {cycle}: OVERRUN: the coordinator was away {:.1} ms ({skipped} cycle(s) skipped); the drives are not blamed",
                 late_us as f64 / 1000.0
             ),
         ),
