@@ -617,6 +617,10 @@ fn sleep_until(t: Instant) {
     }
 }
 
+/// A pause of the drive loop this long is reported: three 2 ms cycles without a TPDO fault
+/// an axis.
+const LONG_PAUSE: Duration = Duration::from_millis(5);
+
 /// Starts every drive of `plan` and runs them until the stop flag, or `duration`.
 fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Result<(), String> {
     let stop = coordinator::runtime::rt::stop_flag();
@@ -653,11 +657,27 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     } else {
         CAN_POLL
     };
+    // The longest time between two passes of the drive loop: a simulator starved by its host
+    // answers late, which the coordinator rightly faults; this says whether that happened.
+    // From here: joining the buses above takes a while and is not a pause of running drives.
+    let mut last_pass = monotonic_now();
+    let mut longest_pause = Duration::ZERO;
     while !stop.load(Ordering::Relaxed) {
         for s in stations.iter_mut() {
             s.station.step();
         }
         let now = monotonic_now();
+        let pause = now.saturating_duration_since(last_pass);
+        longest_pause = longest_pause.max(pause);
+        last_pass = now;
+        if pause >= LONG_PAUSE && !stations.is_empty() {
+            eprintln!(
+                "drive-sim: the drive loop paused {:.1} ms at {:.3} s (the host did not run it): \
+                 TPDOs and heartbeats were late",
+                pause.as_secs_f64() * 1000.0,
+                (now - start).as_secs_f64()
+            );
+        }
         if end.is_some_and(|e| now >= e) {
             break;
         }
@@ -703,7 +723,11 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
             s.connections, s.refused, s.responses, s.exceptions, s.dropped, s.timeouts
         );
     }
-    eprintln!("drive-sim: stopped after {:.1} s", ran.as_secs_f64());
+    eprintln!(
+        "drive-sim: stopped after {:.1} s; the drive loop's longest pause {:.1} ms",
+        ran.as_secs_f64(),
+        longest_pause.as_secs_f64() * 1000.0
+    );
     Ok(())
 }
 
