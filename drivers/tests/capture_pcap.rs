@@ -80,7 +80,13 @@ fn tshark_decodes_canopen() {
             std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
             "tshark is not installed and MOTION_REQUIRE_ALL=1"
         );
-        eprintln!("SKIPPED tshark_decodes_canopen: tshark is not installed (.ci/run installs it)");
+        {
+            use std::io::Write as _;
+            let _ = writeln!(
+                std::io::stderr(),
+                "SKIPPED tshark_decodes_canopen: tshark is not installed (.ci/run installs it)"
+            );
+        }
         return;
     }
     let path = std::env::temp_dir().join(format!("capture_pcap_{}.pcap", std::process::id()));

@@ -719,10 +719,14 @@ fn python_example_reads_the_state_and_commands_a_rust_coordinator() {
             std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
             "the iceoryx2 Python package is not importable and MOTION_REQUIRE_ALL=1"
         );
-        eprintln!(
-            "SKIPPED python_example_reads_the_state_and_commands_a_rust_coordinator: the iceoryx2 \
+        {
+            use std::io::Write as _;
+            let _ = writeln!(
+                std::io::stderr(),
+                "SKIPPED python_example_reads_the_state_and_commands_a_rust_coordinator: the iceoryx2 \
              Python package is not installed (`pip install iceoryx2==0.10.0`, as .ci/run does)"
-        );
+            );
+        }
         return;
     }
     let example = example_path();
@@ -808,10 +812,14 @@ fn the_example_fails_at_once_without_a_coordinator() {
             std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
             "the iceoryx2 Python package is not importable and MOTION_REQUIRE_ALL=1"
         );
-        eprintln!(
-            "SKIPPED the_example_fails_at_once_without_a_coordinator: the iceoryx2 Python package \
+        {
+            use std::io::Write as _;
+            let _ = writeln!(
+                std::io::stderr(),
+                "SKIPPED the_example_fails_at_once_without_a_coordinator: the iceoryx2 Python package \
              is not installed (`pip install iceoryx2==0.10.0`, as .ci/run does)"
-        );
+            );
+        }
         return;
     }
     let prefix = format!("layout-languages-none-{}", std::process::id());

@@ -276,10 +276,14 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
             std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
             "the iceoryx2 Python package is missing and MOTION_REQUIRE_ALL=1"
         );
-        eprintln!(
-            "SKIPPED the_python_example_reads_the_state_and_commands_the_coordinator: the iceoryx2 \
+        {
+            use std::io::Write as _;
+            let _ = writeln!(
+                std::io::stderr(),
+                "SKIPPED the_python_example_reads_the_state_and_commands_the_coordinator: the iceoryx2 \
              Python package is not installed (.ci/run installs it)"
-        );
+            );
+        }
         return;
     }
     let p = prefix("python");
