@@ -17,6 +17,7 @@ use std::fmt;
 use std::time::Duration;
 
 use drivers::can::bit_timing::{MAX_BITRATE, MIN_BITRATE};
+use drivers::catalog::{self, Device};
 use serde::Deserialize;
 
 use crate::budget::{BusLoad, BusTraffic, Pdo, Permille, Supervision};
@@ -57,6 +58,9 @@ pub const MAX_BUSES: usize = crate::cycle::MAX_BUSES;
 pub const DEFAULT_LOAD_LIMIT_PERCENT: u32 = 80;
 /// The default heartbeat / guard time in milliseconds.
 pub const DEFAULT_SUPERVISION_MS: u32 = 100;
+/// The longest producer heartbeat the coordinator consumes: it waits twice the producer time,
+/// in 16-bit milliseconds (`cycle::Supervision::Heartbeat`).
+pub const MAX_HEARTBEAT_MS: u32 = u16::MAX as u32 / 2;
 
 /// A whole configuration file.
 #[derive(Clone, Debug, Deserialize)]
@@ -180,13 +184,13 @@ pub struct BusConfig {
     pub sdo_slots: u16,
 }
 
-/// The supported drives.
+/// The supported drives; their facts are `drivers::catalog`'s ([`DeviceKind::device`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum DeviceKind {
     /// Festo MTR-DCI (CANopen; FHPP or CiA 402; node guarding only).
     MtrDci,
-    /// Festo EMCA (CANopen; FHPP, or CiA 402 with its other firmware profile; guarding only).
+    /// Festo EMCA (CANopen; FHPP; node guarding only).
     Emca,
     /// Festo CMMO-ST (Modbus TCP; FHPP).
     CmmoSt,
@@ -195,46 +199,51 @@ pub enum DeviceKind {
 }
 
 impl DeviceKind {
-    /// The name used in the configuration.
-    pub fn name(self) -> &'static str {
+    /// Every kind, in the catalog's order.
+    pub const ALL: [DeviceKind; 4] = [Self::MtrDci, Self::Emca, Self::CmmoSt, Self::Tlc5xx];
+
+    /// The axis layer's kind.
+    pub const fn axis_kind(self) -> crate::axis::DeviceKind {
         match self {
-            Self::MtrDci => "mtr-dci",
-            Self::Emca => "emca",
-            Self::CmmoSt => "cmmo-st",
-            Self::Tlc5xx => "tlc5xx",
+            Self::MtrDci => crate::axis::DeviceKind::MtrDci,
+            Self::Emca => crate::axis::DeviceKind::Emca,
+            Self::CmmoSt => crate::axis::DeviceKind::CmmoSt,
+            Self::Tlc5xx => crate::axis::DeviceKind::Tlc5xx,
         }
     }
 
+    /// The device's facts.
+    pub const fn device(self) -> &'static Device {
+        self.axis_kind().device()
+    }
+
+    /// The name used in the configuration (the catalog's `id`, not its manual name).
+    pub fn name(self) -> &'static str {
+        let device = self.device();
+        device.id
+    }
+
     /// The profiles the device offers; the first is the default.
-    pub fn profiles(self) -> &'static [Profile] {
-        match self {
-            Self::MtrDci | Self::Emca => &[Profile::Fhpp, Profile::Cia402],
-            Self::CmmoSt => &[Profile::Fhpp],
-            Self::Tlc5xx => &[Profile::Cia402],
-        }
+    pub fn profiles(self) -> impl Iterator<Item = Profile> {
+        self.device()
+            .profiles
+            .iter()
+            .map(|p| Profile::from(p.profile))
     }
 
     /// Whether the device is reached over Modbus TCP rather than CANopen.
     pub fn is_modbus(self) -> bool {
-        self == Self::CmmoSt
+        !self.device().is_canopen()
     }
 
-    /// Whether the device can produce a heartbeat. The MTR-DCI and EMCA manuals describe node
-    /// guarding only (seed-000 and seed-002 digests), so they are guarded.
+    /// Whether the device can produce a heartbeat (the MTR-DCI and EMCA are guarded only).
     pub fn has_heartbeat(self) -> bool {
-        matches!(self, Self::Tlc5xx)
+        self.device().has_heartbeat()
     }
 
-    /// The highest record number of the device's (or, for the TLC5xx, the host's) table.
+    /// The highest number of the device's own record table; 0 if it has none (the TLC5xx).
     pub fn max_record(self) -> u32 {
-        match self {
-            // Records 1..=31; record 0 is homing (seed-000 section 4).
-            Self::MtrDci => 31,
-            // 64 records with record 0 homing (seed-001 / seed-002).
-            Self::Emca | Self::CmmoSt => 63,
-            // No drive-side table: the coordinator holds it.
-            Self::Tlc5xx => 255,
-        }
+        self.device().records.map_or(0, |r| r.last.into())
     }
 }
 
@@ -254,38 +263,43 @@ pub enum Profile {
     Cia402,
 }
 
-impl fmt::Display for Profile {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Self::Fhpp => "fhpp",
-            Self::Cia402 => "cia402",
-        })
+impl From<catalog::Profile> for Profile {
+    fn from(p: catalog::Profile) -> Self {
+        match p {
+            catalog::Profile::Fhpp => Self::Fhpp,
+            catalog::Profile::Cia402 => Self::Cia402,
+        }
     }
 }
 
-/// FHPP: 8 control bytes and 8 status bytes on PDO1, every SYNC.
-const FHPP_PDO1: &[Pdo] = &[Pdo::every_sync(8)];
-/// FHPP with the FPC parameter channel on PDO2 (8 bytes each way).
-const FHPP_PDO1_FPC: &[Pdo] = &[Pdo::every_sync(8), Pdo::every_sync(8)];
-/// CiA 402 on the TLC5xx: controlword + target position + modes of operation (2 + 4 + 1 bytes)
-/// / statusword + position actual value + modes display (`axis::TLC_RPDO1` / `TLC_TPDO1`).
-const CIA402_PDO1: &[Pdo] = &[Pdo::every_sync(7)];
-/// CiA 402 on the MTR-DCI: its static PDO1 of 8 bytes (controlword, record number, mode,
-/// target position / statusword, record number, mode display, position).
-const MTR_DCI_402_PDO1: &[Pdo] = &[Pdo::every_sync(8)];
+impl From<Profile> for catalog::Profile {
+    fn from(p: Profile) -> Self {
+        match p {
+            Profile::Fhpp => Self::Fhpp,
+            Profile::Cia402 => Self::Cia402,
+        }
+    }
+}
 
-/// The PDOs the coordinator maps for one axis, each way (the RPDOs equal the TPDOs in length
-/// and number for every supported mapping). Modbus axes put nothing on a CAN bus.
-pub fn axis_pdos(device: DeviceKind, profile: Profile, fpc: bool) -> &'static [Pdo] {
-    if device.is_modbus() {
-        return &[];
+impl fmt::Display for Profile {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(catalog::Profile::from(*self).id())
     }
-    match (profile, fpc) {
-        (Profile::Fhpp, false) => FHPP_PDO1,
-        (Profile::Fhpp, true) => FHPP_PDO1_FPC,
-        (Profile::Cia402, _) if matches!(device, DeviceKind::MtrDci) => MTR_DCI_402_PDO1,
-        (Profile::Cia402, _) => CIA402_PDO1,
-    }
+}
+
+/// The PDOs the coordinator maps for one axis, each way: the catalog's PDO1, and PDO2 for the
+/// FPC (the catalog's PDO pairs are equally long both ways). Modbus axes put nothing on a CAN
+/// bus.
+pub fn axis_pdos(device: DeviceKind, profile: Profile, fpc: bool) -> Vec<Pdo> {
+    let Some(facts) = device.device().profile(profile.into()) else {
+        return Vec::new();
+    };
+    let pdo2 = facts.fpc_pdo2.filter(|_| fpc);
+    [facts.pdo1, pdo2]
+        .into_iter()
+        .flatten()
+        .map(|p| Pdo::every_sync(p.rpdo_bytes() as u8))
+        .collect()
 }
 
 /// Motion limits in user units (the axis's `unit`, per second, per second squared...).
@@ -352,7 +366,8 @@ fn default_unit() -> String {
 impl AxisConfig {
     /// The profile in use (the configured one or the device's default).
     pub fn profile(&self) -> Profile {
-        self.profile.unwrap_or(self.device.profiles()[0])
+        self.profile
+            .unwrap_or(self.device.device().default_profile().into())
     }
 
     /// The supervision this axis adds to its bus: guarding for devices without a heartbeat,
@@ -620,12 +635,14 @@ pub enum Problem {
         reason: &'static str,
     },
     /// A profile the device does not offer.
-    #[error("{device} does not offer the {profile} profile")]
+    #[error("{device} does not offer the {profile} profile, only {}", offered.join(" or "))]
     Profile {
         /// The device.
         device: DeviceKind,
         /// The profile.
         profile: Profile,
+        /// The profiles it offers.
+        offered: Vec<String>,
     },
     /// A Modbus address that is not `host:port`.
     #[error("{0:?} is not host:port with a port in 1..=65535")]
@@ -677,6 +694,17 @@ pub enum Problem {
         value: f64,
         /// The limit.
         limit: f64,
+    },
+    /// A guard time shorter than the cycle: the coordinator polls once per cycle at most, so the
+    /// drive's life time (3 × the guard time) would run out between polls.
+    #[error(
+        "{guard_ms} ms is shorter than the cycle ({cycle_us} us): the coordinator polls once per cycle, and the drive's life time (3 x guard time) would expire; use at least the cycle or 0"
+    )]
+    GuardBelowCycle {
+        /// The guard time, ms.
+        guard_ms: u32,
+        /// The cycle, µs.
+        cycle_us: u32,
     },
     /// Heartbeat and guarding both set.
     #[error("heartbeat_ms and guard_time_ms are exclusive (CiA 301)")]
@@ -794,8 +822,8 @@ pub enum Problem {
     /// An alternative on a record without a step.
     #[error("an alternative needs a step (a record without one ends the chain)")]
     AlternativeWithoutStep,
-    /// A group with records and more axes than a record holds.
-    #[error("a group with records has at most {max} axes, this one has {axes}")]
+    /// A group with more axes than the cycle moves together (and a record holds).
+    #[error("a group has at most {max} axes, this one has {axes}")]
     GroupTooLarge {
         /// The group's axes.
         axes: usize,
@@ -994,12 +1022,13 @@ impl Config {
                 axis_index.insert(&a.name, i);
             }
             let profile = a.profile();
-            if !a.device.profiles().contains(&profile) {
+            if !a.device.device().offers(profile.into()) {
                 err.push(
                     format!("{key}.profile"),
                     Problem::Profile {
                         device: a.device,
                         profile,
+                        offered: a.device.profiles().map(|p| p.to_string()).collect(),
                     },
                 );
             }
@@ -1058,28 +1087,30 @@ impl Config {
                         not("is simulated by its bus's kind (kind = \"simulated\")"),
                     );
                 }
-                if a.fpc && profile != Profile::Fhpp {
+                let facts = device.device().profile(profile.into());
+                if a.fpc && facts.is_some_and(|f| f.fpc_pdo2.is_none()) {
+                    let offered = device
+                        .device()
+                        .profiles
+                        .iter()
+                        .any(|p| p.fpc_pdo2.is_some());
                     err.push(
                         format!("{key}.fpc"),
-                        not("has the FPC only with the fhpp profile"),
+                        not(if offered {
+                            "has the FPC only with the fhpp profile"
+                        } else {
+                            "has no FPC parameter channel on PDO2"
+                        }),
                     );
                 }
-                match (a.heartbeat_ms, a.guard_time_ms) {
-                    (Some(_), Some(_)) => {
-                        err.push(format!("{key}.heartbeat_ms"), Problem::BothSupervisions)
-                    }
-                    (Some(_), None) if !device.has_heartbeat() => err.push(
-                        format!("{key}.heartbeat_ms"),
-                        not("has no heartbeat, only node guarding (use guard_time_ms)"),
-                    ),
-                    _ => {}
-                }
+                let node_ids =
+                    i64::from(*catalog::NODE_IDS.start())..=(*catalog::NODE_IDS.end()).into();
                 let node = match a.node {
                     None => {
                         err.push(format!("{key}.node"), Problem::Missing { device });
                         None
                     }
-                    Some(n) if !(1..=127).contains(&n) => {
+                    Some(n) if !node_ids.contains(&n) => {
                         err.push(format!("{key}.node"), Problem::NodeId(n));
                         None
                     }
@@ -1098,10 +1129,10 @@ impl Config {
                         Some(&bi) => Some(bi),
                     },
                 };
+                let cycle_us = bus.map_or(self.cycle_us, |bi| self.bus_cycle_us(&self.buses[bi]));
+                check_supervision(&key, a, cycle_us, &mut err);
                 if let Some(bi) = bus {
-                    plans[bi]
-                        .pdos
-                        .extend_from_slice(axis_pdos(device, profile, a.fpc));
+                    plans[bi].pdos.extend(axis_pdos(device, profile, a.fpc));
                     plans[bi].nodes.push(a.supervision());
                     if let Some(n) = node {
                         let bus_name = self.buses[bi].name.as_str();
@@ -1204,6 +1235,15 @@ impl Config {
             if group.axes.is_empty() {
                 err.push(format!("{key}.axes"), Problem::EmptyGroup);
             }
+            if group.axes.len() > MAX_GROUP_AXES {
+                err.push(
+                    format!("{key}.axes"),
+                    Problem::GroupTooLarge {
+                        axes: group.axes.len(),
+                        max: MAX_GROUP_AXES,
+                    },
+                );
+            }
             let mut modbus: Option<&str> = None;
             let mut canopen = false;
             for (k, name) in group.axes.iter().enumerate() {
@@ -1250,7 +1290,18 @@ impl Config {
                 continue;
             };
             let axis = &self.axes[ai];
-            let max = axis.device.max_record();
+            let device = axis.device;
+            let Some(table) = device.device().records else {
+                err.push(
+                    format!("{key}.axis"),
+                    Problem::NotAllowed {
+                        device,
+                        reason: "has no record table of its own: put its moves in a group's [[groups.records]]",
+                    },
+                );
+                continue;
+            };
+            let max = u32::from(table.last);
             if !(1..=max).contains(&rec.number) {
                 err.push(
                     format!("{key}.number"),
@@ -1273,7 +1324,15 @@ impl Config {
                     },
                 );
             }
-            if let Some(next) = rec.next
+            if rec.next.is_some() && !table.chaining {
+                err.push(
+                    format!("{key}.next"),
+                    Problem::NotAllowed {
+                        device,
+                        reason: "does not chain its records: chain them in a group's [[groups.records]]",
+                    },
+                );
+            } else if let Some(next) = rec.next
                 && !defined.contains_key(&(rec.axis.as_str(), next))
             {
                 err.push(
@@ -1356,14 +1415,8 @@ impl Config {
             let gkey = format!("groups[{g}]");
             let axes = group.axes.len().min(MAX_GROUP_AXES) as u8;
             let mut table = Box::new(RecordTable::with_axes(axes));
-            if !group.records.is_empty() && group.axes.len() > MAX_GROUP_AXES {
-                err.push(
-                    format!("{gkey}.records"),
-                    Problem::GroupTooLarge {
-                        axes: group.axes.len(),
-                        max: MAX_GROUP_AXES,
-                    },
-                );
+            // `check_groups` refuses the group.
+            if group.axes.len() > MAX_GROUP_AXES {
                 tables.push((group.name.clone(), table));
                 continue;
             }
@@ -1917,6 +1970,49 @@ fn check_scaling(key: &str, a: &AxisConfig, err: &mut Errors) {
     }
 }
 
+/// A CANopen axis's heartbeat or guard time against its device (the catalog) and the cycle.
+fn check_supervision(key: &str, a: &AxisConfig, cycle_us: u32, err: &mut Errors) {
+    let device = a.device.device();
+    let range = |v: u32, max: u32| Problem::Range {
+        value: v.into(),
+        min: 0.0,
+        max: max.into(),
+    };
+    match (a.heartbeat_ms, a.guard_time_ms) {
+        (Some(_), Some(_)) => err.push(format!("{key}.heartbeat_ms"), Problem::BothSupervisions),
+        (Some(h), None) => match device.heartbeat_max_ms {
+            None => err.push(
+                format!("{key}.heartbeat_ms"),
+                Problem::NotAllowed {
+                    device: a.device,
+                    reason: "has no heartbeat, only node guarding (use guard_time_ms)",
+                },
+            ),
+            Some(max) => {
+                let max = u32::from(max).min(MAX_HEARTBEAT_MS);
+                if h > max {
+                    err.push(format!("{key}.heartbeat_ms"), range(h, max));
+                }
+            }
+        },
+        (None, Some(g)) => {
+            let max = device.guard_time_max_ms.map_or(0, u32::from);
+            if g > max {
+                err.push(format!("{key}.guard_time_ms"), range(g, max));
+            } else if g > 0 && u64::from(g) * 1000 < u64::from(cycle_us) {
+                err.push(
+                    format!("{key}.guard_time_ms"),
+                    Problem::GuardBelowCycle {
+                        guard_ms: g,
+                        cycle_us,
+                    },
+                );
+            }
+        }
+        (None, None) => {}
+    }
+}
+
 /// `host:port` with a non-empty host and a port in 1..=65535.
 fn valid_host_port(s: &str) -> bool {
     match s.rsplit_once(':') {
@@ -1983,22 +2079,6 @@ mod tests {
         assert_eq!(c.axes[2].profile(), Profile::Cia402);
     }
 
-    fn to_axis_kind(d: DeviceKind) -> crate::axis::DeviceKind {
-        match d {
-            DeviceKind::MtrDci => crate::axis::DeviceKind::MtrDci,
-            DeviceKind::Emca => crate::axis::DeviceKind::Emca,
-            DeviceKind::CmmoSt => crate::axis::DeviceKind::CmmoSt,
-            DeviceKind::Tlc5xx => crate::axis::DeviceKind::Tlc5xx,
-        }
-    }
-
-    fn to_axis_profile(p: Profile) -> crate::axis::Profile {
-        match p {
-            Profile::Fhpp => crate::axis::Profile::Fhpp,
-            Profile::Cia402 => crate::axis::Profile::Cia402,
-        }
-    }
-
     #[test]
     fn pdos_follow_device_and_profile() {
         assert_eq!(axis_pdos(DeviceKind::MtrDci, Profile::Fhpp, false).len(), 1);
@@ -2008,17 +2088,24 @@ mod tests {
             axis_pdos(DeviceKind::Tlc5xx, Profile::Cia402, false)[0].len,
             7
         );
-        // The budget counts exactly what the axes map.
-        for (d, p) in [
-            (DeviceKind::MtrDci, Profile::Fhpp),
-            (DeviceKind::Emca, Profile::Fhpp),
-            (DeviceKind::MtrDci, Profile::Cia402),
-            (DeviceKind::Tlc5xx, Profile::Cia402),
-        ] {
-            let map = crate::axis::pdo_mapping(to_axis_kind(d), to_axis_profile(p));
-            let len = usize::from(axis_pdos(d, p, false)[0].len);
-            assert_eq!(map.rpdo.map(|r| r.len()), Some(len), "{d} {p:?}");
-            assert_eq!(map.tpdo.map(|t| t.len()), Some(len), "{d} {p:?}");
+        // The budget counts exactly what the axes map, for every profile a device offers.
+        for d in DeviceKind::ALL {
+            for p in d.profiles() {
+                let map = crate::axis::pdo_mapping(d.axis_kind(), p.into());
+                let pdos = axis_pdos(d, p, false);
+                let len = pdos.first().map(|p| usize::from(p.len));
+                assert_eq!(map.rpdo.map(|r| r.len()), len, "{d} {p}");
+                assert_eq!(map.tpdo.map(|t| t.len()), len, "{d} {p}");
+                let fpc = crate::axis::fpc_mapping(d.axis_kind(), p.into());
+                assert_eq!(
+                    axis_pdos(d, p, true).len() - pdos.len(),
+                    usize::from(fpc.is_some())
+                );
+            }
+            // The configuration's (serde's) name is the catalog's.
+            let de: serde::de::value::StrDeserializer<'_, serde::de::value::Error> =
+                serde::de::IntoDeserializer::into_deserializer(d.device().id);
+            assert_eq!(DeviceKind::deserialize(de), Ok(d));
         }
         assert!(axis_pdos(DeviceKind::CmmoSt, Profile::Fhpp, false).is_empty());
         // FPC on two axes of the example no longer fits 80 %.
@@ -2183,8 +2270,28 @@ mod tests {
                 "axes[2].profile: tlc5xx does not offer the fhpp profile",
             ),
             (
-                &[("fpc = false", "fpc = true\nprofile = \"cia402\"")],
-                "axes[1].fpc: a emca axis has the FPC only with the fhpp profile",
+                &[("profile = \"fhpp\"", "profile = \"cia402\"\nfpc = true")],
+                "axes[0].fpc: a mtr-dci axis has the FPC only with the fhpp profile",
+            ),
+            (
+                &[("node = 3", "node = 3\nfpc = true")],
+                "axes[2].fpc: a tlc5xx axis has no FPC parameter channel on PDO2",
+            ),
+            (
+                &[("fpc = false", "profile = \"cia402\"")],
+                "axes[1].profile: emca does not offer the cia402 profile, only fhpp",
+            ),
+            (
+                &[("heartbeat_ms = 100 ", "heartbeat_ms = 40000 ")],
+                "axes[2].heartbeat_ms: 40000 is outside 0..=32767",
+            ),
+            (
+                &[("guard_time_ms = 100 ", "guard_time_ms = 40000 ")],
+                "axes[0].guard_time_ms: 40000 is outside 0..=32767",
+            ),
+            (
+                &[("guard_time_ms = 100 ", "guard_time_ms = 1 ")],
+                "axes[0].guard_time_ms: 1 ms is shorter than the cycle (2000 us)",
             ),
             (
                 &[("name = \"z\"", "name = \"x\"")],
@@ -2196,19 +2303,35 @@ mod tests {
             ),
             (
                 &[("next = 2", "next = 5")],
-                "records[0].next: axis \"x\" has no record 5",
+                "records[0].next: axis \"y\" has no record 5",
             ),
             (
-                &[("number = 2", "number = 32")],
+                &[("number = 2", "number = 65")],
+                "records[1].number: 65 is outside 1..=64",
+            ),
+            (
+                &[
+                    ("axis = \"y\"", "axis = \"x\""),
+                    ("axis = \"y\"", "axis = \"x\""),
+                    ("number = 2", "number = 32"),
+                ],
                 "records[1].number: 32 is outside 1..=31",
             ),
             (
-                &[("number = 2", "number = 1")],
-                "records[1].number: record 1 of axis \"x\" is already defined by records[0]",
+                &[("axis = \"y\"", "axis = \"x\"")],
+                "records[0].next: a mtr-dci axis does not chain its records",
             ),
             (
-                &[("position = 390.0", "position = 401.0")],
-                "records[1].position: 401 is outside 0..=400",
+                &[("axis = \"gripper\"", "axis = \"z\"")],
+                "records[2].axis: a tlc5xx axis has no record table of its own",
+            ),
+            (
+                &[("number = 2", "number = 1")],
+                "records[1].number: record 1 of axis \"y\" is already defined by records[0]",
+            ),
+            (
+                &[("position = 240.0", "position = 251.0")],
+                "records[1].position: 251 is outside 0..=250",
             ),
             (
                 &[("velocity = 45.0", "velocity = 95.0")],
@@ -2240,7 +2363,7 @@ mod tests {
                 "buses[1].name: the name \"can0\" is already used by buses[0]",
             ),
             (
-                &[("position = 390.0", "position = inf")],
+                &[("position = 240.0", "position = inf")],
                 "records[1].position: inf is not a finite number",
             ),
             (
@@ -2634,7 +2757,7 @@ mod tests {
                     "axes = [\"z\"]",
                     "axes = [\"z\", \"gripper\", \"a\", \"b\", \"c\", \"d\", \"e\", \"f\", \"g\"]",
                 )],
-                "groups[1].records: a group with records has at most 8 axes, this one has 9",
+                "groups[1].axes: a group has at most 8 axes, this one has 9",
             ),
         ];
         for (edits, expected) in cases {

@@ -320,7 +320,7 @@ fn identity_mismatch_is_reported_with_both_values() {
     let text = f.to_string();
     assert!(
         text.contains("(a Schneider TLC5xx (CiA 402))")
-            && text.contains("(a Festo MTR-DCI or EMCA (CiA 402))"),
+            && text.contains("(a Festo MTR-DCI (CiA 402))"),
         "{text}"
     );
     // Refused, not started: it stays pre-operational.

@@ -1,5 +1,7 @@
 //! Buses and devices for the motion coordinator.
 //!
+//! - [`catalog`]: the facts of the four supported drives (identity, profiles, PDO1,
+//!   supervision, record table) in one place, each citing its manual digest.
 //! - [`can`]: one CAN frame type, the [`can::Bus`] trait, the bit-timing model, and (with the
 //!   `std` feature) the backends: SocketCAN, the deterministic virtual bus in one process and
 //!   across processes over shared memory, fault injection, candump and pcap capture.
@@ -24,6 +26,7 @@
 
 pub mod can;
 pub mod canopen;
+pub mod catalog;
 pub mod cia402;
 pub mod fhpp;
 pub mod modbus;

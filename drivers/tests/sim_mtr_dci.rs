@@ -235,6 +235,19 @@ fn sdo_pnu_access_and_refused_out_of_range_write() {
             ..
         }
     ));
+    // The guard time 100Ch takes 0..32767 ms (the catalog's, seed-000 §7.3).
+    let guard = Address::new(0x100C, 0);
+    let max = drivers::catalog::MTR_DCI.guard_time_max_ms.unwrap();
+    r.sdo_write(guard, &max.to_le_bytes()).unwrap();
+    let e = r.sdo_write(guard, &(max + 1).to_le_bytes()).unwrap_err();
+    assert!(matches!(
+        e,
+        SdoError::Aborted {
+            code: AbortCode::ValueTooHigh,
+            ..
+        }
+    ));
+    assert_eq!(r.sdo_read(guard).unwrap(), max.to_le_bytes());
 }
 
 #[test]

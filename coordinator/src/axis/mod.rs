@@ -1,6 +1,7 @@
 //! Master-side axis state machines: what the coordinator sends a drive each cycle and what it
 //! reads back, for the FHPP drives ([`fhpp`]: MTR-DCI, EMCA, CMMO-ST) and the CiA 402 drives
-//! ([`cia402`]: TLC5xx, and the MTR-DCI/EMCA in their 402 profile).
+//! ([`cia402`]: TLC5xx, and the MTR-DCI in its 402 profile). What each device offers is
+//! `drivers::catalog`'s.
 //!
 //! The cycle tells each axis what it wants with a [`Demand`] (repeated every cycle until it
 //! changes); the axis turns it into this cycle's output image (the RPDO or Modbus register
@@ -69,14 +70,27 @@ pub enum DeviceKind {
 }
 
 impl DeviceKind {
+    /// Every kind, in the catalog's order.
+    pub const ALL: [DeviceKind; 4] = [
+        DeviceKind::MtrDci,
+        DeviceKind::Emca,
+        DeviceKind::CmmoSt,
+        DeviceKind::Tlc5xx,
+    ];
+
+    /// The device's facts (`drivers::catalog`).
+    pub const fn device(self) -> &'static Device {
+        match self {
+            DeviceKind::MtrDci => &catalog::MTR_DCI,
+            DeviceKind::Emca => &catalog::EMCA,
+            DeviceKind::CmmoSt => &catalog::CMMO_ST,
+            DeviceKind::Tlc5xx => &catalog::TLC5XX,
+        }
+    }
+
     /// The device's name as its manual writes it.
     pub fn label(self) -> &'static str {
-        match self {
-            DeviceKind::MtrDci => "MTR-DCI",
-            DeviceKind::Emca => "EMCA",
-            DeviceKind::CmmoSt => "CMMO-ST",
-            DeviceKind::Tlc5xx => "TLC5xx",
-        }
+        self.device().name
     }
 }
 
@@ -86,14 +100,9 @@ impl core::fmt::Display for DeviceKind {
     }
 }
 
-/// The device profile spoken to a drive.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Profile {
-    /// Festo Handling and Positioning Profile.
-    Fhpp,
-    /// CiA 402 drives and motion control.
-    Cia402,
-}
+/// The device profile spoken to a drive (the catalog's).
+pub use drivers::catalog::Profile;
+use drivers::catalog::{self, Device};
 
 /// What the cycle wants of an axis this cycle. A demand is repeated every cycle until it
 /// changes; the axis produces the edges and handshakes it needs.
@@ -258,12 +267,19 @@ pub enum DriveAxis {
 impl DriveAxis {
     /// The master side for a `kind` drive spoken to in `profile`, exchanged every `cycle_ns`
     /// nanoseconds (used to extrapolate streamed targets and to integrate jog positions).
-    /// Refuses a combination no simulator or manual offers: the TLC5xx in FHPP, the CMMO-ST
-    /// in CiA 402, and the EMCA in CiA 402 (its 402 firmware is not modelled), and a zero cycle.
+    /// Refuses a profile the catalog does not offer for the device (the TLC5xx in FHPP, the
+    /// CMMO-ST and EMCA in CiA 402), and a zero cycle.
     pub fn new(kind: DeviceKind, profile: Profile, cycle_ns: u32) -> Result<DriveAxis, AxisError> {
         use drivers::fhpp::Variant;
         if cycle_ns == 0 {
             return Err(AxisError::Unsupported("a cycle of 0 ns"));
+        }
+        let unsupported = AxisError::Unsupported(match profile {
+            Profile::Fhpp => "the FHPP profile",
+            Profile::Cia402 => "the CiA 402 profile",
+        });
+        if !kind.device().offers(profile) {
+            return Err(unsupported);
         }
         match (kind, profile) {
             (DeviceKind::MtrDci, Profile::Fhpp) => Ok(DriveAxis::Fhpp(fhpp::FhppAxis::new(
@@ -284,13 +300,9 @@ impl DriveAxis {
             (DeviceKind::MtrDci, Profile::Cia402) => Ok(DriveAxis::Cia402(
                 cia402::Cia402Axis::new(cia402::Layout::MtrDci, cycle_ns),
             )),
-            (DeviceKind::Tlc5xx, Profile::Fhpp) => Err(AxisError::Unsupported("FHPP on a TLC5xx")),
-            (DeviceKind::CmmoSt, Profile::Cia402) => {
-                Err(AxisError::Unsupported("CiA 402 on a CMMO-ST"))
-            }
-            (DeviceKind::Emca, Profile::Cia402) => {
-                Err(AxisError::Unsupported("CiA 402 on an EMCA (not modelled)"))
-            }
+            // Offered by the catalog without a master side here: refused the same way
+            // (`images_match_the_catalog_pdo1` keeps this arm unreachable).
+            _ => Err(unsupported),
         }
     }
 
@@ -381,43 +393,15 @@ pub struct PdoMap {
     pub tpdo: Option<PdoSpec>,
 }
 
-/// The Festo FHPP objects on PDO1 (MTR-DCI §7.4, EMCA §5.1; `sim::mtr_dci`): CCON, CPOS,
-/// CDIR/record, value 1, value 2.
-const FHPP_RPDO1: &[u32] = &[
-    0x3000_0008,
-    0x3001_0008,
-    0x3002_0008,
-    0x3003_0008,
-    0x3004_0020,
-];
-/// SCON, SPOS, SDIR/record, RSB/value 1, value 2.
-const FHPP_TPDO1: &[u32] = &[
-    0x3020_0008,
-    0x3021_0008,
-    0x3022_0008,
-    0x3023_0008,
-    0x3024_0020,
-];
-/// MTR-DCI CiA 402 static PDO1 (§7.4): controlword, record number 2032h:01, 6060h, 607Ah.
-const MTR_402_RPDO1: &[u32] = &[0x6040_0010, 0x2032_0108, 0x6060_0008, 0x607A_0020];
-/// Statusword, record number, 6061h, 6064h.
-const MTR_402_TPDO1: &[u32] = &[0x6041_0010, 0x2032_0108, 0x6061_0008, 0x6064_0020];
-/// TLC5xx RPDO1 as the coordinator maps it (7 bytes): controlword, target position 607Ah,
-/// modes of operation 6060h.
-pub const TLC_RPDO1: &[u32] = &[0x6040_0010, 0x607A_0020, 0x6060_0008];
-/// TLC5xx TPDO1 (7 bytes): statusword, position actual value 6064h, modes display 6061h.
-pub const TLC_TPDO1: &[u32] = &[0x6041_0010, 0x6064_0020, 0x6061_0008];
+/// TLC5xx PDO1 as the coordinator maps it (7 bytes each way), from the catalog.
+pub use drivers::catalog::{TLC_RPDO1, TLC_TPDO1};
 
-/// The Festo parameter channel on PDO2 (MTR-DCI §7.4, EMCA §5.1; static): FPC byte 1, sub-index,
-/// PKE/PNU, PWE each way.
-const FPC_RPDO2: &[u32] = &[0x3010_0008, 0x3011_0008, 0x3012_0010, 0x3013_0020];
-/// The drive's reply.
-const FPC_TPDO2: &[u32] = &[0x3030_0008, 0x3031_0008, 0x3032_0010, 0x3033_0020];
-
-/// The parameter-channel PDOs (PDO2) of a Festo drive in FHPP over CANopen; `None` for the
-/// others (the CMMO-ST's 8-byte Modbus profile and CiA 402 have none).
+/// The parameter-channel PDOs (PDO2) of a drive in `profile`, where the catalog has them (the
+/// Festo drives in FHPP over CANopen); `None` for the others (the CMMO-ST's 8-byte Modbus
+/// profile and CiA 402 have none).
 pub fn fpc_mapping(kind: DeviceKind, profile: Profile) -> Option<PdoMap> {
     use drivers::canopen::FunctionCode;
+    let pair = kind.device().profile(profile)?.fpc_pdo2?;
     let pdo = |function, mapping| PdoSpec {
         number: 2,
         function,
@@ -425,13 +409,10 @@ pub fn fpc_mapping(kind: DeviceKind, profile: Profile) -> Option<PdoMap> {
         remappable: false,
         transmission: 1,
     };
-    match (kind, profile) {
-        (DeviceKind::MtrDci | DeviceKind::Emca, Profile::Fhpp) => Some(PdoMap {
-            rpdo: Some(pdo(FunctionCode::Rpdo(2), FPC_RPDO2)),
-            tpdo: Some(pdo(FunctionCode::Tpdo(2), FPC_TPDO2)),
-        }),
-        _ => None,
-    }
+    Some(PdoMap {
+        rpdo: Some(pdo(FunctionCode::Rpdo(2), pair.rpdo)),
+        tpdo: Some(pdo(FunctionCode::Tpdo(2), pair.tpdo)),
+    })
 }
 
 /// The parameter-channel codec of a Festo drive (classic FPC on the MTR-DCI, EFPC on the EMCA,
@@ -446,31 +427,62 @@ pub fn fpc_codec(kind: DeviceKind) -> Option<drivers::fhpp::fpc::Codec> {
     Some(Codec::new(v.parameter_channel(), ByteOrder::Little))
 }
 
-/// The cyclic PDOs the coordinator configures for a `kind` drive in `profile` (see
-/// [`DriveAxis::rx_len`] for the image lengths they produce). Combinations
-/// [`DriveAxis::new`] refuses get no PDOs.
+/// The cyclic PDOs the coordinator configures for a `kind` drive in `profile`: the catalog's
+/// PDO1 (see [`DriveAxis::rx_len`] for the image lengths they produce). Profiles the device does
+/// not offer, and Modbus drives, get no PDOs.
 pub fn pdo_mapping(kind: DeviceKind, profile: Profile) -> PdoMap {
     use drivers::canopen::FunctionCode;
-    let pdo = |function, mapping, remappable| PdoSpec {
+    let facts = kind.device().profile(profile);
+    let Some((pair, remappable)) = facts.and_then(|f| Some((f.pdo1?, !f.pdo1_static))) else {
+        return PdoMap {
+            rpdo: None,
+            tpdo: None,
+        };
+    };
+    let pdo = |function, mapping| PdoSpec {
         number: 1,
         function,
         mapping,
         remappable,
         transmission: 1,
     };
-    let pair = |r, t, remappable| PdoMap {
-        rpdo: Some(pdo(FunctionCode::Rpdo(1), r, remappable)),
-        tpdo: Some(pdo(FunctionCode::Tpdo(1), t, remappable)),
-    };
-    match (kind, profile) {
-        (DeviceKind::MtrDci | DeviceKind::Emca, Profile::Fhpp) => {
-            pair(FHPP_RPDO1, FHPP_TPDO1, false)
+    PdoMap {
+        rpdo: Some(pdo(FunctionCode::Rpdo(1), pair.rpdo)),
+        tpdo: Some(pdo(FunctionCode::Tpdo(1), pair.tpdo)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The codecs' image lengths are the catalog's PDO1 lengths, for every profile offered.
+    #[test]
+    fn images_match_the_catalog_pdo1() {
+        for kind in DeviceKind::ALL {
+            for facts in kind.device().profiles {
+                let axis = DriveAxis::new(kind, facts.profile, 1_000_000).unwrap();
+                let map = pdo_mapping(kind, facts.profile);
+                match facts.pdo1 {
+                    Some(pdo1) => {
+                        assert_eq!(axis.tx_len(), pdo1.rpdo_bytes(), "{kind}");
+                        assert_eq!(axis.rx_len(), pdo1.tpdo_bytes(), "{kind}");
+                        assert_eq!(map.rpdo.map(|p| p.len()), Some(axis.tx_len()));
+                        assert_eq!(map.tpdo.map(|p| p.len()), Some(axis.rx_len()));
+                    }
+                    None => assert_eq!((map.rpdo, map.tpdo), (None, None)),
+                }
+                assert_eq!(
+                    fpc_mapping(kind, facts.profile).is_some(),
+                    facts.fpc_pdo2.is_some()
+                );
+            }
+            for p in [Profile::Fhpp, Profile::Cia402] {
+                if !kind.device().offers(p) {
+                    assert!(DriveAxis::new(kind, p, 1_000_000).is_err(), "{kind} {p:?}");
+                    assert_eq!(pdo_mapping(kind, p).rpdo, None);
+                }
+            }
         }
-        (DeviceKind::MtrDci, Profile::Cia402) => pair(MTR_402_RPDO1, MTR_402_TPDO1, false),
-        (DeviceKind::Tlc5xx, Profile::Cia402) => pair(TLC_RPDO1, TLC_TPDO1, true),
-        _ => PdoMap {
-            rpdo: None,
-            tpdo: None,
-        },
     }
 }

@@ -108,9 +108,10 @@ struct Cli {
     /// Bus bitrate, bit/s.
     #[arg(long, default_value_t = 1_000_000)]
     bitrate: u32,
-    /// The MTR-DCI's profile.
-    #[arg(long, value_enum, default_value_t = ProfileArg::Fhpp)]
-    profile: ProfileArg,
+    /// The profile, where the device offers two (the MTR-DCI: fhpp or cia402); default: the
+    /// device's first.
+    #[arg(long, value_enum)]
+    profile: Option<ProfileArg>,
     /// Modbus TCP address to serve (CMMO-ST), e.g. 127.0.0.1:1502.
     #[arg(long, required_if_eq("device", "cmmo-st"))]
     modbus: Option<SocketAddr>,
@@ -229,16 +230,29 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
             }],
         });
     }
-    // The MTR-DCI is the one simulator with two profiles; the others have their first.
-    let profile = match (kind, cli.profile) {
-        (DeviceKind::MtrDci, ProfileArg::Cia402) => Profile::Cia402,
-        (_, ProfileArg::Cia402) => {
-            return Err(format!(
-                "--profile cia402 is the MTR-DCI's alternative profile, not the {}'s",
-                device_name(kind)
-            ));
+    // The device catalog says which profiles a device offers; the first is its default.
+    let first = kind.profiles().next().unwrap_or(Profile::Fhpp);
+    let profile = match cli.profile {
+        None => first,
+        Some(p) => {
+            let wanted = match p {
+                ProfileArg::Fhpp => Profile::Fhpp,
+                ProfileArg::Cia402 => Profile::Cia402,
+            };
+            if !kind.profiles().any(|o| o == wanted) {
+                let offered: Vec<&str> = kind.profiles().map(profile_name).collect();
+                let arg = match p {
+                    ProfileArg::Fhpp => "fhpp",
+                    ProfileArg::Cia402 => "cia402",
+                };
+                return Err(format!(
+                    "--profile {arg}: the {} offers {} only",
+                    device_name(kind),
+                    offered.join(" and ")
+                ));
+            }
+            wanted
         }
-        (_, ProfileArg::Fhpp) => kind.profiles()[0],
     };
     let bus = cli.bus.as_deref().ok_or("give --bus vbus:NAME")?;
     let name = match bus.strip_prefix("vbus:") {
@@ -379,13 +393,6 @@ fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
             .and_then(|n| u8::try_from(n).ok())
             .and_then(NodeId::new)
             .ok_or_else(|| format!("{key}.node: not a node-ID"))?;
-        if a.device == DeviceKind::Emca && a.profile() == Profile::Cia402 {
-            return Err(format!(
-                "{key}.profile (axis {}): the EMCA simulator speaks FHPP only (its CiA 402 \
-                 firmware is not simulated); leave this axis out with --only",
-                a.name
-            ));
-        }
         if bus.sync == SyncMode::Consumer && !consumer_buses.contains(&bus.name) {
             consumer_buses.push(bus.name.clone());
         }

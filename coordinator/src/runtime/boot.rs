@@ -56,14 +56,10 @@ use crate::axis::DeviceKind;
 /// The most entries a PDO mapping has (8 bytes of 8 bits each at most).
 pub const MAX_MAPPING: usize = 8;
 
-/// Device type (1000h) of the Festo MTR-DCI and EMCA in their FHPP profile.
-pub const FESTO_FHPP_DEVICE_TYPE: u32 = 0x0000_012D;
-/// Device type (1000h) of a CiA 402 drive with position mode (TLC5xx, MTR-DCI in CiA 402).
-pub const CIA402_DEVICE_TYPE: u32 = 0x0002_0192;
-/// Festo's vendor-ID (1018h:01).
-pub const FESTO_VENDOR_ID: u32 = 0x0000_001D;
-/// Schneider Electric's (Berger Lahr) vendor-ID (1018h:01), as the TLC5xx reports it.
-pub const TLC5XX_VENDOR_ID: u32 = 0x0100_002E;
+/// The identities the boot compares (1000h, 1018h:01), from the catalog.
+pub use drivers::catalog::{
+    CIA402_DEVICE_TYPE, FESTO_FHPP_DEVICE_TYPE, FESTO_VENDOR_ID, TLC5XX_VENDOR_ID,
+};
 
 /// One PDO to set up on a node, as owned data (the mapping is copied in).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -198,9 +194,9 @@ pub enum BootPlanError {
 
 /// The plan for a drive of `kind` on `node`: RPDO1 = `rpdo`, TPDO1 = `tpdo` (an empty slice
 /// leaves that PDO alone), both SYNC-driven (type 1) on their predefined COB-IDs, and the
-/// supervision given. The expected identity comes from the kind; for the MTR-DCI and EMCA the
-/// device type follows the profile the mapping shows (6040h in RPDO1 means CiA 402), and their
-/// PDO1 mapping is static (only the transmission type may change, MTR-DCI manual §7.4).
+/// supervision given. The expected identity, whether PDO1 is static and whether the device has
+/// a heartbeat come from the catalog; the profile is the device's whose PDO1 starts with the
+/// same object as `rpdo` (6040h: CiA 402), or its default.
 pub fn plan_for(
     node: NodeId,
     kind: DeviceKind,
@@ -208,25 +204,19 @@ pub fn plan_for(
     tpdo: &[u32],
     supervision: SupervisionPlan,
 ) -> Result<BootPlan, BootPlanError> {
-    let festo = match kind {
-        DeviceKind::CmmoSt => return Err(BootPlanError::NotCanopen(kind)),
-        DeviceKind::MtrDci | DeviceKind::Emca => true,
-        DeviceKind::Tlc5xx => false,
-    };
-    if festo && matches!(supervision, SupervisionPlan::Heartbeat { .. }) {
+    let device = kind.device();
+    if !device.is_canopen() {
+        return Err(BootPlanError::NotCanopen(kind));
+    }
+    if !device.has_heartbeat() && matches!(supervision, SupervisionPlan::Heartbeat { .. }) {
         return Err(BootPlanError::NoHeartbeat(kind));
     }
-    let (device_type, vendor_id) = if festo {
-        let cia402 = rpdo.first().is_some_and(|e| e >> 16 == 0x6040);
-        let t = if cia402 {
-            CIA402_DEVICE_TYPE
-        } else {
-            FESTO_FHPP_DEVICE_TYPE
-        };
-        (t, FESTO_VENDOR_ID)
-    } else {
-        (CIA402_DEVICE_TYPE, TLC5XX_VENDOR_ID)
-    };
+    let object = |m: &[u32]| m.first().map(|e| e >> 16);
+    let facts = device
+        .profiles
+        .iter()
+        .find(|f| f.pdo1.is_some_and(|p| object(p.rpdo) == object(rpdo)))
+        .unwrap_or(&device.profiles[0]);
     let mut pdos = Vec::new();
     for (direction, mapping) in [(PdoDirection::Rpdo, rpdo), (PdoDirection::Tpdo, tpdo)] {
         if mapping.is_empty() {
@@ -234,14 +224,14 @@ pub fn plan_for(
         }
         let mut p = PdoPlan::sync(direction, 1, mapping)
             .ok_or(BootPlanError::MappingTooLong(mapping.len()))?;
-        p.static_mapping = festo;
+        p.static_mapping = facts.pdo1_static;
         pdos.push(p);
     }
     Ok(BootPlan {
         node,
         kind,
-        device_type: Some(device_type),
-        vendor_id: Some(vendor_id),
+        device_type: facts.device_type,
+        vendor_id: device.vendor_id,
         pdos,
         supervision,
         parameters: Vec::new(),
@@ -344,15 +334,24 @@ impl FailureDetail {
     }
 }
 
-/// The device kinds an identity (1000h, 1018h:01) belongs to, in words.
-pub fn identify(device_type: u32, vendor_id: u32) -> &'static str {
-    match (device_type, vendor_id) {
-        (FESTO_FHPP_DEVICE_TYPE, FESTO_VENDOR_ID) => "a Festo MTR-DCI or EMCA (FHPP)",
-        (CIA402_DEVICE_TYPE, FESTO_VENDOR_ID) => "a Festo MTR-DCI or EMCA (CiA 402)",
-        (CIA402_DEVICE_TYPE, TLC5XX_VENDOR_ID) => "a Schneider TLC5xx (CiA 402)",
-        (CIA402_DEVICE_TYPE, _) => "a CiA 402 drive of another vendor",
-        _ => "an unknown device",
+/// The device kinds an identity (1000h, 1018h:01) belongs to, in words, from the catalog: "a
+/// Festo MTR-DCI or EMCA (FHPP)".
+pub fn identify(device_type: u32, vendor_id: u32) -> String {
+    let mut known = drivers::catalog::identify(device_type, vendor_id).peekable();
+    let Some((first, facts)) = known.next() else {
+        // The low word of 1000h is the device profile number (CiA 301).
+        return if device_type & 0xFFFF == CIA402_DEVICE_TYPE & 0xFFFF {
+            "a CiA 402 drive of another vendor or kind".into()
+        } else {
+            "an unknown device".into()
+        };
+    };
+    let mut names = String::from(first.name);
+    while let Some((d, _)) = known.next() {
+        names += if known.peek().is_some() { ", " } else { " or " };
+        names += d.name;
     }
+    format!("a {} {names} ({})", first.vendor, facts.profile.label())
 }
 
 impl fmt::Display for FailureDetail {

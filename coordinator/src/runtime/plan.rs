@@ -108,22 +108,6 @@ impl MachinePlan {
     }
 }
 
-fn kind(k: config::DeviceKind) -> DeviceKind {
-    match k {
-        config::DeviceKind::MtrDci => DeviceKind::MtrDci,
-        config::DeviceKind::Emca => DeviceKind::Emca,
-        config::DeviceKind::CmmoSt => DeviceKind::CmmoSt,
-        config::DeviceKind::Tlc5xx => DeviceKind::Tlc5xx,
-    }
-}
-
-fn profile(p: config::Profile) -> Profile {
-    match p {
-        config::Profile::Fhpp => Profile::Fhpp,
-        config::Profile::Cia402 => Profile::Cia402,
-    }
-}
-
 fn inc(v: f64, scale: f64) -> u64 {
     (v * scale).round().clamp(0.0, u64::MAX as f64) as u64
 }
@@ -212,8 +196,8 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     let mut modbus_slot = 0u8;
     for a in &cfg.axes {
         let s = a.increments_per_unit;
-        let k = kind(a.device);
-        let p = profile(a.profile());
+        let k = a.device.axis_kind();
+        let p: Profile = a.profile().into();
         let lim = limits(a);
         let (transport, sup, boot) = if a.device.is_modbus() {
             let slot = modbus_slot;
@@ -228,7 +212,8 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 .ok_or_else(|| format!("axes.{}.bus: no such bus", a.name))?;
             let (sup, sp) = match a.supervision() {
                 BusSupervision::Heartbeat { period } if !period.is_zero() => {
-                    let ms = period.as_millis().min(u16::MAX as u128 / 2) as u16;
+                    // `check` refused longer heartbeats than the consumer's 16 bits hold.
+                    let ms = period.as_millis().min(config::MAX_HEARTBEAT_MS.into()) as u16;
                     (
                         Supervision::Heartbeat {
                             consumer_ms: ms.saturating_mul(2),

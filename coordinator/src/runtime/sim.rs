@@ -139,6 +139,14 @@ impl SimBus {
             let id = NodeId::new(node).ok_or_else(|| format!("node {node}"))?;
             let port = bus.attach(&format!("sim-{}", a.name));
             let err = |e: &dyn std::fmt::Display| format!("simulator of {}: {e}", a.name);
+            // The simulators model exactly the catalog's profiles (`drivers::catalog`).
+            if !a.setup.kind.device().offers(a.setup.profile) {
+                return Err(err(&format_args!(
+                    "the {} does not offer the {} profile",
+                    a.setup.kind,
+                    a.setup.profile.label()
+                )));
+            }
             let d = match (a.setup.kind, a.setup.profile) {
                 (DeviceKind::MtrDci, p) => {
                     let p = match p {

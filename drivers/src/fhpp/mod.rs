@@ -45,12 +45,21 @@ pub enum Variant {
 }
 
 impl Variant {
-    /// The highest record number control byte 3 may address in record select (record 0 =
-    /// homing on every variant).
-    pub const fn max_record(self) -> u8 {
+    /// The device's entry in the [`crate::catalog`].
+    pub const fn device(self) -> &'static crate::catalog::Device {
         match self {
-            Variant::MtrDci => 31,
-            Variant::Emca | Variant::CmmoSt => 64,
+            Variant::MtrDci => &crate::catalog::MTR_DCI,
+            Variant::Emca => &crate::catalog::EMCA,
+            Variant::CmmoSt => &crate::catalog::CMMO_ST,
+        }
+    }
+
+    /// The highest record number control byte 3 may address in record select (record 0 =
+    /// homing on every variant), from the catalog.
+    pub const fn max_record(self) -> u8 {
+        match self.device().records {
+            Some(r) => r.last,
+            None => 0,
         }
     }
 
@@ -69,10 +78,13 @@ impl Variant {
         !matches!(self, Variant::MtrDci)
     }
 
-    /// Whether the device chains records by itself (RCB2, PNU 416). The MTR-DCI cannot
-    /// (§5.5.1): the coordinator chains for it.
+    /// Whether the device chains records by itself (RCB2, PNU 416), from the catalog. The
+    /// MTR-DCI cannot (§5.5.1): the coordinator chains for it.
     pub const fn has_record_chaining(self) -> bool {
-        !matches!(self, Variant::MtrDci)
+        match self.device().records {
+            Some(r) => r.chaining,
+            None => false,
+        }
     }
 
     /// Whether CCON.BRAKE releases the brake (EMCA, CMMO-ST) or is reserved (MTR-DCI).

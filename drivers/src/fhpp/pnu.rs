@@ -461,10 +461,9 @@ impl<const N: usize> super::fpc::Parameters for ParamStore<N> {
 /// device's records: MTR-DCI record n → IND n + 1 (record 0, homing, is IND 1); EMCA/CMMO-ST
 /// record n → sub-index n (1..=64; homing has no record row).
 pub const fn record_subindex(variant: Variant, record: u8) -> Option<u8> {
-    match variant {
-        Variant::MtrDci if record <= 31 => Some(record + 1),
-        Variant::Emca | Variant::CmmoSt if record >= 1 && record <= 64 => Some(record),
-        _ => None,
+    match variant.device().records {
+        Some(r) => r.subindex(record),
+        None => None,
     }
 }
 

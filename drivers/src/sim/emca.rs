@@ -13,18 +13,19 @@
 
 use crate::canopen::NodeId;
 use crate::canopen::device::{CommProfile, PdoDefault};
+use crate::catalog;
 use crate::fhpp::Variant;
 use crate::sim::fhpp_drive::DriveConfig;
-use crate::sim::mtr_dci::{FestoNode, MTR_DCI_FHPP, SimError, festo_device};
+use crate::sim::mtr_dci::{FestoNode, MTR_DCI_FHPP, SimError, festo_device, festo_identity};
 use crate::time::Instant;
 
-/// The EMCA's communication objects (§5.1): device type 12Dh, vendor 1Dh, PDO1 (FHPP) and PDO2
+/// The EMCA's communication objects (§5.1): device type and vendor from the catalog, PDO1 (FHPP) and PDO2
 /// (EFPC) valid and event-driven; PDO3/4 carry FHPP+ only when configured in FCT, which is not
 /// modelled, so they are absent. Node guarding; the manual mentions no heartbeat, so there is
 /// no 1017h.
 pub const EMCA_FHPP: CommProfile = CommProfile {
-    device_type: 0x0000_012D,
-    identity: [0x1D, 0, 0x0001_0000, 0],
+    device_type: catalog::FESTO_FHPP_DEVICE_TYPE,
+    identity: festo_identity(&catalog::EMCA),
     rpdo: [
         MTR_DCI_FHPP.rpdo[0],
         MTR_DCI_FHPP.rpdo[1],

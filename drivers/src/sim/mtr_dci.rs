@@ -33,6 +33,7 @@
 //! ```
 
 use crate::can::Frame;
+// PDO1 and the parameter channel on PDO2 as the catalog has them (seed-000 §7.4).
 use crate::canopen::device::{
     CommProfile, Device, DeviceEvent, DeviceHooks, PdoDefault, insert_communication_objects,
 };
@@ -40,6 +41,10 @@ use crate::canopen::endpoint::Endpoint;
 use crate::canopen::nmt::{BootUpStyle, NmtState, ResetKind};
 use crate::canopen::od::{AccessType, DataType, EntryDef, ObjectDictionary, OdError, Value};
 use crate::canopen::{AbortCode, Address, NodeId};
+use crate::catalog::{
+    self, FHPP_RPDO1, FHPP_TPDO1, FPC_RPDO2 as FHPP_RPDO2, FPC_TPDO2 as FHPP_TPDO2,
+    MTR_DCI_402_RPDO1 as CIA_RPDO1, MTR_DCI_402_TPDO1 as CIA_TPDO1,
+};
 use crate::cia402::controlword::Controlword;
 use crate::cia402::modes::{Mode, ModeSelector, PpAction, PpDevice, PpObjects};
 use crate::cia402::state::{DeviceStateMachine, State};
@@ -152,23 +157,6 @@ const FHPP_OBJECTS: [EntryDef<'static>; 18] = {
     ]
 };
 
-const FHPP_RPDO1: &[u32] = &[
-    0x3000_0008,
-    0x3001_0008,
-    0x3002_0008,
-    0x3003_0008,
-    0x3004_0020,
-];
-const FHPP_RPDO2: &[u32] = &[0x3010_0008, 0x3011_0008, 0x3012_0010, 0x3013_0020];
-const FHPP_TPDO1: &[u32] = &[
-    0x3020_0008,
-    0x3021_0008,
-    0x3022_0008,
-    0x3023_0008,
-    0x3024_0020,
-];
-const FHPP_TPDO2: &[u32] = &[0x3030_0008, 0x3031_0008, 0x3032_0010, 0x3033_0020];
-
 /// A PDO valid at power-up, event-driven (type 255), static mapping. The mapping objects are
 /// made read-only by [`FestoApp::check_write`] rather than `fixed`, because the manual lets the
 /// transmission type change (§7.4) while the mapping cannot.
@@ -182,15 +170,29 @@ const fn event_pdo(mapping: &'static [u32]) -> PdoDefault {
     }
 }
 
+/// 1018h:01..04 of a Festo drive: the catalog's vendor-ID and product code (0 where the manual
+/// gives none), revision 1.0 and serial 0 (the simulator's choice).
+pub const fn festo_identity(device: &catalog::Device) -> [u32; 4] {
+    let vendor = match device.vendor_id {
+        Some(v) => v,
+        None => 0,
+    };
+    let product = match device.product_code {
+        Some(p) => p,
+        None => 0,
+    };
+    [vendor, product, 0x0001_0000, 0]
+}
+
 /// The MTR-DCI's communication objects in the FHPP profile (§7.3, §7.4): device type 12Dh,
 /// vendor 1Dh, node guarding only (no 1017h), PDO1 + PDO2 type 255, TPDO sub 04h absent (SDO
 /// abort) and no sub 06h.
 pub const MTR_DCI_FHPP: CommProfile = CommProfile {
-    device_type: 0x0000_012D,
-    identity: [0x1D, 0x0000_0000, 0x0001_0000, 0],
-    heartbeat: false,
+    device_type: catalog::FESTO_FHPP_DEVICE_TYPE,
+    identity: festo_identity(&catalog::MTR_DCI),
+    heartbeat: catalog::MTR_DCI.has_heartbeat(),
     heartbeat_ms: 0,
-    guarding: true,
+    guarding: catalog::MTR_DCI.guard_time_max_ms.is_some(),
     boot_up: BootUpStyle::Ds301,
     rpdo: [
         event_pdo(FHPP_RPDO1),
@@ -207,14 +209,12 @@ pub const MTR_DCI_FHPP: CommProfile = CommProfile {
     tpdo_sync_start: false,
 };
 
-const CIA_RPDO1: &[u32] = &[0x6040_0010, 0x2032_0108, 0x6060_0008, 0x607A_0020];
 const CIA_RPDO2: &[u32] = &[0x6081_0020, 0x6083_0020];
-const CIA_TPDO1: &[u32] = &[0x6041_0010, 0x2032_0108, 0x6061_0008, 0x6064_0020];
 
 /// The MTR-DCI's communication objects in the CiA 402 profile (§7.4): device type 00020192h
 /// (erratum E1), RPDO1/2 and TPDO1 (TPDO2 is not supported).
 pub const MTR_DCI_CIA402: CommProfile = CommProfile {
-    device_type: 0x0002_0192,
+    device_type: catalog::CIA402_DEVICE_TYPE,
     rpdo: [
         event_pdo(CIA_RPDO1),
         event_pdo(CIA_RPDO2),
@@ -384,6 +384,18 @@ impl DeviceHooks for FestoApp {
             0x1600..=0x1603 | 0x1A00..=0x1A03 => Err(AbortCode::ReadOnly),
             // Inhibit time: "0 fixed".
             0x1400..=0x1403 | 0x1800..=0x1803 if a.sub == 3 => Err(AbortCode::ReadOnly),
+            // The guard time's range is the device's (MTR-DCI 0..32767 ms, seed-000 §7.3).
+            0x100C => {
+                let max = self.drive.variant().device().guard_time_max_ms;
+                let v = u16::from_le_bytes([
+                    data.first().copied().unwrap_or(0),
+                    data.get(1).copied().unwrap_or(0),
+                ]);
+                match max {
+                    Some(max) if v > max => Err(AbortCode::ValueTooHigh),
+                    _ => Ok(()),
+                }
+            }
             0x6060 => {
                 let code = data.first().map_or(0, |b| *b as i8);
                 let m = Mode::from_code(code).map_err(|e| e.abort_code())?;

@@ -123,12 +123,17 @@ impl Default for Identification<'static> {
     /// manual gives no order number (PNU 124, a gap), so the product code is the order code
     /// (type designation); the revision is PNU 101's four numerals.
     fn default() -> Self {
+        // The fixed strings come from the catalog; `CMMO_ST` always has them.
+        let id = crate::catalog::CMMO_ST.modbus_identity;
+        let (vendor_name, vendor_url, product_name) = id.map_or(("", "", ""), |i| {
+            (i.vendor_name, i.vendor_url, i.product_name)
+        });
         Identification {
-            vendor_name: "Festo AG & Co. KG",
-            product_code: "CMMO-ST-C5-1-LKP",
+            vendor_name,
+            product_code: product_name,
             revision: "1.4.0.0",
-            vendor_url: "http://www.festo.com",
-            product_name: "CMMO-ST-C5-1-LKP",
+            vendor_url,
+            product_name,
             user_application_name: "",
         }
     }

@@ -15,10 +15,15 @@ pub const OD_BYTES: usize = 8192;
 /// The TLC5xx dictionary.
 pub type TlcOd = ObjectDictionary<'static, OD_ENTRIES, OD_BYTES>;
 
-/// 1000h: DSP402 (0192h), bit 17 "actuator" (digest §1.2).
-pub const DEVICE_TYPE: u32 = 0x0002_0192;
-/// 1018h:01 vendor-ID (SIG Positec, digest §5.1).
-pub const VENDOR_ID: u32 = 0x0100_002E;
+/// 1000h: DSP402 (0192h), bit 17 "actuator" (digest §1.2), from the catalog.
+pub const DEVICE_TYPE: u32 = crate::catalog::CIA402_DEVICE_TYPE;
+/// 1018h:01 vendor-ID (SIG Positec, digest §5.1), from the catalog.
+pub const VENDOR_ID: u32 = crate::catalog::TLC5XX_VENDOR_ID;
+/// 1018h:02 product code (digest §5.1: 0), from the catalog.
+const PRODUCT_CODE: u32 = match crate::catalog::TLC5XX.product_code {
+    Some(p) => p,
+    None => 0,
+};
 /// Entries per position list (sub 01h..40h).
 pub const LIST_LEN: u8 = 64;
 
@@ -28,11 +33,12 @@ const fn m3(e: [crate::canopen::pdo::mapping::MappingEntry; 3]) -> [u32; 3] {
 const fn m2(e: [crate::canopen::pdo::mapping::MappingEntry; 2]) -> [u32; 2] {
     [e[0].to_u32(), e[1].to_u32()]
 }
-static RPDO1: [u32; 1] = [obj::CONTROLWORD.mapping().to_u32()];
+/// PDO1 at power-up: controlword / statusword (digest §2.4), from the catalog.
+static RPDO1: &[u32] = crate::catalog::TLC_PDO1_POWER_UP.rpdo;
 static RPDO2: [u32; 2] = m2(obj::TLC_RPDO2_MAPPING);
 static RPDO3: [u32; 2] = m2(obj::TLC_RPDO3_MAPPING);
 static RPDO4: [u32; 3] = m3(obj::TLC_RPDO4_MAPPING);
-static TPDO1: [u32; 1] = [obj::STATUSWORD.mapping().to_u32()];
+static TPDO1: &[u32] = crate::catalog::TLC_PDO1_POWER_UP.tpdo;
 static TPDO2: [u32; 2] = m2(obj::TLC_TPDO2_MAPPING);
 static TPDO3: [u32; 2] = m2(obj::TLC_TPDO3_MAPPING);
 static TPDO4: [u32; 3] = m3(obj::TLC_TPDO4_MAPPING);
@@ -57,19 +63,19 @@ pub const fn comm_profile(boot_up: BootUpStyle) -> CommProfile {
     }
     CommProfile {
         device_type: DEVICE_TYPE,
-        identity: [VENDOR_ID, 0, 0, 0],
-        heartbeat: true,
+        identity: [VENDOR_ID, PRODUCT_CODE, 0, 0],
+        heartbeat: crate::catalog::TLC5XX.has_heartbeat(),
         heartbeat_ms: 0,
-        guarding: true,
+        guarding: crate::catalog::TLC5XX.guard_time_max_ms.is_some(),
         boot_up,
         rpdo: [
-            pdo(true, 255, 0, &RPDO1),
+            pdo(true, 255, 0, RPDO1),
             pdo(false, 0, 0, &RPDO2),
             pdo(false, 0, 0, &RPDO3),
             fixed(pdo(false, 254, 0, &RPDO4)),
         ],
         tpdo: [
-            pdo(true, 255, 0, &TPDO1),
+            pdo(true, 255, 0, TPDO1),
             pdo(false, 0, 0, &TPDO2),
             pdo(false, 0, 0, &TPDO3),
             fixed(pdo(false, 254, 1000, &TPDO4)),
