@@ -20,7 +20,7 @@ use crate::cycle::{BusFrame, ModbusInput, Transport};
 use crate::event::Event;
 use crate::runtime::nodes::{self, NodeReport};
 use crate::runtime::plan::MachinePlan;
-use crate::runtime::run::{CycleCore, RunError, SDO_PER_CYCLE, Snapshot};
+use crate::runtime::run::{CycleCore, RunError, Snapshot};
 use crate::runtime::script::{Phase, Script};
 use crate::runtime::shm::StateSide;
 
@@ -100,6 +100,11 @@ pub struct CycleLoop<'p> {
     pub capture: bool,
     /// The copy [`CycleLoop::capture`] asked for.
     pub captured: Option<crate::runtime::run::Captured<'p>>,
+    /// Per bus: SDO/NMT frames it may carry per cycle (its budget's slots), and what is left of
+    /// them in this cycle.
+    sdo_slots: Vec<(u16, u16)>,
+    /// A service frame for a bus whose slots were used up: it goes first next cycle.
+    held: Option<BusFrame>,
     /// Called with `true` right before the cycle thread's own work of a cycle (the script's
     /// commands and the step) and with `false` right after: tests count allocations there.
     pub probe: Option<fn(bool)>,
@@ -153,6 +158,8 @@ impl<'p> CycleLoop<'p> {
                 .map_err(|e| RunError::Config(e.to_string()))?,
             capture: false,
             captured: None,
+            sdo_slots: plan.buses.iter().map(|b| (b.sdo_slots, 0)).collect(),
+            held: None,
             probe: None,
         })
     }
@@ -256,10 +263,27 @@ impl<'p> CycleLoop<'p> {
         for f in frames {
             refused += u64::from(!io.send(f));
         }
-        for _ in 0..SDO_PER_CYCLE {
-            match io.service_frame(now) {
-                Some(f) => refused += u64::from(!io.send(&f)),
-                None => break,
+        // The boot's SDO/NMT frames, within each bus's slots (the budget `check` computed): a
+        // frame for a bus whose slots are used up waits for the next cycle.
+        for s in &mut self.sdo_slots {
+            s.1 = s.0;
+        }
+        let total: usize = self.sdo_slots.iter().map(|s| usize::from(s.0)).sum();
+        for _ in 0..total {
+            let Some(f) = self.held.take().or_else(|| io.service_frame(now)) else {
+                break;
+            };
+            match self.sdo_slots.get_mut(usize::from(f.bus)) {
+                Some(s) if s.1 > 0 => {
+                    s.1 -= 1;
+                    refused += u64::from(!io.send(&f));
+                }
+                Some(_) => {
+                    self.held = Some(f);
+                    break;
+                }
+                // A frame for no bus (cannot happen: the boot plans only configured buses).
+                None => {}
             }
         }
         core.tx_refused += refused;

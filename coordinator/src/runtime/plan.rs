@@ -47,6 +47,8 @@ pub struct BusPlan {
     pub kind: BusKind,
     /// Bit/s.
     pub bitrate: u32,
+    /// SDO/NMT frames the coordinator may send on it per cycle (its budget's SDO slots).
+    pub sdo_slots: u16,
 }
 
 impl BusPlan {
@@ -190,6 +192,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             name: b.name.clone(),
             kind: b.kind,
             bitrate: b.bitrate,
+            sdo_slots: b.sdo_slots.max(1),
         })
         .collect();
     let mut axes = Vec::new();

@@ -43,8 +43,6 @@ pub type MachineCycle<'t> = Cycle<'t, MAX_AXES, MAX_GROUPS>;
 pub(crate) const TX_CAPACITY: usize = 3 * MAX_AXES + MAX_BUSES + 16;
 /// Frames one cycle may receive before the rest waits for the next.
 pub(crate) const RX_CAPACITY: usize = 4096;
-/// SDO/NMT frames sent per cycle after the PDOs (the budget's reserved slots).
-pub(crate) const SDO_PER_CYCLE: usize = 2;
 
 /// Virtual time: cycles without a Modbus answer before the exchange counts as timed out.
 pub const MODBUS_TIMEOUT_CYCLES: u32 = 5;
