@@ -329,6 +329,16 @@ pub fn enter_realtime(settings: &RtSettings) -> RtReport {
     report
 }
 
+/// Puts the calling thread back on the normal scheduler (SCHED_OTHER) once its real-time part
+/// is over: tearing down ports and shared memory takes milliseconds of CPU in a debug build,
+/// which at SCHED_FIFO keeps every real-time thread of lower or equal priority on the machine
+/// (other processes' drives included) off that CPU. Refused only for an invalid policy, never.
+pub fn leave_realtime() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: pid 0 is the calling thread on Linux; `param` is valid during the call.
+    let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) };
+}
+
 fn pin_to_cpu(cpu: usize) -> io::Result<()> {
     // CPU_SET indexes a fixed-size bit array; refuse what does not fit rather than panic.
     if cpu >= libc::CPU_SETSIZE as usize {
