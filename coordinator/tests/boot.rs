@@ -240,6 +240,33 @@ fn a_missing_node_is_reported_waiting_while_the_others_finish() {
 }
 
 #[test]
+fn a_drive_the_cycle_lost_is_reported_asked_again_and_configured_again() {
+    let mut rig = Rig::new(plans());
+    assert_eq!(rig.run().len(), 3);
+    let before = rig.frames.len();
+    // The cycle lost the EMCA (its supervision); the drive itself is still there.
+    rig.seq.endpoint.lost(node(2));
+    let reports = rig.run();
+    let after = &reports[3..];
+    assert_eq!(after.len(), 2, "lost, then booted again: {after:?}");
+    let lost = after[0].result.unwrap_err();
+    assert_eq!((lost.node, lost.detail), (node(2), FailureDetail::Lost));
+    assert!(lost.detail.is_waiting());
+    assert_eq!(after[1].node, node(2));
+    assert!(after[1].result.is_ok(), "{:?}", after[1]);
+    // Asked with reset communication, as a missing node is.
+    assert!(
+        rig.frames[before..]
+            .iter()
+            .any(|f| f.cob_id() == Some(0x000) && f.data() == [0x82, 2]),
+        "reset communication to node 2"
+    );
+    // Losing a node that is not running changes nothing.
+    rig.seq.endpoint.lost(node(9));
+    assert_eq!(rig.seq.endpoint.reports().len(), 5);
+}
+
+#[test]
 fn aborted_writes_report_step_object_and_code() {
     // The TLC5xx refuses to map 1000h (not mappable) when the count is written; the MTR-DCI
     // refuses any write to its static mapping.

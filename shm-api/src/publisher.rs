@@ -472,9 +472,16 @@ pub fn spawn_state_relay(
             unsafe {
                 libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong);
             }
+            // The relay inherits its spawner's scheduling (SCHED_FIFO from the coordinator's
+            // cycle thread) for its loop only: creating and dropping the iceoryx2 node and
+            // notifier take milliseconds of CPU in a debug build, which at SCHED_FIFO keep the
+            // machine's lower-priority real-time threads (drives) off this CPU.
+            let inherited = Scheduling::current();
+            Scheduling::normal().apply();
             let node = create_node()?;
             let names = ServiceNames::new(&prefix);
             let notifier = StateNotifier::create(&node, &names, &PublisherSettings::default())?;
+            inherited.apply();
             let period_ns = period.as_nanos().max(1) as u64;
             let mut seen = published.load(Ordering::Acquire);
             let mut notified = 0u64;
@@ -514,8 +521,48 @@ pub fn spawn_state_relay(
                 }
                 k += 1;
             }
+            Scheduling::normal().apply();
             Ok(notified)
         })
+}
+
+/// A thread's scheduling policy and priority.
+#[derive(Clone, Copy)]
+struct Scheduling {
+    policy: libc::c_int,
+    priority: libc::c_int,
+}
+
+impl Scheduling {
+    /// The calling thread's.
+    fn current() -> Scheduling {
+        let mut param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: pid 0 is the calling thread; both calls only read its settings, the second
+        // into the valid, exclusively borrowed `param`.
+        let policy = unsafe { libc::sched_getscheduler(0) };
+        let _ = unsafe { libc::sched_getparam(0, &mut param) };
+        Scheduling {
+            policy: policy.max(libc::SCHED_OTHER),
+            priority: param.sched_priority,
+        }
+    }
+
+    /// The normal scheduler.
+    fn normal() -> Scheduling {
+        Scheduling {
+            policy: libc::SCHED_OTHER,
+            priority: 0,
+        }
+    }
+
+    /// Puts the calling thread under this scheduling; a refusal leaves it as it is.
+    fn apply(self) {
+        let param = libc::sched_param {
+            sched_priority: self.priority,
+        };
+        // SAFETY: pid 0 is the calling thread; `param` is valid during the call.
+        let _ = unsafe { libc::sched_setscheduler(0, self.policy, &param) };
+    }
 }
 
 /// CLOCK_MONOTONIC, ns (the clock `MachineState::publish_time_ns` uses).

@@ -711,6 +711,9 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
         }
         sleep_until(wake);
     }
+    // Closing the bus endpoints is no drive work: not at SCHED_FIFO, where it would keep other
+    // processes' drives (same priority, no time slicing) off this CPU for milliseconds.
+    coordinator::runtime::rt::leave_realtime();
     let ran = monotonic_now() - start;
     if !stations.is_empty() {
         let errors: u64 = stations.iter().map(|s| s.station.errors()).sum();

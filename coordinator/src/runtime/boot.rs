@@ -760,6 +760,9 @@ impl BootSequencer {
         if self.nodes[i].state != NodeState::Running {
             return;
         }
+        // Out of Running first: `finish` leaves a running (or refused) node alone, which made
+        // this a no-op (the lost drive was neither reported nor probed).
+        self.nodes[i].state = NodeState::Sdo;
         self.finish(
             i,
             Err(BootFailure {

@@ -225,6 +225,15 @@ pub fn run_real(
     out: &mut dyn Write,
 ) -> Result<Summary, RunError> {
     let wall0 = std::time::Instant::now();
+    // Memory is locked here, before any thread of the run exists: mlockall populates the whole
+    // process (about 100 ms for a debug build), and a thread that maps memory meanwhile waits
+    // for the process's memory-map lock. Done on the cycle thread, it held the threads already
+    // running (Modbus exchange, capture) for that long.
+    let memory = rt::enter_realtime(&RtSettings {
+        priority: None,
+        cpu: None,
+        lock_memory: true,
+    });
     let t0 = monotonic_now();
 
     // The buses, as configured. A SocketCAN interface that cannot be opened stops the run here,
@@ -426,7 +435,6 @@ pub fn run_real(
             .name("cycle".into())
             .stack_size(64 << 20)
             .spawn_scoped(s, move || -> Result<CycleResult, RunError> {
-                let report = rt::enter_realtime(&RtSettings::default());
                 let mut ports: Vec<Port> = Vec::with_capacity(cycle_buses.len());
                 for (b, port) in plan.buses.iter().zip(cycle_buses) {
                     ports.push(match port {
@@ -441,6 +449,19 @@ pub fn run_real(
                     Some(prefix) => Some(StateSide::create(prefix, info).map_err(RunError::Io)?),
                     None => None,
                 };
+                // Real-time scheduling only now: opening the ports and the state service takes
+                // tens of milliseconds in a debug build, which at SCHED_FIFO 80 kept a CPU from
+                // every other thread (the Modbus exchange missed its answer timeout). Memory
+                // is locked already (above); with MCL_FUTURE this thread's stack was locked and
+                // populated when it was created.
+                let mut report = rt::enter_realtime(&RtSettings {
+                    lock_memory: false,
+                    ..RtSettings::default()
+                });
+                report.memory_locked = memory.memory_locked;
+                report
+                    .warnings
+                    .splice(0..0, memory.warnings.iter().cloned());
                 let relay_stop = Arc::new(AtomicBool::new(false));
                 let mut relay = None;
                 let start = monotonic_now() + period;
@@ -481,6 +502,8 @@ pub fn run_real(
                     snapshots: snap_tx,
                 };
                 while lp.iterate(&mut core, &mut io).is_some() {}
+                // The rest (summary, closing the ports and services) is no cycle work.
+                rt::leave_realtime();
                 let k = lp.cycles();
                 let mut summary = Summary {
                     cycles: k,

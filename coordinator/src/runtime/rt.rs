@@ -90,10 +90,25 @@ impl Ticker {
 
     /// Sleeps until the next deadline (at once if it has passed) and returns what happened.
     pub fn wait(&mut self) -> Tick {
-        let skipped = self.skip_missed(monotonic_now());
-        let deadline = self.next_deadline();
-        sleep_until(deadline);
+        self.wait_with(sleep_until)
+    }
+
+    /// [`wait`](Self::wait), sleeping with `sleep` (tests stall inside it).
+    fn wait_with(&mut self, sleep: impl FnOnce(Instant)) -> Tick {
+        let mut skipped = self.skip_missed(monotonic_now());
+        let mut deadline = self.next_deadline();
+        sleep(deadline);
         let woke = monotonic_now();
+        // Stopped while asleep (the host stalled the thread, SIGSTOP): the deadlines that passed
+        // meanwhile are missed too, now and not only at the next wait, and this cycle is the
+        // latest deadline's. Otherwise the first cycle after the stall ran as if on time, with
+        // a `now` from before it (its guarding polls stamped then, their replies judged against
+        // that time), and the overrun was noticed a cycle later.
+        let missed = self.skip_missed(woke);
+        if missed > 0 {
+            skipped += missed;
+            deadline = self.next_deadline();
+        }
         let tick = Tick {
             cycle: self.cycle,
             deadline,
@@ -314,6 +329,16 @@ pub fn enter_realtime(settings: &RtSettings) -> RtReport {
     report
 }
 
+/// Puts the calling thread back on the normal scheduler (SCHED_OTHER) once its real-time part
+/// is over: tearing down ports and shared memory takes milliseconds of CPU in a debug build,
+/// which at SCHED_FIFO keeps every real-time thread of lower or equal priority on the machine
+/// (other processes' drives included) off that CPU. Refused only for an invalid policy, never.
+pub fn leave_realtime() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: pid 0 is the calling thread on Linux; `param` is valid during the call.
+    let _ = unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) };
+}
+
 fn pin_to_cpu(cpu: usize) -> io::Result<()> {
     // CPU_SET indexes a fixed-size bit array; refuse what does not fit rather than panic.
     if cpu >= libc::CPU_SETSIZE as usize {
@@ -495,6 +520,24 @@ mod tests {
         assert_eq!(next.skipped, 0);
         assert_eq!(next.deadline - resumed.deadline, period);
         assert!(next.woke >= next.deadline);
+    }
+
+    #[test]
+    fn a_stall_during_the_sleep_is_skipped_at_once() {
+        let period = Duration::from_millis(2);
+        let mut t = Ticker::new(monotonic_now(), period);
+        let first = t.wait();
+        // Asleep toward the next deadline, the thread is stopped for ten periods.
+        let resumed = t.wait_with(|d| {
+            sleep_until(d);
+            std::thread::sleep(period * 10);
+        });
+        assert!(resumed.skipped >= 8, "{resumed:?}");
+        assert_eq!(resumed.cycle, first.cycle + 1 + resumed.skipped);
+        assert!(resumed.late < period, "{resumed:?}");
+        let next = t.wait();
+        assert_eq!(next.skipped, 0, "{next:?}");
+        assert_eq!(next.deadline - resumed.deadline, period);
     }
 
     #[test]

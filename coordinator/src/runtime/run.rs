@@ -440,10 +440,17 @@ impl<'t> CycleCore<'t> {
         }
     }
 
-    /// Takes a received frame for the next step.
+    /// Takes a received frame for the next step, in timestamp order (frames with equal times in
+    /// arrival order). A `vbus:` bus delivers frames in the order their senders' processes got
+    /// to sending them, and the CANopen services judge every node's deadlines at each frame's
+    /// time: after a stall, one node's late-stamped heartbeat handled before another node's
+    /// earlier one declared that node lost although its heartbeat was in the same batch.
     pub fn receive(&mut self, f: BusFrame) {
         if self.rx.len() < RX_CAPACITY {
-            self.rx.push(f);
+            let t = f.frame.timestamp();
+            // Frames come nearly in order: the place is almost always at the end.
+            let at = self.rx.partition_point(|x| x.frame.timestamp() <= t);
+            self.rx.insert(at, f);
         } else {
             self.rx_dropped += 1;
         }

@@ -359,7 +359,11 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
     pub fn poll_timeout(&self) -> Option<Instant> {
         self.nodes
             .iter()
-            .flat_map(|g| [Some(g.next_poll), g.reply_deadline(), g.life_deadline()])
+            .flat_map(|g| {
+                // A due poll waits for the outstanding one (`poll_transmit`): not a deadline.
+                let poll = g.awaiting.is_none().then_some(g.next_poll);
+                [poll, g.reply_deadline(), g.life_deadline()]
+            })
             .flatten()
             .min()
     }
@@ -397,7 +401,14 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
     /// full is counted in [`GuardingMaster::dropped_events`]; the poll goes out regardless).
     pub fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
         let _ = self.handle_timeout(now);
-        let g = self.nodes.iter_mut().find(|g| now >= g.next_poll)?;
+        // One poll outstanding per node, so that each reply's toggle belongs to its poll. A
+        // master that fell behind (a stall) catches up on its schedule with polls one cycle
+        // apart; sent before the first reply was taken, the second reply was dropped as
+        // unsolicited and the next one reported a toggle error (the node "lost").
+        let g = self
+            .nodes
+            .iter_mut()
+            .find(|g| now >= g.next_poll && g.awaiting.is_none())?;
         // Absolute schedule; a caller more than a guard time late does not get a burst.
         g.next_poll += g.guard;
         if g.next_poll <= now {
@@ -793,6 +804,33 @@ mod tests {
         m.handle_frame(&f("704#FF"), ms(321)).unwrap();
         assert_eq!(events(&mut m), [GuardingEvent::Resumed { node }]);
         assert!(!m.is_lost(node));
+    }
+
+    #[test]
+    fn a_due_poll_waits_for_the_outstanding_reply() {
+        let mut dev = GuardingSlave::new(n(4), 100, 3);
+        let mut m: GuardingMaster<1> = GuardingMaster::new();
+        m.add_node(n(4), 100, 3, ms(0)).unwrap();
+        let op = NmtState::Operational;
+        let p = m.poll_transmit(ms(0)).unwrap();
+        let r = dev.handle_frame(&p, ms(0), op).unwrap();
+        m.handle_frame(&r, ms(1)).unwrap();
+        // The master was away until 195 ms: the poll due at 100 goes now, the next is due at
+        // 200 and its cycle comes before the reply was taken: it waits.
+        let p1 = m.poll_transmit(ms(195)).unwrap();
+        assert_eq!(m.poll_transmit(ms(201)), None);
+        assert!(
+            m.poll_timeout().unwrap() > ms(201),
+            "no deadline in the past"
+        );
+        let r1 = dev.handle_frame(&p1, ms(196), op).unwrap();
+        m.handle_frame(&r1, ms(202)).unwrap();
+        // Then it goes at once, and its reply's toggle is the one expected.
+        let p2 = m.poll_transmit(ms(202)).unwrap();
+        let r2 = dev.handle_frame(&p2, ms(203), op).unwrap();
+        m.handle_frame(&r2, ms(204)).unwrap();
+        assert_eq!(events(&mut m), []);
+        assert!(!m.is_lost(n(4)));
     }
 
     #[test]

@@ -1,0 +1,1020 @@
+//! The coordinator mastering drives it does not own: every drive a `drive-sim` process of its
+//! own on the cross-process bus `vbus:NAME` (or a Modbus TCP server on 127.0.0.1), the real
+//! `coordinator run --config` in another process, `canbus dump` beside them, and a client of
+//! the shared-memory contract in this process commanding the machine.
+//!
+//! Each test has its own bus names, shared-memory prefix, Modbus port and directory (pid and a
+//! counter), so the tests run in parallel. Every process writes to a file in that directory;
+//! dropping the [`Scene`] kills whatever still runs and, when the test failed, prints what
+//! every process said (the directory is then kept). Nothing asserts an absolute time: waits
+//! are bounded with generous limits, only a hang reaches them. `REAL_DRIVES_KEEP=1` keeps the
+//! directories of passing tests too.
+//!
+//! The binaries are the workspace's own (`cargo test --workspace` builds them first; a partial
+//! build builds a missing one here).
+
+use std::fmt::Write as _;
+use std::fs::File;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use shm_api::client::Client;
+use shm_api::contract::{
+    AxisState, CommandRequest, MachineState, axis_flags, axis_mode, axis_state, event_id, fault,
+    motion_state,
+};
+use shm_api::request::{Target, name_str};
+
+/// The longest any single wait may take; only a hang or a broken product reaches it.
+const PATIENCE: Duration = Duration::from_secs(90);
+/// Replies to commands.
+const REPLY: Duration = Duration::from_secs(5);
+/// One millimetre in µunits (the contract's positions).
+const MM: i64 = 1_000_000;
+
+/// A binary of the workspace, built if a partial build has not built it yet.
+fn bin(package: &str, name: &str) -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    // target/<profile>/deps/this-test → target/<profile>/<name>
+    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+    let path = dir.join(name);
+    if !path.exists() {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let ok = Command::new(cargo)
+            .args(["build", "-q", "-p", package, "--bin", name])
+            .status()
+            .unwrap();
+        assert!(ok.success(), "building {name}");
+    }
+    path
+}
+
+fn coordinator_bin() -> PathBuf {
+    bin("coordinator", "coordinator")
+}
+
+fn drive_sim_bin() -> PathBuf {
+    bin("coordinator", "drive-sim")
+}
+
+fn canbus_bin() -> PathBuf {
+    bin("drivers", "canbus")
+}
+
+/// A name no other test (or test run) uses: `tag`, this process's id, a counter.
+fn unique(tag: &str) -> String {
+    static N: AtomicU32 = AtomicU32::new(0);
+    format!(
+        "{tag}{}x{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
+/// A free TCP port on 127.0.0.1 (the OS picks it; it is free again once the probe is closed).
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A process of the scene, by index.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct P(usize);
+
+struct Proc {
+    label: String,
+    args: Vec<String>,
+    child: Child,
+    log: PathBuf,
+    status: Option<ExitStatus>,
+}
+
+/// A test's directory and processes. Dropping it kills every process still running; when the
+/// test is failing it prints what each said and keeps the directory.
+struct Scene {
+    dir: PathBuf,
+    procs: Vec<Proc>,
+}
+
+impl Scene {
+    fn new(test: &str) -> Scene {
+        let dir = std::env::temp_dir().join(unique(&format!("real-drives-{test}-")));
+        std::fs::create_dir_all(&dir).unwrap();
+        Scene {
+            dir,
+            procs: Vec::new(),
+        }
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    fn write(&self, name: &str, text: &str) -> PathBuf {
+        let p = self.path(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    /// Starts `exe ARGS`; stdout and stderr go to one file (a file, not a pipe: nobody has to
+    /// read it for the process to go on).
+    fn spawn(&mut self, label: &str, exe: &Path, args: &[&str]) -> P {
+        let n = self.procs.len();
+        let log = self.path(&format!("{n}-{}.out", label.replace(' ', "-")));
+        let out = File::options()
+            .create(true)
+            .append(true)
+            .open(&log)
+            .unwrap();
+        let err = out.try_clone().unwrap();
+        let child = Command::new(exe)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(out)
+            .stderr(err)
+            .spawn()
+            .unwrap_or_else(|e| panic!("starting {}: {e}", exe.display()));
+        self.procs.push(Proc {
+            label: label.to_owned(),
+            args: args.iter().map(|s| s.to_string()).collect(),
+            child,
+            log,
+            status: None,
+        });
+        P(n)
+    }
+
+    /// `drive-sim --config FILE --only AXIS...`, a status line a second.
+    fn drive_sim(&mut self, config: &Path, only: &[&str]) -> P {
+        let mut args = vec!["--config", config.to_str().unwrap(), "--status-every", "1"];
+        for o in only {
+            args.extend(["--only", o]);
+        }
+        let label = format!("drive-sim {}", only.join(","));
+        self.spawn(&label, &drive_sim_bin(), &args)
+    }
+
+    /// `coordinator run --config FILE --quiet --shm-prefix PREFIX EXTRA...`.
+    fn coordinator(&mut self, config: &Path, prefix: &str, extra: &[&str]) -> P {
+        let mut args = vec![
+            "run",
+            "--config",
+            config.to_str().unwrap(),
+            "--quiet",
+            "--shm-prefix",
+            prefix,
+        ];
+        args.extend_from_slice(extra);
+        self.spawn("coordinator", &coordinator_bin(), &args)
+    }
+
+    fn output(&self, p: P) -> String {
+        std::fs::read_to_string(&self.procs[p.0].log).unwrap_or_default()
+    }
+
+    /// Whether the process still runs (its exit status is kept once it ended).
+    fn running(&mut self, p: P) -> bool {
+        let pr = &mut self.procs[p.0];
+        if pr.status.is_none() {
+            pr.status = pr.child.try_wait().unwrap();
+        }
+        pr.status.is_none()
+    }
+
+    /// Waits until the output of `p` holds `text` at least `times` times.
+    fn wait_output(&mut self, p: P, text: &str, times: usize) {
+        let end = Instant::now() + PATIENCE;
+        loop {
+            if self.output(p).matches(text).count() >= times {
+                return;
+            }
+            assert!(
+                self.running(p),
+                "{} ended before printing {text:?} ({times}x)",
+                self.procs[p.0].label
+            );
+            assert!(
+                Instant::now() < end,
+                "{} never printed {text:?} ({times}x)",
+                self.procs[p.0].label
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn signal(&mut self, p: P, sig: libc::c_int) {
+        assert!(self.running(p), "{} is not running", self.procs[p.0].label);
+        let pid = self.procs[p.0].child.id() as libc::pid_t;
+        // SAFETY: kill(2) on our own child's pid, which has not been reaped (it still runs);
+        // no memory is involved.
+        assert_eq!(unsafe { libc::kill(pid, sig) }, 0, "kill({pid}, {sig})");
+    }
+
+    /// SIGKILL, and reaps it.
+    fn kill(&mut self, p: P) {
+        let pr = &mut self.procs[p.0];
+        let _ = pr.child.kill();
+        pr.status = Some(pr.child.wait().unwrap());
+    }
+
+    /// Waits for the process to end by itself.
+    fn wait_exit(&mut self, p: P) -> ExitStatus {
+        let end = Instant::now() + PATIENCE;
+        while self.running(p) {
+            assert!(
+                Instant::now() < end,
+                "{} did not end",
+                self.procs[p.0].label
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        self.procs[p.0].status.unwrap()
+    }
+
+    /// Polls the machine state until `ok` holds; fails naming `what` with the last state
+    /// (or at once if the coordinator `coord` ended).
+    fn wait_state(
+        &mut self,
+        c: &mut Client,
+        coord: P,
+        what: &str,
+        mut ok: impl FnMut(&MachineState) -> bool,
+    ) -> Box<MachineState> {
+        let end = Instant::now() + PATIENCE;
+        let mut last: Option<Box<MachineState>> = None;
+        loop {
+            if let Some(s) = c.latest() {
+                if ok(s) {
+                    return Box::new(*s);
+                }
+                last = Some(Box::new(*s));
+            }
+            let shown = || last.as_deref().map_or("no state".into(), describe);
+            assert!(
+                self.running(coord),
+                "the coordinator ended while waiting for {what}; last state:\n{}",
+                shown()
+            );
+            assert!(
+                Instant::now() < end,
+                "{what}: not within {PATIENCE:?}; last state:\n{}",
+                shown()
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+}
+
+impl Drop for Scene {
+    fn drop(&mut self) {
+        for p in &mut self.procs {
+            if p.status.is_none() {
+                let _ = p.child.kill();
+                p.status = p.child.wait().ok();
+            }
+        }
+        if std::thread::panicking() {
+            for p in &self.procs {
+                let text = std::fs::read_to_string(&p.log).unwrap_or_default();
+                let lines: Vec<&str> = text.lines().collect();
+                let shown = &lines[lines.len().saturating_sub(400)..];
+                eprintln!(
+                    "--- {} ({}), {:?}; its last {} of {} lines:\n{}\n---",
+                    p.label,
+                    p.args.join(" "),
+                    p.status,
+                    shown.len(),
+                    lines.len(),
+                    shown.join("\n")
+                );
+            }
+            eprintln!("(the files are kept in {})", self.dir.display());
+        } else if std::env::var_os("REAL_DRIVES_KEEP").is_none() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+/// The state in a few lines: per axis its state, mode, flags, fault and position; per group
+/// its motion.
+fn describe(s: &MachineState) -> String {
+    let mut t = format!("cycle {}\n", s.cycle);
+    for a in &s.axes[..usize::from(s.axis_count)] {
+        let _ = writeln!(
+            t,
+            "  {}: state {} mode {} flags {:#06x} fault {} code {:04X}h pos {:.3} set {:.3}",
+            name_str(&a.name),
+            a.state,
+            a.mode,
+            a.flags,
+            a.fault,
+            a.fault_code,
+            a.position as f64 / MM as f64,
+            a.setpoint as f64 / MM as f64,
+        );
+    }
+    for g in &s.groups[..usize::from(s.group_count)] {
+        let _ = writeln!(t, "  group {}: motion {}", name_str(&g.name), g.motion);
+    }
+    t
+}
+
+fn connect(prefix: &str) -> Client {
+    Client::connect_timeout(prefix, PATIENCE).expect("the coordinator publishes its state")
+}
+
+fn has(a: &AxisState, flags: u16) -> bool {
+    a.flags & flags == flags
+}
+
+/// Enabled, homed, standing and fault-free: ready for a move.
+fn ready(a: &AxisState) -> bool {
+    has(
+        a,
+        axis_flags::ONLINE | axis_flags::ENABLED | axis_flags::HOMED,
+    ) && a.mode == axis_mode::ON
+        && a.state == axis_state::READY
+        && a.fault == fault::NONE
+}
+
+fn axes(s: &MachineState) -> &[AxisState] {
+    &s.axes[..usize::from(s.axis_count)]
+}
+
+/// `coordinator check FILE`: must accept it; returns what it printed (the budget per bus).
+fn check(config: &Path) -> String {
+    let out = Command::new(coordinator_bin())
+        .arg("check")
+        .arg(config)
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "coordinator check refused:\n{text}");
+    assert!(text.lines().any(|l| l == "OK"), "{text}");
+    text
+}
+
+/// One frame of a candump `-l` log: time (s), identifier, data (`None` for a remote frame).
+#[derive(Debug, Clone, PartialEq)]
+struct Logged {
+    time: f64,
+    id: u32,
+    data: Option<Vec<u8>>,
+}
+
+/// Reads a candump `-l` log: `(1712345678.123456) IFACE 181#00112233`.
+fn read_log(path: &Path) -> Vec<Logged> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.lines()
+        .map(|l| {
+            let mut parts = l.split_whitespace();
+            let time = parts.next().unwrap();
+            let _iface = parts.next().unwrap();
+            let frame = parts.next().unwrap();
+            let (id, data) = frame.split_once('#').unwrap();
+            let data = (!data.starts_with('R')).then(|| {
+                (0..data.len())
+                    .step_by(2)
+                    .map(|i| u8::from_str_radix(&data[i..i + 2], 16).unwrap())
+                    .collect()
+            });
+            Logged {
+                time: time.trim_matches(['(', ')']).parse().unwrap(),
+                id: u32::from_str_radix(id, 16).unwrap(),
+                data,
+            }
+        })
+        .collect()
+}
+
+const SYNC: u32 = 0x080;
+
+/// Each frame with the number of SYNCs seen up to and including it (the SYNC it follows).
+fn numbered(log: &[Logged]) -> Vec<(u64, &Logged)> {
+    let mut n = 0;
+    log.iter()
+        .map(|f| {
+            n += u64::from(f.id == SYNC);
+            (n, f)
+        })
+        .collect()
+}
+
+/// The SYNC number after which the frames `cob` first carry other data than before, looking
+/// only after SYNC `from`; with the data before and after.
+fn first_change(log: &[Logged], cob: u32, from: u64) -> Option<(u64, Vec<u8>, Vec<u8>)> {
+    let mut last: Option<&Vec<u8>> = None;
+    for (n, f) in numbered(log) {
+        if f.id != cob {
+            continue;
+        }
+        let Some(d) = &f.data else { continue };
+        if n > from
+            && let Some(prev) = last
+            && prev != d
+        {
+            return Some((n, prev.clone(), d.clone()));
+        }
+        last = Some(d);
+    }
+    None
+}
+
+/// Axis and group indices by name (the configuration's order), checked against the state.
+fn index_of(s: &MachineState, axis: &str) -> usize {
+    axes(s)
+        .iter()
+        .position(|a| name_str(&a.name) == axis)
+        .unwrap_or_else(|| panic!("no axis {axis}:\n{}", describe(s)))
+}
+
+fn group_of(s: &MachineState, group: &str) -> u16 {
+    s.groups[..usize::from(s.group_count)]
+        .iter()
+        .position(|g| name_str(&g.name) == group)
+        .unwrap_or_else(|| panic!("no group {group}:\n{}", describe(s))) as u16
+}
+
+fn limits(min: f64, max: f64, velocity: f64, acceleration: f64) -> String {
+    format!(
+        "limits = {{ position_min = {min:?}, position_max = {max:?}, velocity = {velocity:?}, \
+         acceleration = {acceleration:?} }}"
+    )
+}
+
+#[test]
+fn a_machine_of_drives_in_other_processes() {
+    let mut sc = Scene::new("machine");
+    let (bus_a, bus_b) = (unique("rda"), unique("rdb"));
+    let port = free_port();
+    let prefix = unique("t-real-machine-");
+    // t (TLC5xx) and m (MTR-DCI) on bus A, e (EMCA) on bus B, g (CMMO-ST) on Modbus TCP; the
+    // group "cross" spans both buses.
+    let config = sc.write(
+        "machine.toml",
+        &format!(
+            "cycle_us = 2000\n\n\
+             [[buses]]\nname = \"{bus_a}\"\nkind = \"vbus\"\n\n\
+             [[buses]]\nname = \"{bus_b}\"\nkind = \"vbus\"\n\n\
+             [[axes]]\nname = \"t\"\ndevice = \"tlc5xx\"\nbus = \"{bus_a}\"\nnode = 1\n\
+             increments_per_unit = 1000.0\n{}\n\n\
+             [[axes]]\nname = \"m\"\ndevice = \"mtr-dci\"\nbus = \"{bus_a}\"\nnode = 2\n\
+             increments_per_unit = 400.0\n{}\n\n\
+             [[axes]]\nname = \"e\"\ndevice = \"emca\"\nbus = \"{bus_b}\"\nnode = 3\n\
+             increments_per_unit = 1000.0\n{}\n\n\
+             [[axes]]\nname = \"g\"\ndevice = \"cmmo-st\"\nmodbus = \"127.0.0.1:{port}\"\n\
+             unit = \"deg\"\nincrements_per_unit = 100.0\n{}\n\n\
+             [[groups]]\nname = \"cross\"\naxes = [\"t\", \"e\"]\n\n\
+             [[groups]]\nname = \"solo\"\naxes = [\"m\"]\n\n\
+             [[groups]]\nname = \"hand\"\naxes = [\"g\"]\n",
+            limits(0.0, 100.0, 50.0, 200.0),
+            limits(0.0, 200.0, 50.0, 200.0),
+            limits(0.0, 100.0, 50.0, 200.0),
+            limits(-180.0, 180.0, 90.0, 900.0),
+        ),
+    );
+    let budget = check(&config);
+    for b in [&bus_a, &bus_b] {
+        assert!(
+            budget.contains(&format!("bus {b}: ")),
+            "a budget for {b}:\n{budget}"
+        );
+    }
+
+    // Each drive its own process, so one can die alone.
+    let _t = sc.drive_sim(&config, &["t"]);
+    let _m = sc.drive_sim(&config, &["m"]);
+    let e_sim = sc.drive_sim(&config, &["e"]);
+    let _g = sc.drive_sim(&config, &["g"]);
+    let capture = sc.path("capture");
+    let coord = sc.coordinator(
+        &config,
+        &prefix,
+        &["--no-chains", "--capture", capture.to_str().unwrap()],
+    );
+    let mut c = connect(&prefix);
+
+    // The built-in script (without chains) enables and homes every axis.
+    let s = sc.wait_state(&mut c, coord, "every axis online, enabled and homed", |s| {
+        s.axis_count == 4 && axes(s).iter().all(ready)
+    });
+    let (t, m, e, g) = (
+        index_of(&s, "t"),
+        index_of(&s, "m"),
+        index_of(&s, "e"),
+        index_of(&s, "g"),
+    );
+    let (cross, solo) = (group_of(&s, "cross"), group_of(&s, "solo"));
+    group_of(&s, "hand");
+    // Before the move: the cross axes' RPDOs stand still from here on.
+    let quiet_from = s.cycle;
+
+    // Both cross axes across (most of) their range, and the solo axis at the same time.
+    let moved = c
+        .command(
+            &CommandRequest::move_group(cross, &[90 * MM, 90 * MM], 30),
+            REPLY,
+        )
+        .expect("the cross move is latched");
+    c.command(&CommandRequest::move_group(solo, &[190 * MM], 40), REPLY)
+        .expect("the solo move is latched");
+
+    // Mid-move, the EMCA's process dies.
+    sc.wait_state(&mut c, coord, "the cross axes under way", |s| {
+        s.axes[t].position > 15 * MM && s.axes[e].position > 15 * MM
+    });
+    sc.kill(e_sim);
+    let s = sc.wait_state(&mut c, coord, "cross quick-stopped, e faulted", |s| {
+        s.axes[t].mode == axis_mode::QUICK_STOPPED && s.axes[e].fault != fault::NONE
+    });
+    assert_eq!(s.axes[t].fault, fault::NONE, "t is stopped, not faulted");
+    assert_ne!(
+        s.groups[usize::from(cross)].motion,
+        motion_state::MOVING,
+        "{}",
+        describe(&s)
+    );
+    // t comes to a standstill short of its target.
+    let s = sc.wait_state(&mut c, coord, "t at a standstill", |s| {
+        s.axes[t].state != axis_state::MOVING && s.axes[t].velocity == 0
+    });
+    let t_stopped = s.axes[t].position;
+    assert!(t_stopped < 85 * MM, "t stopped at {t_stopped} µm");
+
+    // Meanwhile "solo" goes on: its position keeps growing, fault-free.
+    let mut last = s.axes[m].position;
+    for _ in 0..3 {
+        let s = sc.wait_state(&mut c, coord, "m moving on", |s| {
+            s.axes[m].position > last + MM
+        });
+        assert_eq!(s.axes[m].fault, fault::NONE, "{}", describe(&s));
+        assert_eq!(s.axes[m].mode, axis_mode::ON, "{}", describe(&s));
+        last = s.axes[m].position;
+    }
+    let s = *c.latest().unwrap();
+    assert!(
+        (s.axes[t].position - t_stopped).abs() <= MM / 10,
+        "t stays where it stopped: {} after {t_stopped}",
+        s.axes[t].position
+    );
+    assert!(last < 190 * MM, "m still short of its target: {last}");
+
+    // The coordinator waits for the lost drive; the axis is offline meanwhile.
+    sc.wait_output(coord, "drive lost: node 3 (EMCA \"e\")", 1);
+    sc.wait_state(&mut c, coord, "e offline", |s| {
+        !has(&s.axes[e], axis_flags::ONLINE)
+    });
+
+    // The drive powers on again: configured again, online, still faulted.
+    let _e_again = sc.drive_sim(&config, &["e"]);
+    sc.wait_output(coord, "drive ready: node 3 (EMCA \"e\")", 2);
+    let s = sc.wait_state(&mut c, coord, "e online again", |s| {
+        has(&s.axes[e], axis_flags::ONLINE)
+    });
+    assert_ne!(
+        s.axes[e].fault,
+        fault::NONE,
+        "still faulted until acknowledged"
+    );
+    let refused = c.command(
+        &CommandRequest::move_group(cross, &[10 * MM, 10 * MM], 50),
+        REPLY,
+    );
+    // Refused (t quick-stopped, e faulted), whichever member is looked at first.
+    assert!(
+        matches!(
+            refused,
+            Err(shm_api::client::Rejected::Faulted | shm_api::client::Rejected::WrongState(_))
+        ),
+        "a faulted group does not move: {refused:?}"
+    );
+
+    // Acknowledge, then enable and home what needs it.
+    c.command(&CommandRequest::acknowledge(Target::Group(cross)), REPLY)
+        .expect("acknowledge latched");
+    let s = sc.wait_state(&mut c, coord, "cross acknowledged", |s| {
+        [t, e].iter().all(|&a| {
+            s.axes[a].fault == fault::NONE
+                && !matches!(
+                    s.axes[a].mode,
+                    axis_mode::ACKNOWLEDGING | axis_mode::QUICK_STOPPED
+                )
+        })
+    });
+    for a in [t, e] {
+        if !has(&s.axes[a], axis_flags::ENABLED) || s.axes[a].mode == axis_mode::OFF {
+            c.command(&CommandRequest::enable(Target::Axis(a as u16)), REPLY)
+                .expect("enable latched");
+            sc.wait_state(&mut c, coord, "enabled", |s| {
+                has(&s.axes[a], axis_flags::ENABLED) && s.axes[a].state == axis_state::READY
+            });
+        }
+        if !has(&s.axes[a], axis_flags::HOMED) {
+            c.command(&CommandRequest::home(Target::Axis(a as u16)), REPLY)
+                .expect("home latched");
+        }
+    }
+    sc.wait_state(&mut c, coord, "cross ready again", |s| {
+        ready(&s.axes[t]) && ready(&s.axes[e])
+    });
+
+    // The group moves again and arrives.
+    let targets = [30 * MM, 60 * MM];
+    c.command(&CommandRequest::move_group(cross, &targets, 50), REPLY)
+        .expect("the second cross move is latched");
+    let s = sc.wait_state(&mut c, coord, "cross arrived", |s| {
+        [(t, targets[0]), (e, targets[1])].iter().all(|&(a, to)| {
+            (s.axes[a].position - to).abs() <= MM / 20
+                && has(&s.axes[a], axis_flags::MOTION_COMPLETE)
+                && s.axes[a].state == axis_state::READY
+        })
+    });
+    assert_eq!(s.axes[g].fault, fault::NONE, "{}", describe(&s));
+    assert!(
+        ready(&s.axes[g]),
+        "the CMMO-ST stayed ready: {}",
+        describe(&s)
+    );
+
+    // Ctrl-C: the coordinator stops and disables the drives and reports; status 2 (a fault).
+    sc.signal(coord, libc::SIGINT);
+    let status = sc.wait_exit(coord);
+    let out = sc.output(coord);
+    assert_eq!(status.code(), Some(2), "exit status 2: there was a fault");
+    let faults: Vec<&str> = out.lines().filter(|l| l.starts_with("  fault: ")).collect();
+    assert!(!faults.is_empty(), "the summary lists e's fault");
+    assert!(
+        faults.iter().all(|l| l.starts_with("  fault: e: ")),
+        "only e faulted: {faults:?}"
+    );
+    assert!(!out.contains("dropped"), "the capture dropped nothing");
+
+    // The capture: both cross axes' RPDO1 first change at the start of the move right after
+    // the same SYNC on both buses (the coordinator sends SYNC on every bus before any RPDO).
+    let log_a = read_log(&capture.join(format!("{bus_a}.log")));
+    let log_b = read_log(&capture.join(format!("{bus_b}.log")));
+    let (n_t, before_t, after_t) =
+        first_change(&log_a, 0x201, quiet_from).expect("t's RPDO1 changes at the move");
+    let (n_e, before_e, after_e) =
+        first_change(&log_b, 0x203, quiet_from).expect("e's RPDO1 changes at the move");
+    assert_eq!(
+        n_t, n_e,
+        "t's RPDO1 {before_t:02X?} -> {after_t:02X?} after SYNC {n_t} on {bus_a}, \
+         e's {before_e:02X?} -> {after_e:02X?} after SYNC {n_e} on {bus_b}"
+    );
+    // And that SYNC is the one of the cycle the move latched in (each step sends one SYNC
+    // per bus; skipped deadlines are no steps).
+    assert_eq!(
+        n_t, moved.cycle,
+        "the change follows the latching cycle's SYNC"
+    );
+}
+
+#[test]
+fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
+    let mut sc = Scene::new("dump");
+    let bus = unique("rdd");
+    let prefix = unique("t-real-dump-");
+    let config = sc.write(
+        "dump.toml",
+        &format!(
+            "cycle_us = 2000\n\n\
+             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+             [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
+             increments_per_unit = 1000.0\n{}\n",
+            limits(0.0, 100.0, 50.0, 200.0)
+        ),
+    );
+    check(&config);
+    sc.drive_sim(&config, &["z"]);
+    // The dump joins the bus before the coordinator's cycle runs: an endpoint joining a vbus
+    // bus stalls every endpoint already on it until the newcomer has set up its shared memory
+    // (iceoryx2 waits in 1 ms ticks), a few milliseconds in a debug build, which can cost the
+    // drive three TPDOs in a row. The dump then records the coordinator from its first SYNC.
+    let dump_file = sc.path("dump.log");
+    let dump = sc.spawn(
+        "canbus dump",
+        &canbus_bin(),
+        &[
+            "dump",
+            &format!("vbus:{bus}"),
+            "--log",
+            dump_file.to_str().unwrap(),
+            "--count",
+            "6000",
+            "--timeout",
+            "90",
+        ],
+    );
+    sc.wait_output(dump, &format!("listening on vbus:{bus}"), 1);
+    let capture = sc.path("capture");
+    let coord = sc.coordinator(
+        &config,
+        &prefix,
+        &["--no-chains", "--capture", capture.to_str().unwrap()],
+    );
+    sc.wait_output(coord, "drive ready: node 5 (TLC5xx \"z\")", 1);
+    let status = sc.wait_exit(dump);
+    assert!(
+        status.success(),
+        "canbus dump got its 6000 frames: {status}"
+    );
+    sc.signal(coord, libc::SIGINT);
+    let status = sc.wait_exit(coord);
+    assert_eq!(status.code(), Some(0), "a run without faults");
+
+    let mut dumped = read_log(&dump_file);
+    assert_eq!(dumped.len(), 6000);
+    // The dump's last few milliseconds are left out: it stopped at its 6000th arrival, and
+    // frames of another sender stamped earlier may have arrived after that.
+    let settled = dumped.last().unwrap().time - 0.02;
+    dumped.retain(|d| d.time < settled);
+    let count = |id: u32| dumped.iter().filter(|f| f.id == id).count();
+    let (syncs, rpdo1, tpdo1) = (count(SYNC), count(0x205), count(0x185));
+    // About 4 s of a 2 ms cycle: well over a thousand cycles, most with both PDOs (the boot
+    // takes a few hundred cycles before the first).
+    assert!(
+        syncs > 1000 && rpdo1 > 500 && tpdo1 > 500,
+        "{syncs} SYNCs, {rpdo1} RPDO1, {tpdo1} TPDO1"
+    );
+    // Each cycle carries at most one of each: the coordinator's RPDO1 right after its SYNC, the
+    // drive's TPDO1 answering it.
+    let mut per_cycle = vec![(0, 0); syncs + 1];
+    for (n, f) in numbered(&dumped) {
+        let c = &mut per_cycle[n as usize];
+        c.0 += usize::from(f.id == 0x205);
+        c.1 += usize::from(f.id == 0x185);
+    }
+    let odd: Vec<_> = per_cycle
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.0 > 1 || c.1 > 1)
+        .take(10)
+        .collect();
+    assert!(
+        odd.is_empty(),
+        "cycles with two RPDO1 or two TPDO1: {odd:?}"
+    );
+    // The 7-byte images of the TLC5xx mapping (controlword, target, mode / statusword,
+    // position, mode display).
+    for f in dumped.iter().filter(|f| f.id == 0x205 || f.id == 0x185) {
+        assert_eq!(f.data.as_ref().map(Vec::len), Some(7), "{f:?}");
+    }
+
+    // The same frames as the coordinator's own capture, in the same order at the same times
+    // (both stamp with the bus's time).
+    let own = read_log(&capture.join(format!("{bus}.log")));
+    let same =
+        |d: &Logged, o: &Logged| d.id == o.id && d.data == o.data && (d.time - o.time).abs() < 1e-3;
+    // The dump was there first (it may hold the drive's power-on boot-up): from the
+    // coordinator's first frame on.
+    let first = dumped
+        .iter()
+        .position(|d| same(d, &own[0]))
+        .expect("the coordinator's first frame is in the dump");
+    let compared = &dumped[first..];
+    assert!(compared.len() > 5000, "{} frames compared", compared.len());
+    assert!(own.len() >= compared.len(), "the capture covers the dump");
+    for (i, (d, o)) in compared.iter().zip(&own).enumerate() {
+        assert!(same(d, o), "frame {i}: dumped {d:?}, captured {o:?}");
+    }
+}
+
+#[test]
+fn drives_that_appear_later_are_booted_and_a_wrong_device_is_refused_by_name() {
+    let mut sc = Scene::new("later");
+    let bus = unique("rdl");
+    let prefix = unique("t-real-later-");
+    let config = sc.write(
+        "later.toml",
+        &format!(
+            "cycle_us = 2000\n\n\
+             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+             [[axes]]\nname = \"t\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 3\n\
+             increments_per_unit = 1000.0\n{}\n\n\
+             [[axes]]\nname = \"m\"\ndevice = \"mtr-dci\"\nbus = \"{bus}\"\nnode = 1\n\
+             increments_per_unit = 400.0\n{}\n",
+            limits(0.0, 100.0, 50.0, 200.0),
+            limits(0.0, 200.0, 50.0, 200.0),
+        ),
+    );
+    check(&config);
+    let coord = sc.coordinator(&config, &prefix, &["--no-chains"]);
+    let vbus = format!("vbus:{bus}");
+    sc.wait_output(
+        coord,
+        &format!("waiting for node 3 (TLC5xx \"t\") on {vbus}"),
+        1,
+    );
+    sc.wait_output(
+        coord,
+        &format!("waiting for node 1 (MTR-DCI \"m\") on {vbus}"),
+        1,
+    );
+    let mut c = connect(&prefix);
+    let s = sc.wait_state(&mut c, coord, "the state", |_| true);
+    assert!(
+        axes(&s).iter().all(|a| !has(a, axis_flags::ONLINE)),
+        "nothing online: {}",
+        describe(&s)
+    );
+    let (t, m) = (index_of(&s, "t"), index_of(&s, "m"));
+
+    // The MTR-DCI appears: booted.
+    sc.drive_sim(&config, &["m"]);
+    sc.wait_output(
+        coord,
+        &format!("drive ready: node 1 (MTR-DCI \"m\") on {vbus}"),
+        1,
+    );
+    sc.wait_state(&mut c, coord, "m online", |s| {
+        has(&s.axes[m], axis_flags::ONLINE)
+    });
+
+    // An EMCA where the TLC5xx belongs: refused, naming what was found and what was expected.
+    let wrong = sc.spawn(
+        "drive-sim emca",
+        &drive_sim_bin(),
+        &[
+            "--device",
+            "emca",
+            "--bus",
+            &vbus,
+            "--node",
+            "3",
+            "--status-every",
+            "1",
+        ],
+    );
+    sc.wait_output(coord, "drive REFUSED: node 3 (TLC5xx \"t\")", 1);
+    let out = sc.output(coord);
+    let refusal = out
+        .lines()
+        .find(|l| l.starts_with("drive REFUSED: node 3"))
+        .unwrap();
+    for part in [
+        "wrong device",
+        "(a Festo MTR-DCI or EMCA (FHPP))",
+        "(a Schneider TLC5xx (CiA 402))",
+    ] {
+        assert!(refusal.contains(part), "{part:?} in: {refusal}");
+    }
+    let found = refusal.find("found").expect("names what it found");
+    let expected = refusal.find("expected").expect("names what it expected");
+    assert!(
+        refusal[found..expected].contains("MTR-DCI or EMCA")
+            && refusal[expected..].contains("TLC5xx"),
+        "found the EMCA, expected the TLC5xx: {refusal}"
+    );
+    let s = sc.wait_state(&mut c, coord, "t still offline", |_| true);
+    assert!(!has(&s.axes[t], axis_flags::ONLINE), "{}", describe(&s));
+
+    // The right drive replaces it: booted.
+    sc.kill(wrong);
+    sc.drive_sim(&config, &["t"]);
+    sc.wait_output(
+        coord,
+        &format!("drive ready: node 3 (TLC5xx \"t\") on {vbus}"),
+        1,
+    );
+    sc.wait_state(&mut c, coord, "t online", |s| {
+        has(&s.axes[t], axis_flags::ONLINE) && has(&s.axes[m], axis_flags::ONLINE)
+    });
+
+    // The summary tells the story; a refusal makes the exit status 2.
+    sc.signal(coord, libc::SIGINT);
+    let status = sc.wait_exit(coord);
+    let out = sc.output(coord);
+    assert_eq!(status.code(), Some(2), "exit status 2 after a refusal");
+    for line in [
+        "  waited for: axis t: node 3",
+        "  waited for: axis m: node 1",
+        "  refused: axis t: ",
+    ] {
+        assert!(out.contains(line), "{line:?} in the summary");
+    }
+}
+
+#[test]
+fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
+    let mut sc = Scene::new("eight");
+    let bus = unique("rde");
+    let prefix = unique("t-real-eight-");
+    let mut axes_toml = String::new();
+    for i in 1..=8u8 {
+        // The MTR-DCIs are guarded every 150 ms (life time 450 ms), not the default 100 ms:
+        // the stall stops the polls, so a drive goes without one for the stall plus up to a
+        // guard period plus the cycles until the first poll after it, and 100 + 200 ms already
+        // reach the 300 ms of the default.
+        let (device, per_unit, more) = if i % 2 == 1 {
+            ("tlc5xx", 1000.0, "")
+        } else {
+            ("mtr-dci", 400.0, "guard_time_ms = 150\n")
+        };
+        let _ = write!(
+            axes_toml,
+            "[[axes]]\nname = \"a{i}\"\ndevice = \"{device}\"\nbus = \"{bus}\"\nnode = {i}\n\
+             increments_per_unit = {per_unit:?}\n{more}{}\n\n",
+            limits(0.0, 100.0, 50.0, 200.0)
+        );
+    }
+    let machine = |cycle_us: u32| {
+        format!(
+            "cycle_us = {cycle_us}\n\n[[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n{axes_toml}"
+        )
+    };
+    // Eight drives' PDOs, heartbeats and guarding do not fit 4 ms at 1 Mbit/s within the 80 %
+    // load limit; 5 ms does.
+    let tight = sc.write("eight-4ms.toml", &machine(4000));
+    let out = Command::new(coordinator_bin())
+        .arg("check")
+        .arg(&tight)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "4 ms is refused:\n{text}");
+    assert!(text.contains("over the 80.0 % limit"), "{text}");
+    let config = sc.write("eight.toml", &machine(5000));
+    let budget = check(&config);
+    assert!(budget.contains("per 5000 us cycle"), "{budget}");
+
+    for pair in [["a1", "a2"], ["a3", "a4"], ["a5", "a6"], ["a7", "a8"]] {
+        sc.drive_sim(&config, &pair);
+    }
+    let capture = sc.path("capture");
+    let coord = sc.coordinator(
+        &config,
+        &prefix,
+        &[
+            "--duration",
+            "30",
+            "--no-chains",
+            "--capture",
+            capture.to_str().unwrap(),
+        ],
+    );
+    let mut c = connect(&prefix);
+    sc.wait_state(&mut c, coord, "all eight enabled and homed", |s| {
+        s.axis_count == 8 && axes(s).iter().all(ready)
+    });
+    // Drain the event log so far: what follows is the stall's.
+    while c.next_event().is_some() {}
+
+    // The coordinator stalls for 200 ms: less than the MTR-DCIs' life time minus a guard
+    // period, so each gets a poll in time. The TLC5xx heartbeats go on meanwhile and wait in
+    // the coordinator's receive buffer.
+    sc.signal(coord, libc::SIGSTOP);
+    std::thread::sleep(Duration::from_millis(200));
+    sc.signal(coord, libc::SIGCONT);
+    let end = Instant::now() + PATIENCE;
+    let overrun = loop {
+        match c.wait_event(Duration::from_millis(200)).unwrap() {
+            Some(r) if usize::from(r.id) == event_id::OVERRUN => break r,
+            Some(r) => assert_ne!(usize::from(r.id), event_id::FAULT, "a fault: {r:?}"),
+            None => assert!(Instant::now() < end, "no OVERRUN event"),
+        }
+    };
+    assert!(
+        overrun.value >= 150_000,
+        "away at least about the 200 ms stopped: {overrun:?}"
+    );
+
+    let status = sc.wait_exit(coord);
+    let out = sc.output(coord);
+    assert!(
+        out.lines().any(|l| l.contains(": OVERRUN: ")),
+        "an OVERRUN line"
+    );
+    assert!(!out.contains("FAULT"), "no fault line");
+    assert!(
+        !out.lines().any(|l| l.starts_with("  fault: ")),
+        "the summary lists no fault"
+    );
+    // The stall is the longest overrun (the host may add short ones).
+    let longest: f64 = out
+        .lines()
+        .find_map(|l| l.split_once("overruns of the coordinator itself: "))
+        .and_then(|(_, rest)| rest.split_once("the longest "))
+        .and_then(|(_, rest)| rest.split_once(" ms"))
+        .and_then(|(ms, _)| ms.parse().ok())
+        .expect("the summary counts the overruns");
+    assert!(longest >= 150.0, "the longest overrun: {longest} ms");
+    for i in 1..=8 {
+        assert!(
+            out.contains(&format!("  axis a{i}: ")),
+            "a{i} in the summary"
+        );
+    }
+    assert_eq!(
+        status.code(),
+        Some(0),
+        "exit status 0: no fault, no refusal"
+    );
+}
