@@ -379,7 +379,7 @@ pub struct CycleCore<'t> {
     step_ns: Histogram<u64>,
     /// Frames sent by the coordinator.
     pub frames_sent: u64,
-    /// Received frames dropped because more than [`RX_CAPACITY`] arrived in one cycle.
+    /// Received frames dropped because more than the receive capacity (4096) arrived in one cycle.
     pub rx_dropped: u64,
     /// Frames the bus refused to queue (a full transmit queue, bus-off).
     pub tx_refused: u64,
