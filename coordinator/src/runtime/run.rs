@@ -40,9 +40,9 @@ pub type MachineCycle<'t> = Cycle<'t, MAX_AXES, MAX_GROUPS>;
 
 /// Frames one cycle may send: a SYNC per bus; RPDO1, RPDO2 (the FPC) and a guarding poll per
 /// axis; SDO slots.
-pub(crate) const TX_CAPACITY: usize = 3 * MAX_AXES + MAX_BUSES + 16;
+pub const TX_CAPACITY: usize = 3 * MAX_AXES + MAX_BUSES + 16;
 /// Frames one cycle may receive before the rest waits for the next.
-pub(crate) const RX_CAPACITY: usize = 4096;
+pub const RX_CAPACITY: usize = 4096;
 
 /// Virtual time: cycles without a Modbus answer before the exchange counts as timed out.
 pub const MODBUS_TIMEOUT_CYCLES: u32 = 5;
@@ -379,7 +379,7 @@ pub struct CycleCore<'t> {
     step_ns: Histogram<u64>,
     /// Frames sent by the coordinator.
     pub frames_sent: u64,
-    /// Received frames dropped because more than the receive capacity (4096) arrived in one cycle.
+    /// Received frames dropped because more than [`RX_CAPACITY`] arrived in one cycle.
     pub rx_dropped: u64,
     /// Frames the bus refused to queue (a full transmit queue, bus-off).
     pub tx_refused: u64,
