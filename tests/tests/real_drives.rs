@@ -28,6 +28,14 @@ use shm_api::contract::{
 };
 use shm_api::request::{Target, name_str};
 
+/// One scene at a time: each test runs a coordinator and several drive processes at real-time
+/// priorities, and four of them at once on a 2-core machine starve each other's drives (which
+/// the coordinator then rightly faults). Poisoning from a failed test does not stop the others.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// The longest any single wait may take; only a hang or a broken product reaches it.
 const PATIENCE: Duration = Duration::from_secs(90);
 /// Replies to commands.
@@ -451,6 +459,7 @@ fn limits(min: f64, max: f64, velocity: f64, acceleration: f64) -> String {
 
 #[test]
 fn a_machine_of_drives_in_other_processes() {
+    let _serial = serial();
     let mut sc = Scene::new("machine");
     let (bus_a, bus_b) = (unique("rda"), unique("rdb"));
     let port = free_port();
@@ -679,6 +688,7 @@ fn a_machine_of_drives_in_other_processes() {
 
 #[test]
 fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
+    let _serial = serial();
     let mut sc = Scene::new("dump");
     let bus = unique("rdd");
     let prefix = unique("t-real-dump-");
@@ -789,6 +799,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
 
 #[test]
 fn drives_that_appear_later_are_booted_and_a_wrong_device_is_refused_by_name() {
+    let _serial = serial();
     let mut sc = Scene::new("later");
     let bus = unique("rdl");
     let prefix = unique("t-real-later-");
@@ -904,6 +915,7 @@ fn drives_that_appear_later_are_booted_and_a_wrong_device_is_refused_by_name() {
 
 #[test]
 fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
+    let _serial = serial();
     let mut sc = Scene::new("eight");
     let bus = unique("rde");
     let prefix = unique("t-real-eight-");

@@ -310,6 +310,9 @@ pub enum FailureDetail {
     DuplicateNode,
     /// The cycle lost the running node (heartbeat, guarding, TPDOs); it is waited for.
     Lost,
+    /// A boot-up came in the middle of the node's boot (it reset again, or answered two
+    /// resets): it is asked again from the start.
+    BootInterrupted,
     /// The node is another device than the one configured (1000h and 1018h:01 as read, and as
     /// expected).
     WrongDevice {
@@ -327,9 +330,15 @@ pub enum FailureDetail {
 impl FailureDetail {
     /// Whether the node is waited for (absent or lost) rather than refused.
     pub fn is_waiting(&self) -> bool {
+        // A boot-up in the middle of a boot (the node reset again, or answered two resets) is
+        // no refusal: the node is asked again, as an absent one is, rather than left refused
+        // until it happens to reset once more.
         matches!(
             self,
-            FailureDetail::NoBootUp { .. } | FailureDetail::SdoTimeout { .. } | FailureDetail::Lost
+            FailureDetail::NoBootUp { .. }
+                | FailureDetail::SdoTimeout { .. }
+                | FailureDetail::Lost
+                | FailureDetail::BootInterrupted
         )
     }
 }
@@ -370,6 +379,9 @@ impl fmt::Display for FailureDetail {
             FailureDetail::Request(e) => write!(f, "{e}"),
             FailureDetail::DuplicateNode => f.write_str("the node is planned twice"),
             FailureDetail::Lost => f.write_str("lost by the cycle; waiting for it to come back"),
+            FailureDetail::BootInterrupted => {
+                f.write_str("a boot-up came during the boot; asking the node again")
+            }
             FailureDetail::WrongDevice {
                 device_type,
                 vendor_id,
@@ -1033,7 +1045,7 @@ impl BootSequencer {
                         n.restart = true;
                     }
                 }
-                Some((_, op)) => self.fail_at(i, op, None, FailureDetail::UnexpectedBootUp),
+                Some((_, op)) => self.fail_at(i, op, None, FailureDetail::BootInterrupted),
                 None => {}
             }
             return;

@@ -1090,7 +1090,7 @@ pub fn report_node(plan: &MachinePlan, r: &NodeReport, out: &mut dyn Write, summ
         }
         (NodeStatus::Reset, _) => say(
             out,
-            &format!("drive reset: {what} sent a boot-up while running; configuring it again"),
+            &format!("drive reset: {what} sent a boot-up (it reset itself); configuring it again"),
         ),
         (NodeStatus::Refused, _) => {
             say(out, &format!("drive REFUSED: {what}: {}", r.report));
