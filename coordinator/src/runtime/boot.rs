@@ -1342,7 +1342,8 @@ mod tests {
         let r = s.reports()[0];
         assert_eq!(r.result, Ok(()));
         assert_eq!(r.device_type, Some(CIA402_DEVICE_TYPE));
-        // A boot-up during the configuration is not tolerated.
+        // A boot-up during the configuration interrupts it: reported, and the node is asked
+        // again from the reset (not left refused).
         let p = plan_for(
             node(2),
             DeviceKind::Tlc5xx,
@@ -1363,6 +1364,13 @@ mod tests {
         s.handle_frame(&boot, t);
         let f = s.reports()[0].result.unwrap_err();
         assert_eq!(f.step, BootStep::PdoConfig);
-        assert_eq!(f.detail, FailureDetail::UnexpectedBootUp);
+        assert_eq!(f.detail, FailureDetail::BootInterrupted);
+        assert!(f.detail.is_waiting());
+        // The reset communication of the new attempt is queued.
+        let mut reset = false;
+        while let Some(f) = s.poll_transmit(t) {
+            reset |= f.cob_id() == Some(0x000) && f.data() == [0x82, 2];
+        }
+        assert!(reset, "the node is asked again");
     }
 }
