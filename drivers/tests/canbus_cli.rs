@@ -121,7 +121,9 @@ fn a_sigkilled_participant_does_not_stop_the_others() {
         .args(["replay", noise.to_str().unwrap(), &bus])
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(300));
+    // Mid-replay (it paces 2 s of frames); long enough for a process started on a loaded
+    // machine to have joined the bus and sent some.
+    std::thread::sleep(Duration::from_millis(1000));
     listener.kill().unwrap(); // SIGKILL
     sender.kill().unwrap();
     listener.wait().unwrap();
