@@ -313,6 +313,8 @@ impl<const BUF: usize> SdoServer<BUF> {
         if now < deadline {
             return;
         }
+        // A client silent for the whole SDO timeout has gone, even in the middle of a
+        // sub-block: abort rather than acknowledge and wait once more.
         if let State::BlockDown {
             done: false,
             seen: true,
@@ -320,6 +322,7 @@ impl<const BUF: usize> SdoServer<BUF> {
             ..
         } = self.state
             && self.config.sub_block_timeout < self.config.timeout
+            && now < self.last_rx + self.config.timeout
         {
             return self.ack_sub_block(expected - 1, false);
         }

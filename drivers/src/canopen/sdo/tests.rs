@@ -516,6 +516,42 @@ fn server_times_out_a_silent_client() {
 }
 
 #[test]
+fn server_aborts_a_block_download_whose_client_went_silent_mid_sub_block() {
+    // Found by the `device` fuzz target: one segment of a sub-block, then silence for longer
+    // than the SDO timeout. The server must abort (0504 0000h), not acknowledge the sub-block
+    // and wait again, or every later request would be read as a block segment.
+    let mut s: SdoServer<4096> = SdoServer::new(node(), SdoServerConfig::default());
+    let mut od = TestOd::new();
+    s.handle_frame(
+        &sframe([0xC0, 0x00, 0x20, 0x02, 0, 0, 0, 0]),
+        Instant::ZERO,
+        &mut od,
+    );
+    assert_eq!(s.poll_transmit(Instant::ZERO).unwrap().data()[0], 0xA4);
+    s.handle_frame(&sframe([0x01, 1, 2, 3, 4, 5, 6, 7]), Instant::ZERO, &mut od);
+    let late = Instant::ZERO + Duration::from_secs(1);
+    s.handle_timeout(late);
+    assert_eq!(
+        s.poll_transmit(late).unwrap().data(),
+        &[0x80, 0x00, 0x20, 0x02, 0x00, 0x00, 0x04, 0x05]
+    );
+    assert!(s.is_idle());
+    // Before the full timeout, the same silence is a stalled sub-block: acknowledged.
+    let mut s: SdoServer<4096> = SdoServer::new(node(), SdoServerConfig::default());
+    s.handle_frame(
+        &sframe([0xC0, 0x00, 0x20, 0x02, 0, 0, 0, 0]),
+        Instant::ZERO,
+        &mut od,
+    );
+    s.poll_transmit(Instant::ZERO).unwrap();
+    s.handle_frame(&sframe([0x01, 1, 2, 3, 4, 5, 6, 7]), Instant::ZERO, &mut od);
+    let t = s.poll_timeout().unwrap();
+    s.handle_timeout(t);
+    assert_eq!(s.poll_transmit(t).unwrap().data()[..2], [0xA2, 1]);
+    assert!(!s.is_idle());
+}
+
+#[test]
 fn toggle_errors_abort_on_both_sides() {
     // Server: the first download segment must have toggle 0.
     let mut s: SdoServer<4096> = SdoServer::new(node(), SdoServerConfig::default());
