@@ -34,6 +34,11 @@ const PATIENCE: Duration = Duration::from_secs(90);
 const REPLY: Duration = Duration::from_secs(5);
 /// One millimetre in µunits (the contract's positions).
 const MM: i64 = 1_000_000;
+/// The machines' cycle, µs. The coordinator faults a drive after three cycles without its
+/// TPDO, and these drives are processes of a shared host: on this 2-CPU VM (kernel with
+/// preempt=none, other builds running) a SCHED_FIFO thread was measured waiting up to 20 ms.
+/// Three cycles must outlast that, or a busy host shows up as drive faults.
+const CYCLE_US: u32 = 10_000;
 
 /// A binary of the workspace, built if a partial build has not built it yet.
 fn bin(package: &str, name: &str) -> PathBuf {
@@ -460,7 +465,7 @@ fn a_machine_of_drives_in_other_processes() {
     let config = sc.write(
         "machine.toml",
         &format!(
-            "cycle_us = 2000\n\n\
+            "cycle_us = {CYCLE_US}\n\n\
              [[buses]]\nname = \"{bus_a}\"\nkind = \"vbus\"\n\n\
              [[buses]]\nname = \"{bus_b}\"\nkind = \"vbus\"\n\n\
              [[axes]]\nname = \"t\"\ndevice = \"tlc5xx\"\nbus = \"{bus_a}\"\nnode = 1\n\
@@ -685,7 +690,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
     let config = sc.write(
         "dump.toml",
         &format!(
-            "cycle_us = 2000\n\n\
+            "cycle_us = {CYCLE_US}\n\n\
              [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
              [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
              increments_per_unit = 1000.0\n{}\n",
@@ -708,7 +713,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
             "--log",
             dump_file.to_str().unwrap(),
             "--count",
-            "6000",
+            "1500",
             "--timeout",
             "90",
         ],
@@ -724,24 +729,23 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
     let status = sc.wait_exit(dump);
     assert!(
         status.success(),
-        "canbus dump got its 6000 frames: {status}"
+        "canbus dump got its 1500 frames: {status}"
     );
     sc.signal(coord, libc::SIGINT);
     let status = sc.wait_exit(coord);
     assert_eq!(status.code(), Some(0), "a run without faults");
 
     let mut dumped = read_log(&dump_file);
-    assert_eq!(dumped.len(), 6000);
-    // The dump's last few milliseconds are left out: it stopped at its 6000th arrival, and
+    assert_eq!(dumped.len(), 1500);
+    // The dump's last few milliseconds are left out: it stopped at its 1500th arrival, and
     // frames of another sender stamped earlier may have arrived after that.
     let settled = dumped.last().unwrap().time - 0.02;
     dumped.retain(|d| d.time < settled);
     let count = |id: u32| dumped.iter().filter(|f| f.id == id).count();
     let (syncs, rpdo1, tpdo1) = (count(SYNC), count(0x205), count(0x185));
-    // About 4 s of a 2 ms cycle: well over a thousand cycles, most with both PDOs (the boot
-    // takes a few hundred cycles before the first).
+    // About 5 s of cycles, most with both PDOs (the boot takes some cycles before the first).
     assert!(
-        syncs > 1000 && rpdo1 > 500 && tpdo1 > 500,
+        syncs > 300 && rpdo1 > 150 && tpdo1 > 150,
         "{syncs} SYNCs, {rpdo1} RPDO1, {tpdo1} TPDO1"
     );
     // Each cycle carries at most one of each: the coordinator's RPDO1 right after its SYNC, the
@@ -780,7 +784,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
         .position(|d| same(d, &own[0]))
         .expect("the coordinator's first frame is in the dump");
     let compared = &dumped[first..];
-    assert!(compared.len() > 5000, "{} frames compared", compared.len());
+    assert!(compared.len() > 1200, "{} frames compared", compared.len());
     assert!(own.len() >= compared.len(), "the capture covers the dump");
     for (i, (d, o)) in compared.iter().zip(&own).enumerate() {
         assert!(same(d, o), "frame {i}: dumped {d:?}, captured {o:?}");
@@ -795,7 +799,7 @@ fn drives_that_appear_later_are_booted_and_a_wrong_device_is_refused_by_name() {
     let config = sc.write(
         "later.toml",
         &format!(
-            "cycle_us = 2000\n\n\
+            "cycle_us = {CYCLE_US}\n\n\
              [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
              [[axes]]\nname = \"t\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 3\n\
              increments_per_unit = 1000.0\n{}\n\n\
@@ -931,7 +935,7 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
         )
     };
     // Eight drives' PDOs, heartbeats and guarding do not fit 4 ms at 1 Mbit/s within the 80 %
-    // load limit; 5 ms does.
+    // load limit; the machine runs at CYCLE_US (see there), which fits.
     let tight = sc.write("eight-4ms.toml", &machine(4000));
     let out = Command::new(coordinator_bin())
         .arg("check")
@@ -941,9 +945,12 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(1), "4 ms is refused:\n{text}");
     assert!(text.contains("over the 80.0 % limit"), "{text}");
-    let config = sc.write("eight.toml", &machine(5000));
+    let config = sc.write("eight.toml", &machine(CYCLE_US));
     let budget = check(&config);
-    assert!(budget.contains("per 5000 us cycle"), "{budget}");
+    assert!(
+        budget.contains(&format!("per {CYCLE_US} us cycle")),
+        "{budget}"
+    );
 
     for pair in [["a1", "a2"], ["a3", "a4"], ["a5", "a6"], ["a7", "a8"]] {
         sc.drive_sim(&config, &pair);
