@@ -202,6 +202,16 @@ impl Scene {
         self.spawn(&label, &drive_sim_bin(), &args)
     }
 
+    /// Waits until each of `sims` has its drives on their bus (or its server listening). The
+    /// built-in script enables and homes the drives that have booted when the first boot
+    /// reports are in; one whose process was still starting is only waited for, and booted
+    /// later, but not enabled.
+    fn wait_running(&mut self, sims: &[P]) {
+        for &p in sims {
+            self.wait_output(p, "drive(s) running", 1);
+        }
+    }
+
     /// `coordinator run --config FILE --quiet --shm-prefix PREFIX EXTRA...`.
     fn coordinator(&mut self, config: &Path, prefix: &str, extra: &[&str]) -> P {
         let mut args = vec![
@@ -531,10 +541,11 @@ fn a_machine_of_drives_in_other_processes() {
     }
 
     // Each drive its own process, so one can die alone.
-    let _t = sc.drive_sim(&config, &["t"]);
-    let _m = sc.drive_sim(&config, &["m"]);
+    let t_sim = sc.drive_sim(&config, &["t"]);
+    let m_sim = sc.drive_sim(&config, &["m"]);
     let e_sim = sc.drive_sim(&config, &["e"]);
-    let _g = sc.drive_sim(&config, &["g"]);
+    let g_sim = sc.drive_sim(&config, &["g"]);
+    sc.wait_running(&[t_sim, m_sim, e_sim, g_sim]);
     let capture = sc.path("capture");
     let coord = sc.coordinator(
         &config,
@@ -735,7 +746,8 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
         ),
     );
     check(&config);
-    sc.drive_sim(&config, &["z"]);
+    let z_sim = sc.drive_sim(&config, &["z"]);
+    sc.wait_running(&[z_sim]);
     // The dump joins the bus before the coordinator's cycle runs: an endpoint joining a vbus
     // bus stalls every endpoint already on it until the newcomer has set up its shared memory
     // (iceoryx2 waits in 1 ms ticks), a few milliseconds in a debug build, which can cost the
@@ -990,8 +1002,9 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
     );
 
     // Two processes of four drives (a process costs CPU per wake-up, a drive little more).
-    sc.drive_sim(&config, &["a1", "a2", "a3", "a4"]);
-    sc.drive_sim(&config, &["a5", "a6", "a7", "a8"]);
+    let first = sc.drive_sim(&config, &["a1", "a2", "a3", "a4"]);
+    let second = sc.drive_sim(&config, &["a5", "a6", "a7", "a8"]);
+    sc.wait_running(&[first, second]);
     let coord = sc.coordinator(&config, &prefix, &["--duration", "30", "--no-chains"]);
     let mut c = connect(&prefix);
     sc.wait_state(&mut c, coord, "all eight enabled and homed", |s| {
