@@ -42,6 +42,11 @@ const PATIENCE: Duration = Duration::from_secs(90);
 const REPLY: Duration = Duration::from_secs(5);
 /// One millimetre in µunits (the contract's positions).
 const MM: i64 = 1_000_000;
+/// The machines' cycle, µs. The coordinator faults a drive after three cycles without its
+/// TPDO, and these drives are processes of a shared host: on this 2-CPU VM (kernel with
+/// preempt=none, other builds running) a SCHED_FIFO thread was measured waiting up to 20 ms.
+/// Three cycles must outlast that, or a busy host shows up as drive faults.
+const CYCLE_US: u32 = 10_000;
 
 /// A binary of the workspace, built if a partial build has not built it yet.
 fn bin(package: &str, name: &str) -> PathBuf {
@@ -91,6 +96,39 @@ fn free_port() -> u16 {
         .port()
 }
 
+/// Machines running at once in this test binary. Each takes 0.3 to 0.8 of a CPU (debug
+/// drive-sims poll their bus every 200 µs at SCHED_FIFO 70, the coordinator watches every bus),
+/// and the VM has two CPUs shared with other work: with all four at once, the real-time
+/// processes starved each other into late TPDOs.
+const MACHINES_AT_ONCE: usize = 2;
+
+/// A place among the [`MACHINES_AT_ONCE`], held while a test's processes run.
+struct Slot;
+
+static SLOTS: (std::sync::Mutex<usize>, std::sync::Condvar) =
+    (std::sync::Mutex::new(0), std::sync::Condvar::new());
+
+impl Slot {
+    fn take() -> Slot {
+        let (count, freed) = &SLOTS;
+        // A test that panicked holding the lock poisons it; the count is still right.
+        let mut n = count.lock().unwrap_or_else(|e| e.into_inner());
+        while *n >= MACHINES_AT_ONCE {
+            n = freed.wait(n).unwrap_or_else(|e| e.into_inner());
+        }
+        *n += 1;
+        Slot
+    }
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        let (count, freed) = &SLOTS;
+        *count.lock().unwrap_or_else(|e| e.into_inner()) -= 1;
+        freed.notify_one();
+    }
+}
+
 /// A process of the scene, by index.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct P(usize);
@@ -108,15 +146,19 @@ struct Proc {
 struct Scene {
     dir: PathBuf,
     procs: Vec<Proc>,
+    // Dropped last (fields drop in order), once the processes are gone.
+    _slot: Slot,
 }
 
 impl Scene {
     fn new(test: &str) -> Scene {
+        let slot = Slot::take();
         let dir = std::env::temp_dir().join(unique(&format!("real-drives-{test}-")));
         std::fs::create_dir_all(&dir).unwrap();
         Scene {
             dir,
             procs: Vec::new(),
+            _slot: slot,
         }
     }
 
@@ -166,6 +208,16 @@ impl Scene {
         }
         let label = format!("drive-sim {}", only.join(","));
         self.spawn(&label, &drive_sim_bin(), &args)
+    }
+
+    /// Waits until each of `sims` has its drives on their bus (or its server listening). The
+    /// built-in script enables and homes the drives that have booted when the first boot
+    /// reports are in; one whose process was still starting is only waited for, and booted
+    /// later, but not enabled.
+    fn wait_running(&mut self, sims: &[P]) {
+        for &p in sims {
+            self.wait_output(p, "drive(s) running", 1);
+        }
     }
 
     /// `coordinator run --config FILE --quiet --shm-prefix PREFIX EXTRA...`.
@@ -470,7 +522,7 @@ fn a_machine_of_drives_in_other_processes() {
     let config = sc.write(
         "machine.toml",
         &format!(
-            "cycle_us = 2000\n\n\
+            "cycle_us = {CYCLE_US}\n\n\
              [[buses]]\nname = \"{bus_a}\"\nkind = \"vbus\"\n\n\
              [[buses]]\nname = \"{bus_b}\"\nkind = \"vbus\"\n\n\
              [[axes]]\nname = \"t\"\ndevice = \"tlc5xx\"\nbus = \"{bus_a}\"\nnode = 1\n\
@@ -499,10 +551,11 @@ fn a_machine_of_drives_in_other_processes() {
     }
 
     // Each drive its own process, so one can die alone.
-    let _t = sc.drive_sim(&config, &["t"]);
-    let _m = sc.drive_sim(&config, &["m"]);
+    let t_sim = sc.drive_sim(&config, &["t"]);
+    let m_sim = sc.drive_sim(&config, &["m"]);
     let e_sim = sc.drive_sim(&config, &["e"]);
-    let _g = sc.drive_sim(&config, &["g"]);
+    let g_sim = sc.drive_sim(&config, &["g"]);
+    sc.wait_running(&[t_sim, m_sim, e_sim, g_sim]);
     let capture = sc.path("capture");
     let coord = sc.coordinator(
         &config,
@@ -696,7 +749,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
     let config = sc.write(
         "dump.toml",
         &format!(
-            "cycle_us = 2000\n\n\
+            "cycle_us = {CYCLE_US}\n\n\
              [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
              [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
              increments_per_unit = 1000.0\n{}\n",
@@ -704,7 +757,8 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
         ),
     );
     check(&config);
-    sc.drive_sim(&config, &["z"]);
+    let z_sim = sc.drive_sim(&config, &["z"]);
+    sc.wait_running(&[z_sim]);
     // The dump joins the bus before the coordinator's cycle runs: an endpoint joining a vbus
     // bus stalls every endpoint already on it until the newcomer has set up its shared memory
     // (iceoryx2 waits in 1 ms ticks), a few milliseconds in a debug build, which can cost the
@@ -719,7 +773,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
             "--log",
             dump_file.to_str().unwrap(),
             "--count",
-            "6000",
+            "1500",
             "--timeout",
             "90",
         ],
@@ -735,24 +789,23 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
     let status = sc.wait_exit(dump);
     assert!(
         status.success(),
-        "canbus dump got its 6000 frames: {status}"
+        "canbus dump got its 1500 frames: {status}"
     );
     sc.signal(coord, libc::SIGINT);
     let status = sc.wait_exit(coord);
     assert_eq!(status.code(), Some(0), "a run without faults");
 
     let mut dumped = read_log(&dump_file);
-    assert_eq!(dumped.len(), 6000);
-    // The dump's last few milliseconds are left out: it stopped at its 6000th arrival, and
+    assert_eq!(dumped.len(), 1500);
+    // The dump's last few milliseconds are left out: it stopped at its 1500th arrival, and
     // frames of another sender stamped earlier may have arrived after that.
     let settled = dumped.last().unwrap().time - 0.02;
     dumped.retain(|d| d.time < settled);
     let count = |id: u32| dumped.iter().filter(|f| f.id == id).count();
     let (syncs, rpdo1, tpdo1) = (count(SYNC), count(0x205), count(0x185));
-    // About 4 s of a 2 ms cycle: well over a thousand cycles, most with both PDOs (the boot
-    // takes a few hundred cycles before the first).
+    // About 5 s of cycles, most with both PDOs (the boot takes some cycles before the first).
     assert!(
-        syncs > 1000 && rpdo1 > 500 && tpdo1 > 500,
+        syncs > 300 && rpdo1 > 150 && tpdo1 > 150,
         "{syncs} SYNCs, {rpdo1} RPDO1, {tpdo1} TPDO1"
     );
     // Each cycle carries at most one of each: the coordinator's RPDO1 right after its SYNC, the
@@ -791,7 +844,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
         .position(|d| same(d, &own[0]))
         .expect("the coordinator's first frame is in the dump");
     let compared = &dumped[first..];
-    assert!(compared.len() > 5000, "{} frames compared", compared.len());
+    assert!(compared.len() > 1200, "{} frames compared", compared.len());
     assert!(own.len() >= compared.len(), "the capture covers the dump");
     for (i, (d, o)) in compared.iter().zip(&own).enumerate() {
         assert!(same(d, o), "frame {i}: dumped {d:?}, captured {o:?}");
@@ -807,7 +860,7 @@ fn drives_that_appear_later_are_booted_and_a_wrong_device_is_refused_by_name() {
     let config = sc.write(
         "later.toml",
         &format!(
-            "cycle_us = 2000\n\n\
+            "cycle_us = {CYCLE_US}\n\n\
              [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
              [[axes]]\nname = \"t\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 3\n\
              increments_per_unit = 1000.0\n{}\n\n\
@@ -944,7 +997,7 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
         )
     };
     // Eight drives' PDOs, heartbeats and guarding do not fit 4 ms at 1 Mbit/s within the 80 %
-    // load limit; 5 ms does.
+    // load limit; the machine runs at CYCLE_US (see there), which fits.
     let tight = sc.write("eight-4ms.toml", &machine(4000));
     let out = Command::new(coordinator_bin())
         .arg("check")
@@ -954,25 +1007,18 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(1), "4 ms is refused:\n{text}");
     assert!(text.contains("over the 80.0 % limit"), "{text}");
-    let config = sc.write("eight.toml", &machine(5000));
+    let config = sc.write("eight.toml", &machine(CYCLE_US));
     let budget = check(&config);
-    assert!(budget.contains("per 5000 us cycle"), "{budget}");
-
-    for pair in [["a1", "a2"], ["a3", "a4"], ["a5", "a6"], ["a7", "a8"]] {
-        sc.drive_sim(&config, &pair);
-    }
-    let capture = sc.path("capture");
-    let coord = sc.coordinator(
-        &config,
-        &prefix,
-        &[
-            "--duration",
-            "30",
-            "--no-chains",
-            "--capture",
-            capture.to_str().unwrap(),
-        ],
+    assert!(
+        budget.contains(&format!("per {CYCLE_US} us cycle")),
+        "{budget}"
     );
+
+    // Two processes of four drives (a process costs CPU per wake-up, a drive little more).
+    let first = sc.drive_sim(&config, &["a1", "a2", "a3", "a4"]);
+    let second = sc.drive_sim(&config, &["a5", "a6", "a7", "a8"]);
+    sc.wait_running(&[first, second]);
+    let coord = sc.coordinator(&config, &prefix, &["--duration", "30", "--no-chains"]);
     let mut c = connect(&prefix);
     sc.wait_state(&mut c, coord, "all eight enabled and homed", |s| {
         s.axis_count == 8 && axes(s).iter().all(ready)

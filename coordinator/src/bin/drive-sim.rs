@@ -632,11 +632,8 @@ const LONG_PAUSE: Duration = Duration::from_millis(5);
 fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Result<(), String> {
     let stop = coordinator::runtime::rt::stop_flag();
     let start = monotonic_now();
-    // Servers first: a taken port is the likeliest failure, and nothing has joined a bus yet.
-    let mut servers = Vec::new();
-    for m in &plan.modbus {
-        servers.push(start_modbus(m)?);
-    }
+    // The bus endpoints on the normal scheduler: opening one takes milliseconds of CPU (debug
+    // build), which at SCHED_FIFO would keep drives of other processes off the CPU.
     let mut stations = Vec::new();
     for c in &plan.can {
         stations.push(start_can(c, start)?);
@@ -652,6 +649,21 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     });
     for w in &rt.warnings {
         eprintln!("drive-sim: warning: {w}");
+    }
+    // The CMMO-ST servers after that, so that their threads inherit the priority: on the
+    // normal scheduler a server waits behind every real-time thread of its CPU (once seen
+    // runnable for 42 ms, near the coordinator's 50 ms Modbus timeout). A port already taken
+    // fails here, after the CAN drives have joined their buses; they leave them again as the
+    // process ends.
+    let mut servers = Vec::new();
+    for m in &plan.modbus {
+        match start_modbus(m) {
+            Ok(s) => servers.push(s),
+            Err(e) => {
+                coordinator::runtime::rt::leave_realtime();
+                return Err(e);
+            }
+        }
     }
     eprintln!(
         "drive-sim: {} drive(s) running; Ctrl-C to stop",

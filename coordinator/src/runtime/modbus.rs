@@ -238,35 +238,7 @@ pub fn spawn(
         link: Link::Connecting,
     });
     let stop = Arc::new(AtomicBool::new(false));
-    let now = monotonic_now();
-    let mut exchange = Exchange {
-        addr,
-        settings,
-        stop: Arc::clone(&stop),
-        outputs: out_r,
-        inputs: in_w,
-        latest: Output {
-            cycle: 0,
-            image: [0; 8],
-        },
-        new_output: true,
-        conn: None,
-        client: Client::new(settings.unit_id),
-        rx: [0; 2 * MAX_ADU],
-        rx_len: 0,
-        pending: None,
-        last_send: now,
-        silent_since: None,
-        backoff: settings.backoff_min,
-        reconnect_at: now,
-        state: Published {
-            data: [0; 8],
-            answered: 0,
-            answers: 0,
-            late_cycles: 0,
-            link: Link::Connecting,
-        },
-    };
+    let mut exchange = Exchange::new(addr, settings, Arc::clone(&stop), out_r, in_w);
     let handle = thread::Builder::new()
         .name(format!("modbus-{addr}"))
         .spawn(move || exchange.run())?;
@@ -317,6 +289,44 @@ struct Exchange {
 }
 
 impl Exchange {
+    fn new(
+        addr: SocketAddr,
+        settings: ModbusSettings,
+        stop: Arc<AtomicBool>,
+        outputs: TripleReader<Output>,
+        inputs: TripleWriter<Published>,
+    ) -> Exchange {
+        let now = monotonic_now();
+        Exchange {
+            addr,
+            settings,
+            stop,
+            outputs,
+            inputs,
+            latest: Output {
+                cycle: 0,
+                image: [0; 8],
+            },
+            new_output: true,
+            conn: None,
+            client: Client::new(settings.unit_id),
+            rx: [0; 2 * MAX_ADU],
+            rx_len: 0,
+            pending: None,
+            last_send: now,
+            silent_since: None,
+            backoff: settings.backoff_min,
+            reconnect_at: now,
+            state: Published {
+                data: [0; 8],
+                answered: 0,
+                answers: 0,
+                late_cycles: 0,
+                link: Link::Connecting,
+            },
+        }
+    }
+
     fn run(&mut self) {
         while !self.stop.load(Ordering::Relaxed) {
             self.take_output();
@@ -335,12 +345,7 @@ impl Exchange {
                     );
                 }
             } else if let Some(sent) = self.pending {
-                let due = sent.at + self.settings.timeout;
-                if now >= due {
-                    self.timed_out(now);
-                } else {
-                    self.receive(due.saturating_duration_since(now).min(MAX_BLOCK));
-                }
+                self.await_answer(sent, now);
             } else if self.new_output
                 || now.saturating_duration_since(self.last_send) >= self.settings.period
             {
@@ -438,6 +443,21 @@ impl Exchange {
                 self.silent_since.get_or_insert(now);
             }
             Err(e) => self.fail(Link::Down(DownReason::Io(e.kind()))),
+        }
+    }
+
+    /// Waits (a little) for the answer to `sent`; past its timeout, gives up on it, unless it
+    /// is in the socket already: this thread may itself have been kept from running past the
+    /// deadline (a loaded host), which is no silence of the drive.
+    fn await_answer(&mut self, sent: Sent, now: Instant) {
+        let due = sent.at + self.settings.timeout;
+        if now < due {
+            self.receive(due.saturating_duration_since(now).min(MAX_BLOCK));
+            return;
+        }
+        self.receive(Duration::ZERO);
+        if self.pending.is_some() {
+            self.timed_out(now);
         }
     }
 
@@ -600,6 +620,44 @@ mod tests {
         let late = cs.take_input(10);
         assert!(late.fresh);
         assert_eq!(late.late_cycles, 3);
+    }
+
+    #[test]
+    fn an_answer_in_the_socket_is_taken_even_when_the_thread_comes_back_late() {
+        use std::io::{Read, Write};
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let (_cs, out_r, in_w) = side();
+        let settings = ModbusSettings::default();
+        let stop = Arc::new(AtomicBool::new(false));
+        let mut ex = Exchange::new(listener.local_addr().unwrap(), settings, stop, out_r, in_w);
+        ex.connect();
+        let (mut server, _) = listener.accept().unwrap();
+        let sent_at = monotonic_now();
+        ex.send(sent_at);
+        // The drive answers at once (FC 17h, 8 bytes: SCON 10h, SPOS 04h)...
+        let mut req = [0u8; 25];
+        server.read_exact(&mut req).unwrap();
+        let mut answer = vec![req[0], req[1], 0, 0, 0, 11, req[6], 0x17, 8];
+        answer.extend([0x10, 0x04, 0, 0, 0, 0, 0, 0]);
+        server.write_all(&answer).unwrap();
+        thread::sleep(Duration::from_millis(20));
+        // ...but the exchange thread only runs again after the answer timeout.
+        let sent = ex.pending.unwrap();
+        ex.await_answer(sent, sent_at + settings.timeout + Duration::from_millis(30));
+        assert_eq!(ex.state.link, Link::Up);
+        assert_eq!((ex.state.answers, ex.state.data[0]), (1, 0x10));
+        assert!(ex.pending.is_none());
+        // With nothing in the socket, the same lateness is a timeout.
+        let sent_at = monotonic_now();
+        ex.send(sent_at);
+        server.read_exact(&mut req).unwrap();
+        let sent = ex.pending.unwrap();
+        ex.await_answer(sent, sent_at + settings.timeout + Duration::from_millis(30));
+        assert!(
+            matches!(ex.state.link, Link::TimedOut(_)),
+            "{:?}",
+            ex.state.link
+        );
     }
 
     #[test]

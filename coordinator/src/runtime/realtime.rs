@@ -181,6 +181,9 @@ impl CycleIo for RealIo {
     }
 }
 
+/// SCHED_FIFO priority of the cycle thread while it sets up, below the simulated drives' 70.
+const SETUP_PRIORITY: i32 = 60;
+
 /// What the cycle thread hands back when it ends.
 struct CycleResult {
     summary: Summary,
@@ -435,6 +438,16 @@ pub fn run_real(
             .name("cycle".into())
             .stack_size(64 << 20)
             .spawn_scoped(s, move || -> Result<CycleResult, RunError> {
+                // The set-up below the drives' priority (simulated drives run at 70): opening
+                // the ports and the state service takes tens of milliseconds of CPU in a debug
+                // build, which at 80 kept a CPU from every other thread, and on the normal
+                // scheduler a loaded host stretched it to seconds, past the boot-up timeout of
+                // the drives whose reset was waiting for the first cycle.
+                let _ = rt::enter_realtime(&RtSettings {
+                    priority: Some(SETUP_PRIORITY),
+                    lock_memory: false,
+                    cpu: None,
+                });
                 let mut ports: Vec<Port> = Vec::with_capacity(cycle_buses.len());
                 for (b, port) in plan.buses.iter().zip(cycle_buses) {
                     ports.push(match port {
@@ -449,11 +462,8 @@ pub fn run_real(
                     Some(prefix) => Some(StateSide::create(prefix, info).map_err(RunError::Io)?),
                     None => None,
                 };
-                // Real-time scheduling only now: opening the ports and the state service takes
-                // tens of milliseconds in a debug build, which at SCHED_FIFO 80 kept a CPU from
-                // every other thread (the Modbus exchange missed its answer timeout). Memory
-                // is locked already (above); with MCL_FUTURE this thread's stack was locked and
-                // populated when it was created.
+                // The cycle's priority from here. Memory is locked already (above); with
+                // MCL_FUTURE this thread's stack was locked and populated when it was created.
                 let mut report = rt::enter_realtime(&RtSettings {
                     lock_memory: false,
                     ..RtSettings::default()
