@@ -138,3 +138,32 @@ impl Rig {
 pub fn frame(s: &str) -> Frame {
     s.parse().expect("valid frame text")
 }
+
+/// A binary of the workspace (`cargo build -p PACKAGE --bin NAME`, next to the test binary),
+/// built once per test process: a no-op when it is fresh, and never a stale binary left by an
+/// earlier build when only this test crate was rebuilt.
+pub fn workspace_bin(package: &str, name: &str) -> std::path::PathBuf {
+    use std::collections::HashSet;
+    use std::sync::Mutex;
+    static BUILT: Mutex<Option<HashSet<String>>> = Mutex::new(None);
+    let exe = std::env::current_exe().expect("the test binary's path");
+    // target/<profile>/deps/this-test → target/<profile>/<name>
+    let dir = exe
+        .parent()
+        .and_then(|d| d.parent())
+        .expect("the test binary sits in target/<profile>/deps")
+        .to_path_buf();
+    let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
+    if built.get_or_insert_with(HashSet::new).insert(name.to_string()) {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let release = dir.file_name().is_some_and(|d| d == "release");
+        let mut cmd = std::process::Command::new(cargo);
+        cmd.args(["build", "-q", "-p", package, "--bin", name]);
+        if release {
+            cmd.arg("--release");
+        }
+        let ok = cmd.status().expect("cargo runs");
+        assert!(ok.success(), "building {name}");
+    }
+    dir.join(name)
+}

@@ -11,21 +11,9 @@ use shm_api::client::{Client, Rejected};
 use shm_api::contract::{CommandRequest, axis_flags};
 use shm_api::request::Target;
 
-/// A binary of the workspace, built if a partial build has not built it yet.
+/// A binary of the workspace, as it is now.
 fn bin(package: &str, name: &str) -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    // target/<profile>/deps/this-test → target/<profile>/<name>
-    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
-    let path = dir.join(name);
-    if !path.exists() {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let ok = Command::new(cargo)
-            .args(["build", "-q", "-p", package, "--bin", name])
-            .status()
-            .unwrap();
-        assert!(ok.success(), "building {name}");
-    }
-    path
+    integration_tests::workspace_bin(package, name)
 }
 
 fn prefix(test: &str) -> String {

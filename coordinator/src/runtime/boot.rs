@@ -28,6 +28,11 @@
 //! - a node that goes silent mid-boot (SDO timeout) waits the same way;
 //! - a running node that sends a boot-up reset itself: it is reported
 //!   ([`FailureDetail::UnexpectedBootUp`]) and configured again from the identity step;
+//! - a node that sends a boot-up mid-boot is configured again from the identity step once the
+//!   SDO request it holds has completed; one that keeps doing so is reported
+//!   ([`FailureDetail::BootInterrupted`]) and asked again from the reset. Only the completion of
+//!   the current step's request is ever taken for it; an answer naming another object voids
+//!   the exchange ([`FailureDetail::StrayAnswer`]) and the node is asked again;
 //! - a running node the cycle lost (heartbeat, guarding, late TPDOs: [`BootSequencer::lost`])
 //!   is reported ([`FailureDetail::Lost`]) and waits;
 //! - a node refused (wrong device, an SDO abort, a read-back mismatch) stays refused until it
@@ -46,7 +51,8 @@ use drivers::canopen::pdo::{
     ConfigPlan, PdoDirection, PdoSettings, PlanError, VerifyError, comm::SUB_TRANSMISSION_TYPE,
 };
 use drivers::canopen::sdo::{
-    AbortedBy, Completion, DownloadMode, RequestError, SdoClient, SdoClientConfig, SdoError,
+    AbortedBy, Completion, DownloadMode, RequestError, RequestId, SdoClient, SdoClientConfig,
+    SdoError,
 };
 use drivers::canopen::{AbortCode, Address, NodeId};
 use drivers::time::{Instant, earliest};
@@ -310,9 +316,12 @@ pub enum FailureDetail {
     DuplicateNode,
     /// The cycle lost the running node (heartbeat, guarding, TPDOs); it is waited for.
     Lost,
-    /// A boot-up came in the middle of the node's boot (it reset again, or answered two
-    /// resets): it is asked again from the start.
+    /// The node kept sending boot-ups in the middle of its boot (it reset again and again, or
+    /// answered several resets): it is asked again from the reset.
     BootInterrupted,
+    /// An answer named another object than the one asked for (a late answer to a request the
+    /// coordinator had given up on): the exchange is void, the node is asked again.
+    StrayAnswer,
     /// The node is another device than the one configured (1000h and 1018h:01 as read, and as
     /// expected).
     WrongDevice {
@@ -339,6 +348,7 @@ impl FailureDetail {
                 | FailureDetail::SdoTimeout { .. }
                 | FailureDetail::Lost
                 | FailureDetail::BootInterrupted
+                | FailureDetail::StrayAnswer
         )
     }
 }
@@ -380,8 +390,11 @@ impl fmt::Display for FailureDetail {
             FailureDetail::DuplicateNode => f.write_str("the node is planned twice"),
             FailureDetail::Lost => f.write_str("lost by the cycle; waiting for it to come back"),
             FailureDetail::BootInterrupted => {
-                f.write_str("a boot-up came during the boot; asking the node again")
+                f.write_str("the node kept resetting during the boot; asking it again")
             }
+            FailureDetail::StrayAnswer => f.write_str(
+                "an answer for another object came (a late answer to an earlier request); asking the node again",
+            ),
             FailureDetail::WrongDevice {
                 device_type,
                 vendor_id,
@@ -511,10 +524,14 @@ struct NodeBoot {
     sdo: Client,
     device_type: Option<u32>,
     vendor_id: Option<u32>,
-    /// A boot-up came during the identity step: start the identity again once the request
-    /// in flight has completed (or timed out), so the SDO client is never confused by a stale
-    /// answer.
+    /// The id of the current op's SDO request; completions of any other request (one given
+    /// up on) are dropped, so that no answer is ever taken for another op's.
+    request: Option<RequestId>,
+    /// A boot-up came while an SDO request was with the node: configure it again from the
+    /// identity step once that request has completed (or timed out), so the SDO client never
+    /// holds a request of an abandoned attempt.
     restart: bool,
+    /// Boot-ups during this attempt's SDO exchanges.
     restarts: u8,
     /// The node has had its first report (booted, waiting or refused).
     reported: bool,
@@ -524,9 +541,10 @@ struct NodeBoot {
     wrong_identity: bool,
 }
 
-/// Boot-ups tolerated during the identity step. The node's power-on boot-up can reach the bus
-/// after the reset communication command (it was queued first, and NMT wins arbitration), so
-/// one extra boot-up is normal; a node that keeps rebooting fails.
+/// Boot-ups tolerated during one attempt's SDO exchanges. The node's power-on boot-up can reach
+/// the bus after the reset communication command (it was queued first, and NMT wins
+/// arbitration), so one extra boot-up is normal; a node that keeps rebooting is reported
+/// ([`FailureDetail::BootInterrupted`]) and asked again from the reset.
 const MAX_RESTARTS: u8 = 3;
 
 impl NodeBoot {
@@ -538,8 +556,8 @@ impl NodeBoot {
 /// Boots a set of nodes concurrently; see the module documentation for the steps.
 pub struct BootSequencer {
     nodes: Vec<NodeBoot>,
-    /// NMT frames to send, with the index of the node they belong to.
-    nmt: VecDeque<(usize, Frame)>,
+    /// NMT frames to send, with the index of the node and the op they belong to.
+    nmt: VecDeque<(usize, Op, Frame)>,
     next_sdo: usize,
     reports: Vec<BootReport>,
 }
@@ -726,6 +744,7 @@ impl BootSequencer {
                         sdo,
                         device_type: None,
                         vendor_id: None,
+                        request: None,
                         restart: false,
                         restarts: 0,
                         reported: false,
@@ -811,6 +830,7 @@ impl BootSequencer {
             }
             Err(_) if waiting => {
                 n.waiting = true;
+                n.restarts = 0;
                 n.at = 0;
             }
             Err(_) => n.state = NodeState::Refused,
@@ -852,6 +872,7 @@ impl BootSequencer {
         }
         n.state = NodeState::Sdo;
         n.restart = false;
+        n.restarts = 0;
         n.wrong_identity = false;
         n.at = 1;
         self.run(i);
@@ -898,18 +919,18 @@ impl BootSequencer {
             Some(Op::Reset) => {
                 let f = nmt(NmtCommand::ResetCommunication);
                 n.state = NodeState::NmtQueued;
-                self.nmt.push_back((i, f));
+                self.nmt.push_back((i, Op::Reset, f));
                 Ok(())
             }
             Some(Op::Start) => {
                 let f = nmt(NmtCommand::Start);
                 n.state = NodeState::NmtQueued;
-                self.nmt.push_back((i, f));
+                self.nmt.push_back((i, Op::Start, f));
                 Ok(())
             }
             Some(Op::Read { addr, .. }) => {
                 n.state = NodeState::Sdo;
-                n.sdo.upload(addr).map(|_| ())
+                n.sdo.upload(addr).map(|id| n.request = Some(id))
             }
             Some(Op::Write {
                 addr, value, size, ..
@@ -919,7 +940,7 @@ impl BootSequencer {
                 let len = usize::from(size).clamp(1, 4);
                 n.sdo
                     .download(addr, &b[..len], DownloadMode::Expedited)
-                    .map(|_| ())
+                    .map(|id| n.request = Some(id))
             }
         };
         if let Err(e) = issued {
@@ -934,25 +955,39 @@ impl BootSequencer {
             let Some(n) = self.nodes.get_mut(i) else {
                 return;
             };
-            let outcome = match n.sdo.poll_event() {
+            let (id, outcome) = match n.sdo.poll_event() {
                 None => return,
-                Some(e) => e.outcome.map(|c| match c {
-                    Completion::Uploaded(d) => Some(le_u32(d)),
-                    Completion::Downloaded => None,
-                }),
+                Some(e) => (
+                    e.id,
+                    e.outcome.map(|c| match c {
+                        Completion::Uploaded(d) => Some(le_u32(d)),
+                        Completion::Downloaded => None,
+                    }),
+                ),
             };
-            if n.state != NodeState::Sdo {
-                // A late completion for a node already finished: nothing to do.
+            if n.state != NodeState::Sdo || n.request != Some(id) {
+                // The completion of a request no op waits for: nothing to do.
                 continue;
             }
+            n.request = None;
+            let op = n.op();
             if n.restart {
                 n.restart = false;
-                n.at = 1;
-                self.run(i);
+                if n.restarts > MAX_RESTARTS {
+                    self.fail_at(i, op, None, FailureDetail::BootInterrupted);
+                } else {
+                    n.at = 1;
+                    self.run(i);
+                }
                 continue;
             }
-            let op = n.op();
             match outcome {
+                // The client gave up on an answer naming another object: a late answer to a
+                // request of an earlier attempt, no word of the node on this one.
+                Err(SdoError::Aborted {
+                    code: AbortCode::ParamIncompatible,
+                    by: AbortedBy::Client,
+                }) => self.fail_at(i, op, None, FailureDetail::StrayAnswer),
                 Err(SdoError::Aborted { code, by }) => {
                     self.fail_at(i, op, Some(code), FailureDetail::Aborted { by });
                 }
@@ -1032,20 +1067,17 @@ impl BootSequencer {
                 }
                 // Before the reset went out: the power-on boot-up, not ours.
                 Some((NodeState::NmtQueued, Some(Op::Reset))) => {}
+                // Reset after its configuration, before the start went out: configure again.
+                Some((NodeState::NmtQueued, _)) => self.reboot(i),
                 Some((NodeState::Running | NodeState::Refused, _)) => self.reboot(i),
-                Some((
-                    NodeState::Sdo,
-                    Some(Op::Read {
-                        step: BootStep::Identity,
-                        ..
-                    }),
-                )) if self.nodes.get(i).is_some_and(|n| n.restarts < MAX_RESTARTS) => {
+                // An SDO request is with the node: it is let complete (or time out) first, so
+                // that its answer is never taken for another request's; then the identity.
+                Some((NodeState::Sdo, _)) => {
                     if let Some(n) = self.nodes.get_mut(i) {
-                        n.restarts += 1;
+                        n.restarts = n.restarts.saturating_add(1);
                         n.restart = true;
                     }
                 }
-                Some((_, op)) => self.fail_at(i, op, None, FailureDetail::BootInterrupted),
                 None => {}
             }
             return;
@@ -1061,27 +1093,31 @@ impl BootSequencer {
     /// The next frame to send at `now`: NMT commands first, then one SDO request per node in
     /// turn.
     pub fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
-        if let Some((i, f)) = self.nmt.pop_front() {
-            if let Some(n) = self.nodes.get_mut(i)
-                && n.state == NodeState::NmtQueued
-            {
-                match n.op() {
-                    Some(Op::Reset) => {
-                        let wait = if n.waiting {
-                            n.plan.timeouts.probe
-                        } else {
-                            n.plan.timeouts.boot_up
-                        };
-                        n.state = NodeState::WaitBootUp {
-                            deadline: now.saturating_add(wait),
-                        };
-                    }
-                    Some(Op::Start) => {
-                        n.at += 1;
-                        self.finish(i, Ok(()));
-                    }
-                    _ => {}
+        while let Some((i, op, f)) = self.nmt.pop_front() {
+            let Some(n) = self.nodes.get_mut(i) else {
+                continue;
+            };
+            // A frame whose op the node has left (it reset before its start went out, or a
+            // second reset was queued) is not sent.
+            if n.state != NodeState::NmtQueued || n.op() != Some(op) {
+                continue;
+            }
+            match op {
+                Op::Reset => {
+                    let wait = if n.waiting {
+                        n.plan.timeouts.probe
+                    } else {
+                        n.plan.timeouts.boot_up
+                    };
+                    n.state = NodeState::WaitBootUp {
+                        deadline: now.saturating_add(wait),
+                    };
                 }
+                Op::Start => {
+                    n.at += 1;
+                    self.finish(i, Ok(()));
+                }
+                Op::Read { .. } | Op::Write { .. } => {}
             }
             return Some(f);
         }
@@ -1342,8 +1378,8 @@ mod tests {
         let r = s.reports()[0];
         assert_eq!(r.result, Ok(()));
         assert_eq!(r.device_type, Some(CIA402_DEVICE_TYPE));
-        // A boot-up during the configuration interrupts it: reported, and the node is asked
-        // again from the reset (not left refused).
+        // A boot-up during the configuration: the write in flight is let complete, then the
+        // node is configured again from the identity (no report: nothing is lost yet).
         let p = plan_for(
             node(2),
             DeviceKind::Tlc5xx,
@@ -1360,17 +1396,109 @@ mod tests {
         s.poll_transmit(t);
         s.handle_frame(&expedited_answer(2, vendor, TLC5XX_VENDOR_ID), t);
         // The first write (1400h:01 with bit 31) is out.
-        assert!(s.poll_transmit(t).is_some_and(|f| f.data()[0] == 0x23));
+        let write = s.poll_transmit(t).unwrap();
+        assert_eq!(write.data()[0], 0x23);
         s.handle_frame(&boot, t);
+        assert!(s.poll_transmit(t).is_none(), "nothing before the answer");
+        let ack = Frame::new_std(
+            0x582,
+            &[
+                0x60,
+                write.data()[1],
+                write.data()[2],
+                write.data()[3],
+                0,
+                0,
+                0,
+                0,
+            ],
+        )
+        .unwrap();
+        s.handle_frame(&ack, t);
+        assert!(is_upload(&s.poll_transmit(t).unwrap(), 2, dt));
+        assert!(s.reports().is_empty());
+    }
+
+    /// Boots node 2 (TLC5xx, no PDOs) up to its identity read of 1000h in flight.
+    fn at_identity(t: Instant) -> BootSequencer {
+        let p = plan_for(node(2), DeviceKind::Tlc5xx, &[], &[], SupervisionPlan::None).unwrap();
+        let mut s = BootSequencer::new(vec![p], t);
+        s.poll_transmit(t).unwrap();
+        s.handle_frame(&Frame::new_std(0x702, &[0]).unwrap(), t);
+        assert!(is_upload(
+            &s.poll_transmit(t).unwrap(),
+            2,
+            Address::new(0x1000, 0)
+        ));
+        s
+    }
+
+    #[test]
+    fn a_node_that_keeps_resetting_is_asked_again_and_no_answer_is_taken_for_another() {
+        // Seen with drives of a loaded host: boot-ups one after another during the identity.
+        // The old sequencer gave up on the read in flight, asked 1000h again and took the late
+        // answer of the first read for 1018h:01: "wrong device, vendor 00020192h".
+        let t = Instant::from_millis(1);
+        let dt = Address::new(0x1000, 0);
+        let vendor = Address::new(0x1018, 1);
+        let boot = Frame::new_std(0x702, &[0]).unwrap();
+        let mut s = at_identity(t);
+        for _ in 0..=MAX_RESTARTS {
+            s.handle_frame(&boot, t);
+        }
+        s.handle_frame(&expedited_answer(2, dt, CIA402_DEVICE_TYPE), t);
         let f = s.reports()[0].result.unwrap_err();
-        assert_eq!(f.step, BootStep::PdoConfig);
         assert_eq!(f.detail, FailureDetail::BootInterrupted);
         assert!(f.detail.is_waiting());
-        // The reset communication of the new attempt is queued.
+        // Asked again from the reset; the new attempt reads 1000h, then 1018h:01.
+        assert_eq!(s.poll_transmit(t).unwrap().data(), &[0x82, 2]);
+        s.handle_frame(&boot, t);
+        assert!(is_upload(&s.poll_transmit(t).unwrap(), 2, dt));
+        s.handle_frame(&expedited_answer(2, dt, CIA402_DEVICE_TYPE), t);
+        assert!(is_upload(&s.poll_transmit(t).unwrap(), 2, vendor));
+        s.handle_frame(&expedited_answer(2, vendor, TLC5XX_VENDOR_ID), t);
+        assert_eq!(s.poll_transmit(t).unwrap().data(), &[0x01, 2]);
+        assert!(s.is_running(node(2)));
+
+        // A late answer for 1000h while 1018h:01 is asked is not the vendor: the exchange is
+        // void and the node is asked again (waiting), not refused as a wrong device.
+        let mut s = at_identity(t);
+        s.handle_frame(&expedited_answer(2, dt, CIA402_DEVICE_TYPE), t);
+        assert!(is_upload(&s.poll_transmit(t).unwrap(), 2, vendor));
+        s.handle_frame(&expedited_answer(2, dt, CIA402_DEVICE_TYPE), t);
+        let f = s.reports()[0].result.unwrap_err();
+        assert_eq!(f.detail, FailureDetail::StrayAnswer, "{f}");
+        assert!(f.detail.is_waiting());
         let mut reset = false;
         while let Some(f) = s.poll_transmit(t) {
-            reset |= f.cob_id() == Some(0x000) && f.data() == [0x82, 2];
+            reset |= f.data() == [0x82, 2];
         }
         assert!(reset, "the node is asked again");
+        s.handle_frame(&boot, t);
+        assert!(is_upload(&s.poll_transmit(t).unwrap(), 2, dt));
+        s.handle_frame(&expedited_answer(2, dt, CIA402_DEVICE_TYPE), t);
+        s.poll_transmit(t).unwrap();
+        s.handle_frame(&expedited_answer(2, vendor, TLC5XX_VENDOR_ID), t);
+        assert_eq!(s.poll_transmit(t).unwrap().data(), &[0x01, 2]);
+        assert!(s.is_running(node(2)));
+    }
+
+    #[test]
+    fn a_boot_up_before_the_start_went_out_configures_again_without_starting() {
+        let t = Instant::from_millis(1);
+        let dt = Address::new(0x1000, 0);
+        let vendor = Address::new(0x1018, 1);
+        let mut s = at_identity(t);
+        s.handle_frame(&expedited_answer(2, dt, CIA402_DEVICE_TYPE), t);
+        s.poll_transmit(t).unwrap();
+        s.handle_frame(&expedited_answer(2, vendor, TLC5XX_VENDOR_ID), t);
+        // The start is queued, not yet handed out; the node resets meanwhile.
+        s.handle_frame(&Frame::new_std(0x702, &[0]).unwrap(), t);
+        let next = s.poll_transmit(t).unwrap();
+        assert!(
+            is_upload(&next, 2, dt),
+            "identity again, not a start: {next:?}"
+        );
+        assert!(!s.is_running(node(2)));
     }
 }
