@@ -154,7 +154,10 @@ pub fn workspace_bin(package: &str, name: &str) -> std::path::PathBuf {
         .expect("the test binary sits in target/<profile>/deps")
         .to_path_buf();
     let mut built = BUILT.lock().unwrap_or_else(|e| e.into_inner());
-    if built.get_or_insert_with(HashSet::new).insert(name.to_string()) {
+    if built
+        .get_or_insert_with(HashSet::new)
+        .insert(name.to_string())
+    {
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let release = dir.file_name().is_some_and(|d| d == "release");
         let mut cmd = std::process::Command::new(cargo);
