@@ -13,7 +13,7 @@
 use std::time::Duration;
 
 use coordinator::axis::Image;
-use coordinator::command::{Command, GroupId};
+use coordinator::command::{BufferMode, Command, GroupId};
 use coordinator::config::Config;
 use coordinator::cycle::{BusFrame, CycleInput, CycleOutput};
 use coordinator::records::MAX_GROUP_AXES;
@@ -35,6 +35,7 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
         virtual_time: true,
         status_every: None,
         script: ScriptOptions {
+            demo: true,
             chains: false,
             home: true,
         },
@@ -56,6 +57,7 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
             group: g as GroupId,
             positions,
             velocity_percent: 100,
+            buffer: BufferMode::Aborting,
         });
         assert!(
             matches!(reply, coordinator::command::Reply::Latched { .. }),

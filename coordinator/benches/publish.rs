@@ -24,6 +24,7 @@ fn running(plan: &MachinePlan) -> VirtualRun<'_> {
         virtual_time: true,
         status_every: None,
         script: ScriptOptions {
+            demo: true,
             chains: true,
             home: true,
         },

@@ -2,6 +2,8 @@
 //! demo script) send a [`Command`]; the cycle answers every one with a [`Reply`]: accepted and
 //! latched in a given cycle, or rejected with a typed [`Rejected`] reason.
 
+pub use crate::admission::BufferMode;
+
 /// Index of an axis in the machine (configuration order).
 pub type AxisId = u16;
 /// Index of a group in the machine (configuration order).
@@ -44,6 +46,8 @@ pub enum Command {
         position: i64,
         /// Share of the velocity limit, 1..=100 %.
         velocity_percent: u8,
+        /// How it takes over from a move or jog that runs.
+        buffer: BufferMode,
     },
     /// Move a group, time-synchronised, to one target per member (increments, group order;
     /// members beyond the group's size are ignored).
@@ -54,6 +58,8 @@ pub enum Command {
         positions: [i64; crate::records::MAX_GROUP_AXES],
         /// Share of the velocity limits, 1..=100 %.
         velocity_percent: u8,
+        /// How it takes over from a group move that runs.
+        buffer: BufferMode,
     },
     /// Start a group's record chain at a record.
     StartChain {
@@ -70,10 +76,11 @@ pub enum Command {
     Stop(Target),
     /// Quick stop.
     QuickStop(Target),
-    /// Feed override for a group, 0..=200 %.
+    /// Feed override, 0..=200 %, of every kind of motion: a group's (its moves, its chain's
+    /// records and its members' own moves and jogs), an axis's own moves and jogs, or all.
     SetOverride {
-        /// The group.
-        group: GroupId,
+        /// The axes and groups.
+        target: Target,
         /// Percent.
         percent: u16,
     },

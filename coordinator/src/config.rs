@@ -592,6 +592,28 @@ pub struct RecordConfig {
     pub next: Option<u32>,
 }
 
+/// The rule an axis or group name breaks, if any: clients carry it in the shared-memory
+/// contract's 16-byte field and address it on command lines (`--axis x`, `--to 1,2`).
+pub fn name_rule(name: &str) -> Option<&'static str> {
+    if name.is_empty() {
+        Some("is empty: give the axis or group a name")
+    } else if name.len() > shm_api::contract::NAME_LEN {
+        Some("is longer than 16 bytes (the shared-memory contract's name field)")
+    } else if name.bytes().all(|b| b.is_ascii_digit()) {
+        Some("is a number, which clients would take for an index")
+    } else if !name
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
+    {
+        Some("may hold only letters, digits, '_', '-' and '.' (no spaces or commas)")
+    } else {
+        None
+    }
+}
+
+/// The rule a unit breaks: longer than the contract's unit field.
+const UNIT_RULE: &str = "is longer than 8 bytes (the shared-memory contract's unit field)";
+
 /// What is wrong with one setting.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Problem {
@@ -614,6 +636,14 @@ pub enum Problem {
     /// A name used twice.
     #[error("the name {0:?} is already used by {1}")]
     DuplicateName(String, String),
+    /// A name clients could not carry or address.
+    #[error("the name {name:?} {rule}")]
+    BadName {
+        /// The name.
+        name: String,
+        /// The rule it breaks.
+        rule: &'static str,
+    },
     /// A bus name no bus has.
     #[error("no bus named {0:?}")]
     UnknownBus(String),
@@ -1013,6 +1043,24 @@ impl Config {
         let mut plans: Vec<BusPlan> = self.buses.iter().map(|_| BusPlan::default()).collect();
         for (i, a) in self.axes.iter().enumerate() {
             let key = format!("axes[{i}]");
+            if let Some(rule) = name_rule(&a.name) {
+                err.push(
+                    format!("{key}.name"),
+                    Problem::BadName {
+                        name: a.name.clone(),
+                        rule,
+                    },
+                );
+            }
+            if a.unit.len() > shm_api::contract::UNIT_LEN {
+                err.push(
+                    format!("{key}.unit"),
+                    Problem::BadName {
+                        name: a.unit.clone(),
+                        rule: UNIT_RULE,
+                    },
+                );
+            }
             if let Some(&j) = axis_index.get(a.name.as_str()) {
                 err.push(
                     format!("{key}.name"),
@@ -1224,6 +1272,15 @@ impl Config {
         let mut member_of: HashMap<&str, &str> = HashMap::new();
         for (g, group) in self.groups.iter().enumerate() {
             let key = format!("groups[{g}]");
+            if let Some(rule) = name_rule(&group.name) {
+                err.push(
+                    format!("{key}.name"),
+                    Problem::BadName {
+                        name: group.name.clone(),
+                        rule,
+                    },
+                );
+            }
             if let Some(&j) = names.get(group.name.as_str()) {
                 err.push(
                     format!("{key}.name"),
@@ -2292,6 +2349,34 @@ mod tests {
             (
                 &[("guard_time_ms = 100 ", "guard_time_ms = 1 ")],
                 "axes[0].guard_time_ms: 1 ms is shorter than the cycle (2000 us)",
+            ),
+            (
+                &[
+                    ("name = \"z\"", "name = \"conveyor_section_1\""),
+                    ("[\"z\"]", "[\"conveyor_section_1\"]"),
+                    ("{ z =", "{ conveyor_section_1 ="),
+                ],
+                "axes[2].name: the name \"conveyor_section_1\" is longer than 16 bytes (the shared-memory contract's name field)",
+            ),
+            (
+                &[("name = \"lift\"", "name = \"\"")],
+                "groups[1].name: the name \"\" is empty: give the axis or group a name",
+            ),
+            (
+                &[("name = \"lift\"", "name = \"2\"")],
+                "groups[1].name: the name \"2\" is a number, which clients would take for an index",
+            ),
+            (
+                &[("name = \"hand\"", "name = \"left hand\"")],
+                "groups[2].name: the name \"left hand\" may hold only letters, digits, '_', '-' and '.' (no spaces or commas)",
+            ),
+            (
+                &[("name = \"hand\"", "name = \"a,b\"")],
+                "groups[2].name: the name \"a,b\" may hold only letters, digits, '_', '-' and '.' (no spaces or commas)",
+            ),
+            (
+                &[("unit = \"deg\"", "unit = \"degrees_C\"")],
+                "axes[3].unit: the name \"degrees_C\" is longer than 8 bytes (the shared-memory contract's unit field)",
             ),
             (
                 &[("name = \"z\"", "name = \"x\"")],

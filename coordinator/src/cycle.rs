@@ -29,6 +29,9 @@ use drivers::fhpp::fpc;
 use drivers::time::Instant;
 use heapless::{Deque, Vec};
 
+use crate::admission::{
+    self, Admit, AxisActivity, AxisVerb, BufferMode, GroupActivity, GroupVerb, Refusal,
+};
 use crate::axis::{AxisError, AxisState, Demand, DeviceKind, DriveAxis, Feedback, Image, Profile};
 use crate::command::{AxisId, Command, GroupId, Rejected, Reply, Target};
 use crate::event::Event;
@@ -231,7 +234,8 @@ pub enum Mode {
     On,
     /// Homing running.
     Homing,
-    /// Jogging.
+    /// Jogging (published only: a jog is a single-axis motion the coordinator plans towards
+    /// the software limit, see [`Cycle::axis_status`]).
     Jog {
         /// Direction.
         positive: bool,
@@ -282,9 +286,10 @@ struct AxisRt {
     fault: FaultReason,
     /// The drive's own fault already turned into `fault`, so it is raised once.
     drive_fault_seen: bool,
-    solo: Option<Group<1>>,
-    /// The solo move is dropped once stopped (Stop, as opposed to Hold).
-    solo_stop: bool,
+    /// A single-axis move or jog.
+    solo: Option<Solo>,
+    /// Feed override of the axis's own moves and jogs, % (its group's override sets it too).
+    override_percent: u16,
     group: Option<GroupId>,
     /// A velocity or force record of the group drives this axis directly.
     special: Option<Demand>,
@@ -296,14 +301,81 @@ struct AxisRt {
     out: Image,
 }
 
+/// What a single-axis motion is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum SoloKind {
+    /// To a position at a share of the velocity limit.
+    Move {
+        /// Target, increments.
+        position: i64,
+        /// Share of the velocity limit, 1..=100 %.
+        velocity_percent: u8,
+    },
+    /// Towards the software limit in the direction of the sign, at ‰ of the velocity limit,
+    /// until released (it stops exactly at the limit at the latest).
+    Jog {
+        /// Signed share of the velocity limit, ‰.
+        permille: i16,
+    },
+}
+
+/// How a single-axis motion ends; a reader can hold it against PLCopen's Discrete motion,
+/// MC_Halt and MC_Stop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum SoloEnd {
+    /// At its target (resumed after a hold).
+    Arrive,
+    /// Held on its path by the operator; resumed by a resume.
+    Held,
+    /// Where its ramp stops, and the next motion (if any) starts there: a released jog, or a
+    /// motion another one aborts (MC_Halt; a motion command may take over).
+    Halt,
+    /// Where its ramp stops: a stop (sticky; refused motion commands until standstill).
+    Stop,
+}
+
+/// A single-axis motion the coordinator plans and streams.
+#[derive(Clone, Debug)]
+struct Solo {
+    motion: Group<1>,
+    kind: SoloKind,
+    end: SoloEnd,
+    /// The motion that takes over when this one has stopped (aborting) or arrived (buffered).
+    next: Option<SoloKind>,
+    /// The highest override under which the plan keeps the limits.
+    max_override: u16,
+}
+
+/// A group move to start later (aborting: once the running one has stopped; buffered: once it
+/// has arrived).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct GroupMove {
+    targets: [AxisTarget; MAX_GROUP_AXES],
+    velocity_percent: u8,
+}
+
+/// A group's operator halt: the stored part of its [`GroupActivity`] (the rest is its move, its
+/// chain and its members).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum GroupHalt {
+    /// Nothing asked.
+    None,
+    /// Held (MC_GroupInterrupt): the move stops on its path and nothing starts, not even the
+    /// chain's next record, until resumed.
+    Held,
+    /// Stopping (MC_GroupStop): the move ramps down and is dropped; sticky.
+    Stopping,
+}
+
 #[derive(Clone, Debug)]
 struct GroupRt<'t> {
     setup: GroupSetup,
     table: &'t RecordTable,
     chain: Chain,
     motion: Option<Group<MAX_GROUP_AXES>>,
-    /// The move is to be dropped once stopped (Stop, as opposed to Hold).
-    stop_pending: bool,
+    halt: GroupHalt,
+    /// A move given while another ran, to start when that one has stopped or arrived.
+    next: Option<(GroupMove, BufferMode)>,
     override_percent: u16,
     /// The highest override the running move can take without any member exceeding its
     /// configured limits (time scaling multiplies velocity, acceleration and jerk by the
@@ -316,7 +388,7 @@ struct GroupRt<'t> {
 }
 
 /// Published state of one axis.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct AxisStatus {
     /// The last feedback.
     pub feedback: Feedback,
@@ -332,8 +404,10 @@ pub struct AxisStatus {
     pub enabled: bool,
     /// What the axis is doing by command.
     pub mode: Mode,
-    /// A single-axis move is running.
+    /// A move (its own or its group's) streams setpoints to the axis.
     pub moving: bool,
+    /// What the axis is doing, as the admission table sees it.
+    pub activity: AxisActivity,
 }
 
 /// Published state of one group.
@@ -345,6 +419,8 @@ pub struct GroupStatus {
     pub motion: Option<GroupState>,
     /// Feed override, %.
     pub override_percent: u16,
+    /// What the group is doing, as the admission table sees it.
+    pub activity: GroupActivity,
 }
 
 /// The coordinator's cycle for up to `A` axes and `G` groups.
@@ -360,6 +436,8 @@ pub struct Cycle<'t, const A: usize, const G: usize> {
     now: Instant,
     inputs: u32,
     previous_inputs: u32,
+    /// Accepted stops and quick stops ([`Cycle::stops`]).
+    stops: u32,
 }
 
 fn node(n: u8) -> Option<NodeId> {
@@ -384,6 +462,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             now: Instant::ZERO,
             inputs: 0,
             previous_inputs: 0,
+            stops: 0,
         };
         for _ in 0..setup.buses {
             c.buses.push(BusRt::new()).map_err(|_| SetupError::Buses)?;
@@ -418,7 +497,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     fault: FaultReason::None,
                     drive_fault_seen: false,
                     solo: None,
-                    solo_stop: false,
+                    override_percent: 100,
                     group: None,
                     special: None,
                     fpc: if s.fpc {
@@ -452,7 +531,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     table,
                     chain: Chain::new(),
                     motion: None,
-                    stop_pending: false,
+                    halt: GroupHalt::None,
+                    next: None,
                     override_percent: 100,
                     max_override: 100,
                     pending: None,
@@ -481,6 +561,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     /// The published state of an axis.
     pub fn axis_status(&self, axis: AxisId) -> Option<AxisStatus> {
         let a = self.axes.get(usize::from(axis))?;
+        let mode = match (a.mode, a.solo.as_ref().map(|s| s.kind)) {
+            (Mode::On, Some(SoloKind::Jog { permille })) => Mode::Jog {
+                positive: permille > 0,
+                velocity: jog_velocity(&a.setup.limits, permille),
+            },
+            (m, _) => m,
+        };
         Some(AxisStatus {
             feedback: a.feedback,
             setpoint: a.setpoint,
@@ -488,8 +575,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             fault: a.fault,
             online: a.online,
             enabled: !matches!(a.mode, Mode::Off),
-            mode: a.mode,
+            mode,
             moving: a.following,
+            activity: self.axis_activity(usize::from(axis)),
         })
     }
 
@@ -500,6 +588,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             chain: g.chain.status(),
             motion: g.motion.as_ref().map(|m| m.state()),
             override_percent: g.override_percent,
+            activity: self.group_activity(usize::from(group)),
         })
     }
 
@@ -628,40 +717,6 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         }
     }
 
-    fn axes_of(&self, t: Target) -> Result<(usize, usize, Option<GroupId>), Rejected> {
-        match t {
-            Target::Axis(a) if usize::from(a) < self.axes.len() => {
-                Ok((usize::from(a), usize::from(a) + 1, None))
-            }
-            Target::Axis(a) => Err(Rejected::UnknownAxis(a)),
-            Target::Group(g) if usize::from(g) < self.groups.len() => Ok((0, 0, Some(g))),
-            Target::Group(g) => Err(Rejected::UnknownGroup(g)),
-            Target::All => Ok((0, self.axes.len(), None)),
-        }
-    }
-
-    /// Calls `f` on every axis a target addresses.
-    fn for_target(
-        &mut self,
-        t: Target,
-        mut f: impl FnMut(&mut AxisRt) -> Result<(), Rejected>,
-    ) -> Result<(), Rejected> {
-        let (from, to, group) = self.axes_of(t)?;
-        if let Some(g) = group {
-            let members = self.groups[usize::from(g)].setup.axes.clone();
-            for m in members {
-                if let Some(a) = self.axes.get_mut(usize::from(m)) {
-                    f(a)?;
-                }
-            }
-            return Ok(());
-        }
-        for a in &mut self.axes[from..to] {
-            f(a)?;
-        }
-        Ok(())
-    }
-
     fn groups_of(&self, t: Target) -> Result<(usize, usize), Rejected> {
         Ok(match t {
             Target::Group(g) if usize::from(g) < self.groups.len() => {
@@ -679,91 +734,214 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         })
     }
 
+    /// A group's own run state, before its members are looked at.
+    fn group_run(&self, gi: usize) -> GroupActivity {
+        let g = &self.groups[gi];
+        match g.halt {
+            GroupHalt::Stopping => GroupActivity::Stopping,
+            GroupHalt::Held => GroupActivity::Held,
+            GroupHalt::None if g.chain.is_running() => GroupActivity::Chain,
+            GroupHalt::None
+                if g.motion.is_some() || g.special_since.is_some() || g.next.is_some() =>
+            {
+                GroupActivity::Moving
+            }
+            GroupHalt::None => GroupActivity::Standby,
+        }
+    }
+
+    /// What axis `i` is doing, for the admission table.
+    fn axis_activity(&self, i: usize) -> AxisActivity {
+        let a = &self.axes[i];
+        if !a.online {
+            return AxisActivity::Offline;
+        }
+        if a.fault != FaultReason::None || matches!(a.mode, Mode::Acknowledging { .. }) {
+            return AxisActivity::ErrorStop;
+        }
+        match a.mode {
+            Mode::Off => return AxisActivity::Disabled,
+            Mode::QuickStopped => return AxisActivity::QuickStopped,
+            Mode::Homing => return AxisActivity::Homing,
+            Mode::On | Mode::Jog { .. } | Mode::Acknowledging { .. } => {}
+        }
+        if let Some(s) = &a.solo {
+            return match (s.end, s.kind) {
+                (SoloEnd::Stop, _) => AxisActivity::Stopping,
+                (_, SoloKind::Jog { .. }) if s.next.is_none() && s.end != SoloEnd::Halt => {
+                    AxisActivity::Continuous
+                }
+                _ => AxisActivity::Discrete,
+            };
+        }
+        match a.group.map(|g| self.group_run(usize::from(g))) {
+            Some(GroupActivity::Moving | GroupActivity::Chain | GroupActivity::Held) => {
+                AxisActivity::Synchronized
+            }
+            Some(GroupActivity::Stopping) => AxisActivity::Stopping,
+            _ => AxisActivity::Standstill,
+        }
+    }
+
+    /// What group `gi` is doing, for the admission table: a faulted member makes it faulted,
+    /// a member off (or quick-stopped, or offline) disabled; else its own run state.
+    fn group_activity(&self, gi: usize) -> GroupActivity {
+        let members = &self.groups[gi].setup.axes;
+        let base = |m: &AxisId| {
+            let a = &self.axes[usize::from(*m)];
+            if a.fault != FaultReason::None || matches!(a.mode, Mode::Acknowledging { .. }) {
+                AxisActivity::ErrorStop
+            } else if !a.online {
+                AxisActivity::Offline
+            } else {
+                match a.mode {
+                    Mode::Off => AxisActivity::Disabled,
+                    Mode::QuickStopped => AxisActivity::QuickStopped,
+                    _ => AxisActivity::Standstill,
+                }
+            }
+        };
+        if members.iter().any(|m| base(m) == AxisActivity::ErrorStop) {
+            return GroupActivity::ErrorStop;
+        }
+        if members.iter().any(|m| base(m) != AxisActivity::Standstill) {
+            return GroupActivity::Disabled;
+        }
+        self.group_run(gi)
+    }
+
+    /// The axes a target addresses, by index.
+    fn target_axes(&self, t: Target) -> Result<Vec<AxisId, A>, Rejected> {
+        let mut out = Vec::new();
+        match t {
+            Target::Axis(a) if usize::from(a) < self.axes.len() => {
+                let _ = out.push(a);
+            }
+            Target::Axis(a) => return Err(Rejected::UnknownAxis(a)),
+            Target::Group(g) => {
+                let g = self
+                    .groups
+                    .get(usize::from(g))
+                    .ok_or(Rejected::UnknownGroup(g))?;
+                for &m in &g.setup.axes {
+                    let _ = out.push(m);
+                }
+            }
+            Target::All => {
+                for a in 0..self.axes.len() {
+                    let _ = out.push(a as AxisId);
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Looks `verb` up for every axis of a target, whole before anything changes: refused if
+    /// any axis refuses it (a group or the machine does a command entirely or not at all).
+    /// Returns the axes where it runs.
+    fn admit_axes(&self, t: Target, verb: AxisVerb) -> Result<Vec<AxisId, A>, Rejected> {
+        let mut run = Vec::new();
+        for a in self.target_axes(t)? {
+            match admission::axis(self.axis_activity(usize::from(a)), verb) {
+                Admit::Run => {
+                    let _ = run.push(a);
+                }
+                Admit::NoOp => {}
+                Admit::Refuse(r) => return Err(refused(r)),
+            }
+        }
+        Ok(run)
+    }
+
+    /// Looks `verb` up for every group a target concerns (an axis: its group, if the group
+    /// drives it), whole first. Returns the groups where it runs.
+    fn admit_groups(&self, t: Target, verb: GroupVerb) -> Result<Vec<GroupId, G>, Rejected> {
+        let (g0, g1) = self.groups_of(t)?;
+        let mut run = Vec::new();
+        for gi in g0..g1 {
+            if let Target::Axis(a) = t
+                && self.axis_activity(usize::from(a)) != AxisActivity::Synchronized
+            {
+                // An axis on its own: its group is not concerned.
+                continue;
+            }
+            match admission::group(self.group_activity(gi), verb) {
+                Admit::Run => {
+                    let _ = run.push(gi as GroupId);
+                }
+                Admit::NoOp => {}
+                Admit::Refuse(r) => return Err(refused(r)),
+            }
+        }
+        Ok(run)
+    }
+
     fn apply(&mut self, c: &Command) -> Result<(), Rejected> {
         match *c {
             Command::Enable(t) => {
-                // Checked whole first: a group or the machine is enabled entirely or not at all.
-                self.for_target(t, |a| match (a.fault, a.online) {
-                    (FaultReason::None, true) => Ok(()),
-                    (FaultReason::None, false) => Err(Rejected::WrongState("drive not booted")),
-                    _ => Err(Rejected::Faulted),
-                })?;
-                self.for_target(t, |a| {
-                    if matches!(a.mode, Mode::Off | Mode::QuickStopped) {
-                        a.mode = Mode::On;
-                        a.setpoint = a.feedback.position;
-                    }
-                    Ok(())
-                })
+                for a in self.admit_axes(t, AxisVerb::Enable)? {
+                    let a = &mut self.axes[usize::from(a)];
+                    a.mode = Mode::On;
+                    a.setpoint = a.feedback.position;
+                }
+                Ok(())
             }
             Command::Disable(t) => {
-                let (g0, g1) = self.groups_of(t)?;
-                for gi in g0..g1 {
-                    self.groups[gi].motion = None;
+                let groups = self.target_groups_all(t)?;
+                for gi in groups {
+                    let gi = usize::from(gi);
                     self.abort_chain(gi);
+                    let g = &mut self.groups[gi];
+                    g.motion = None;
+                    g.next = None;
+                    g.halt = GroupHalt::None;
                 }
-                self.for_target(t, |a| {
+                for a in self.admit_axes(t, AxisVerb::Disable)? {
+                    let a = &mut self.axes[usize::from(a)];
                     a.mode = Mode::Off;
                     a.solo = None;
                     a.following = false;
-                    Ok(())
-                })
+                }
+                Ok(())
             }
             Command::Acknowledge(t) => {
                 // A drive that is not there cannot be acknowledged: its fault stays until it is
                 // back (booted again) and acknowledged then.
                 if let Target::Axis(a) = t
-                    && self.axes.get(usize::from(a)).is_some_and(|x| !x.online)
+                    && self
+                        .axes
+                        .get(usize::from(a))
+                        .is_some_and(|x| !x.online && x.fault != FaultReason::None)
                 {
                     return Err(Rejected::WrongState(
                         "drive offline: acknowledge once it is back",
                     ));
                 }
-                let (g0, g1) = self.groups_of(t)?;
-                for gi in g0..g1 {
-                    self.groups[gi].motion = None;
-                    self.groups[gi].stop_pending = false;
-                    self.abort_chain(gi);
-                }
-                self.for_target(t, |a| {
-                    if !a.online {
-                        return Ok(());
+                // Only faulted axes: nothing else stops, aborts or changes.
+                for a in self.admit_axes(t, AxisVerb::Acknowledge)? {
+                    let a = &mut self.axes[usize::from(a)];
+                    if matches!(a.mode, Mode::Acknowledging { .. }) {
+                        continue;
                     }
                     let enable_after = !matches!(a.mode, Mode::Off);
-                    if a.fault != FaultReason::None || a.feedback.state == AxisState::Fault {
-                        a.fault = FaultReason::None;
-                        a.drive_fault_seen = false;
-                        a.missed = 0;
-                        a.solo = None;
-                        a.following = false;
-                        a.mode = Mode::Acknowledging { enable_after };
-                    } else if a.mode == Mode::QuickStopped {
-                        a.mode = Mode::On;
-                        a.setpoint = a.feedback.position;
-                    }
-                    Ok(())
-                })
+                    a.fault = FaultReason::None;
+                    a.drive_fault_seen = false;
+                    a.missed = 0;
+                    a.solo = None;
+                    a.following = false;
+                    a.mode = Mode::Acknowledging { enable_after };
+                }
+                Ok(())
             }
             Command::Home(t) => {
-                self.for_target(t, |a| ready(a).map(|_| ()))?;
-                self.for_target(t, |a| {
+                for a in self.admit_axes(t, AxisVerb::Home)? {
+                    let a = &mut self.axes[usize::from(a)];
                     a.mode = Mode::Homing;
                     a.solo = None;
-                    Ok(())
-                })
+                }
+                Ok(())
             }
             Command::Jog { axis, permille } => {
-                let a = self
-                    .axes
-                    .get_mut(usize::from(axis))
-                    .ok_or(Rejected::UnknownAxis(axis))?;
-                if permille == 0 {
-                    if matches!(a.mode, Mode::Jog { .. }) {
-                        a.mode = Mode::On;
-                        a.setpoint = a.feedback.position;
-                    }
-                    return Ok(());
-                }
                 if !(-1000..=1000).contains(&permille) {
                     return Err(Rejected::OutOfRange {
                         axis,
@@ -772,54 +950,53 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         max: 1000,
                     });
                 }
-                ready(a)?;
-                let v = a.setup.limits.velocity as i64 * i64::from(permille.unsigned_abs()) / 1000;
-                a.mode = Mode::Jog {
-                    positive: permille > 0,
-                    velocity: v,
-                };
-                Ok(())
+                if permille == 0 {
+                    for a in self.admit_axes(Target::Axis(axis), AxisVerb::JogStop)? {
+                        if let Some(s) = &mut self.axes[usize::from(a)].solo {
+                            s.motion.hold();
+                            s.end = SoloEnd::Halt;
+                            s.next = None;
+                        }
+                    }
+                    return Ok(());
+                }
+                self.admit_axes(Target::Axis(axis), AxisVerb::Jog)?;
+                self.start_solo(
+                    usize::from(axis),
+                    SoloKind::Jog { permille },
+                    BufferMode::Aborting,
+                )
             }
             Command::MoveAxis {
                 axis,
                 position,
                 velocity_percent,
+                buffer,
             } => {
-                let cycle_ns = self.setup.cycle_ns;
                 let a = self
                     .axes
-                    .get_mut(usize::from(axis))
+                    .get(usize::from(axis))
                     .ok_or(Rejected::UnknownAxis(axis))?;
                 in_range(axis, position, a.setup.position_min, a.setup.position_max)?;
                 percent(axis, velocity_percent)?;
-                ready(a)?;
-                if let Some(g) = a.group
-                    && self.groups[usize::from(g)].motion.is_some()
-                {
-                    return Err(Rejected::Busy);
-                }
-                let limits = scale(&a.setup.limits, velocity_percent, 100, 100);
-                let m = Group::plan(
-                    [a.setpoint],
-                    PathTarget::Absolute([position]),
-                    &[limits],
-                    Shape::SCurve,
-                    cycle_ns,
+                self.admit_axes(Target::Axis(axis), AxisVerb::Move)?;
+                self.start_solo(
+                    usize::from(axis),
+                    SoloKind::Move {
+                        position,
+                        velocity_percent,
+                    },
+                    buffer,
                 )
-                .map_err(|_| Rejected::Plan)?;
-                a.solo = Some(m);
-                a.solo_stop = false;
-                Ok(())
             }
             Command::MoveGroup {
                 group,
                 positions,
                 velocity_percent,
+                buffer,
             } => {
-                let g = self
-                    .groups
-                    .get(usize::from(group))
-                    .ok_or(Rejected::UnknownGroup(group))?;
+                let gi = usize::from(group);
+                let g = self.groups.get(gi).ok_or(Rejected::UnknownGroup(group))?;
                 percent(group, velocity_percent)?;
                 let mut targets = [AxisTarget::Keep; MAX_GROUP_AXES];
                 for (i, &m) in g.setup.axes.iter().enumerate() {
@@ -827,10 +1004,28 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     in_range(m, positions[i], a.setup.position_min, a.setup.position_max)?;
                     targets[i] = AxisTarget::Absolute(positions[i]);
                 }
-                if g.motion.is_some() {
-                    return Err(Rejected::Busy);
+                self.admit_group_motion(gi, GroupVerb::Move)?;
+                let mv = GroupMove {
+                    targets,
+                    velocity_percent,
+                };
+                let running = self.groups[gi]
+                    .motion
+                    .as_ref()
+                    .is_some_and(|m| m.state() != GroupState::Done)
+                    || self.groups[gi].next.is_some();
+                if !running {
+                    self.groups[gi].motion = None;
+                    return self.start_group_move(gi, &targets, velocity_percent, 100, 100);
                 }
-                self.start_group_move(usize::from(group), &targets, velocity_percent, 100, 100)
+                let g = &mut self.groups[gi];
+                if buffer == BufferMode::Aborting
+                    && let Some(m) = &mut g.motion
+                {
+                    m.hold();
+                }
+                g.next = Some((mv, buffer));
+                Ok(())
             }
             Command::StartChain { group, record } => {
                 let gi = usize::from(group);
@@ -838,99 +1033,134 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 if g.table.get(record).is_none() {
                     return Err(Rejected::UnknownRecord(record));
                 }
-                if g.motion.is_some() {
-                    return Err(Rejected::Busy);
-                }
-                for &m in &g.setup.axes {
-                    ready(&self.axes[usize::from(m)])?;
-                }
+                self.admit_group_motion(gi, GroupVerb::StartChain)?;
                 let now = self.now;
                 let g = &mut self.groups[gi];
+                g.motion = None;
                 g.chain
                     .start(g.table, record, now)
                     .map_err(|_| Rejected::UnknownRecord(record))
             }
             Command::Hold(t) => {
-                let (g0, g1) = self.groups_of(t)?;
-                for g in &mut self.groups[g0..g1] {
+                let axes = self.admit_axes(t, AxisVerb::Hold)?;
+                let groups = self.admit_groups(t, GroupVerb::Hold)?;
+                for gi in groups {
+                    let g = &mut self.groups[usize::from(gi)];
+                    g.halt = GroupHalt::Held;
                     if let Some(m) = &mut g.motion {
                         m.hold();
                     }
                 }
-                self.for_target(t, |a| {
-                    if let Some(m) = &mut a.solo {
-                        m.hold();
+                for a in axes {
+                    if let Some(s) = &mut self.axes[usize::from(a)].solo
+                        && s.end == SoloEnd::Arrive
+                    {
+                        s.motion.hold();
+                        s.end = SoloEnd::Held;
                     }
-                    Ok(())
-                })
+                }
+                Ok(())
             }
             Command::Resume(t) => {
-                let (g0, g1) = self.groups_of(t)?;
-                for g in &mut self.groups[g0..g1] {
-                    if let Some(m) = &mut g.motion {
-                        let _ = m.resume();
+                let axes = self.admit_axes(t, AxisVerb::Resume)?;
+                let groups = self.admit_groups(t, GroupVerb::Resume)?;
+                for gi in groups {
+                    // The move resumes once it has stopped on its path (run_groups), or a
+                    // record held back starts.
+                    self.groups[usize::from(gi)].halt = GroupHalt::None;
+                }
+                for a in axes {
+                    if let Some(s) = &mut self.axes[usize::from(a)].solo
+                        && s.end == SoloEnd::Held
+                    {
+                        s.end = SoloEnd::Arrive;
                     }
                 }
-                self.for_target(t, |a| {
-                    if let Some(m) = &mut a.solo {
-                        let _ = m.resume();
-                    }
-                    Ok(())
-                })
+                Ok(())
             }
             Command::Stop(t) => {
-                let (g0, g1) = self.groups_of(t)?;
-                for gi in g0..g1 {
+                let groups = self.admit_groups(t, GroupVerb::Stop)?;
+                let axes = self.admit_axes(t, AxisVerb::Stop)?;
+                self.stops = self.stops.wrapping_add(1);
+                for gi in groups {
+                    let gi = usize::from(gi);
                     self.abort_chain(gi);
                     let g = &mut self.groups[gi];
-                    if let Some(m) = &mut g.motion {
-                        m.hold();
-                        g.stop_pending = true;
+                    g.next = None;
+                    match &mut g.motion {
+                        Some(m) if m.state() != GroupState::Done => {
+                            m.hold();
+                            g.halt = GroupHalt::Stopping;
+                        }
+                        _ => {
+                            g.motion = None;
+                            g.halt = GroupHalt::None;
+                        }
                     }
                 }
-                self.for_target(t, |a| {
-                    if let Some(m) = &mut a.solo {
-                        m.hold();
-                        a.solo_stop = true;
+                for a in axes {
+                    let a = &mut self.axes[usize::from(a)];
+                    if let Some(s) = &mut a.solo {
+                        s.motion.hold();
+                        s.end = SoloEnd::Stop;
+                        s.next = None;
                     }
-                    if matches!(a.mode, Mode::Jog { .. } | Mode::Homing) {
+                    if a.mode == Mode::Homing {
                         a.mode = Mode::On;
                         a.setpoint = a.feedback.position;
                     }
-                    Ok(())
-                })
+                }
+                Ok(())
             }
             Command::QuickStop(t) => {
-                let (g0, g1) = self.groups_of(t)?;
-                for gi in g0..g1 {
+                let groups = self.admit_groups(t, GroupVerb::QuickStop)?;
+                let axes = self.admit_axes(t, AxisVerb::QuickStop)?;
+                self.stops = self.stops.wrapping_add(1);
+                for gi in groups {
+                    let gi = usize::from(gi);
                     self.abort_chain(gi);
-                    self.groups[gi].motion = None;
+                    let g = &mut self.groups[gi];
+                    g.motion = None;
+                    g.next = None;
+                    g.halt = GroupHalt::None;
                 }
-                self.for_target(t, |a| {
+                for a in axes {
+                    let a = &mut self.axes[usize::from(a)];
                     a.solo = None;
                     a.following = false;
-                    if !matches!(a.mode, Mode::Off) {
-                        a.mode = Mode::QuickStopped;
-                    }
-                    Ok(())
-                })
+                    a.mode = Mode::QuickStopped;
+                }
+                Ok(())
             }
-            Command::SetOverride { group, percent } => {
-                let g = self
-                    .groups
-                    .get_mut(usize::from(group))
-                    .ok_or(Rejected::UnknownGroup(group))?;
+            Command::SetOverride { target, percent } => {
                 if percent > crate::profile::MAX_OVERRIDE {
                     return Err(Rejected::OutOfRange {
-                        axis: group,
+                        axis: match target {
+                            Target::Axis(a) => a,
+                            Target::Group(g) => g,
+                            Target::All => 0,
+                        },
                         value: percent.into(),
                         min: 0,
                         max: crate::profile::MAX_OVERRIDE.into(),
                     });
                 }
-                g.override_percent = percent;
-                if let Some(m) = &mut g.motion {
-                    let _ = m.set_override(percent.min(g.max_override));
+                let (g0, g1) = match target {
+                    Target::Axis(_) => (0, 0),
+                    t => self.groups_of(t)?,
+                };
+                for g in &mut self.groups[g0..g1] {
+                    g.override_percent = percent;
+                    if let Some(m) = &mut g.motion {
+                        let _ = m.set_override(percent.min(g.max_override));
+                    }
+                }
+                for a in self.target_axes(target)? {
+                    let a = &mut self.axes[usize::from(a)];
+                    a.override_percent = percent;
+                    if let Some(s) = &mut a.solo {
+                        let _ = s.motion.set_override(percent.min(s.max_override));
+                    }
                 }
                 Ok(())
             }
@@ -963,6 +1193,67 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 Ok(())
             }
         }
+    }
+
+    /// Every group a target touches (an axis: its own group), for disable.
+    fn target_groups_all(&self, t: Target) -> Result<Vec<GroupId, G>, Rejected> {
+        let (g0, g1) = self.groups_of(t)?;
+        let mut out = Vec::new();
+        for gi in g0..g1 {
+            let _ = out.push(gi as GroupId);
+        }
+        Ok(out)
+    }
+
+    /// Admission of a group motion command: the group table, then each member (a member on its
+    /// own move, homing or off refuses it).
+    fn admit_group_motion(&self, gi: usize, verb: GroupVerb) -> Result<(), Rejected> {
+        if let Admit::Refuse(r) = admission::group(self.group_activity(gi), verb) {
+            return Err(refused(r));
+        }
+        for &m in &self.groups[gi].setup.axes {
+            match self.axis_activity(usize::from(m)) {
+                AxisActivity::Standstill | AxisActivity::Synchronized => {}
+                other => {
+                    if let Admit::Refuse(r) = admission::axis(other, AxisVerb::Move) {
+                        return Err(refused(r));
+                    }
+                    return Err(refused(Refusal::Moving));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Plans a single-axis motion from the axis's setpoint, or hands it to the running one to
+    /// take over (aborting: that one ramps down first; buffered: once it has arrived).
+    fn start_solo(&mut self, i: usize, kind: SoloKind, buffer: BufferMode) -> Result<(), Rejected> {
+        let cycle_ns = self.setup.cycle_ns;
+        let a = &mut self.axes[i];
+        if let Some(s) = &mut a.solo {
+            // Checked now, so that a refusal comes with the command, not later.
+            plan_solo(&a.setup, a.setpoint, kind, a.override_percent, cycle_ns)?;
+            if buffer == BufferMode::Aborting {
+                s.motion.hold();
+                s.end = SoloEnd::Halt;
+            }
+            s.next = Some(kind);
+            return Ok(());
+        }
+        a.solo = Some(plan_solo(
+            &a.setup,
+            a.setpoint,
+            kind,
+            a.override_percent,
+            cycle_ns,
+        )?);
+        Ok(())
+    }
+
+    /// Accepted stop and quick-stop commands so far (a client that runs the machine on its own,
+    /// such as the demonstration script, ends when an operator stops it).
+    pub fn stops(&self) -> u32 {
+        self.stops
     }
 
     /// Starts a parameter-channel task on an axis.
@@ -1045,7 +1336,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         g.max_override = override_headroom(velocity_percent, acceleration_percent, jerk_percent);
         let _ = m.set_override(g.override_percent.min(g.max_override));
         g.motion = Some(m);
-        g.stop_pending = false;
+        g.halt = GroupHalt::None;
         Ok(())
     }
 
@@ -1199,11 +1490,15 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let Some(g) = group else { return };
         self.abort_chain(usize::from(g));
         let gr = &mut self.groups[usize::from(g)];
+        // A move waiting to take over does not start on a faulted group.
+        gr.next = None;
         let reaction = gr.setup.reaction;
         match reaction {
             Reaction::AxisOnly => {}
             Reaction::QuickStopGroup => {
                 gr.motion = None;
+                gr.next = None;
+                gr.halt = GroupHalt::None;
                 let members = gr.setup.axes.clone();
                 for m in members {
                     let a = &mut self.axes[usize::from(m)];
@@ -1215,9 +1510,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
             }
             Reaction::HaltGroup => {
+                gr.next = None;
                 if let Some(m) = &mut gr.motion {
                     m.hold();
-                    gr.stop_pending = true;
+                    gr.halt = GroupHalt::Stopping;
                 }
             }
         }
@@ -1273,7 +1569,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         let moving = self.groups[gi].motion.as_ref().is_some_and(|m| {
                             !matches!(m.state(), GroupState::Done | GroupState::Stopped)
                         });
-                        if moving {
+                        if self.groups[gi].halt != GroupHalt::None {
+                            // Held: the record waits for the resume (a hold is kept across
+                            // chain steps).
+                            self.groups[gi].pending = Some(record);
+                        } else if moving {
                             // On the fly: no blending. The running move decelerates along its
                             // path and the record starts from there, so the setpoints stay
                             // continuous.
@@ -1295,8 +1595,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     }
                 }
             }
-            // A record waiting for the previous move to stop starts now.
+            // A record waiting for the previous move to stop starts now (unless held).
             if let Some(record) = self.groups[gi].pending
+                && self.groups[gi].halt == GroupHalt::None
                 && self.groups[gi]
                     .motion
                     .as_ref()
@@ -1304,6 +1605,31 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             {
                 self.groups[gi].pending = None;
                 self.start_record(gi, record);
+            }
+            // A move given while another ran: aborting, once that one has stopped on its path;
+            // buffered, once it has arrived.
+            if let Some((mv, mode)) = self.groups[gi].next
+                && self.groups[gi].halt == GroupHalt::None
+            {
+                let g = &self.groups[gi];
+                let arrived = || {
+                    g.setup
+                        .axes
+                        .iter()
+                        .all(|&m| self.axes[usize::from(m)].feedback.motion_complete)
+                };
+                let go = match (mode, g.motion.as_ref().map(|m| m.state())) {
+                    (_, None) => true,
+                    (BufferMode::Aborting, Some(GroupState::Stopped | GroupState::Done)) => true,
+                    (BufferMode::Buffered, Some(GroupState::Done)) => arrived(),
+                    _ => false,
+                };
+                if go {
+                    self.groups[gi].next = None;
+                    self.groups[gi].motion = None;
+                    // Admitted when given; a fault since then cleared it (see `raise`).
+                    let _ = self.start_group_move(gi, &mv.targets, mv.velocity_percent, 100, 100);
+                }
             }
             // Motion: one sample per member per cycle.
             let g = &mut self.groups[gi];
@@ -1322,12 +1648,22 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         .axes
                         .iter()
                         .all(|&mm| self.axes[usize::from(mm)].feedback.motion_complete);
-                if (state == GroupState::Stopped && g.stop_pending)
-                    || (arrived && g.pending.is_none())
-                {
+                let stopped = state == GroupState::Stopped;
+                if stopped && g.halt == GroupHalt::Stopping {
                     g.motion = None;
-                    g.stop_pending = false;
+                    g.halt = GroupHalt::None;
+                } else if arrived && g.pending.is_none() && g.next.is_none() {
+                    g.motion = None;
+                } else if stopped
+                    && g.halt == GroupHalt::None
+                    && g.pending.is_none()
+                    && g.next.is_none()
+                {
+                    // Resumed while it was still ramping down: on along the path.
+                    let _ = m.resume();
                 }
+            } else if g.halt == GroupHalt::Stopping {
+                g.halt = GroupHalt::None;
             }
         }
     }
@@ -1425,38 +1761,49 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     fn run_axes(&mut self) {
         let cycle = self.cycle;
         for i in 0..self.axes.len() {
+            let cycle_ns = self.setup.cycle_ns;
             let a = &mut self.axes[i];
-            if let Some(m) = &mut a.solo {
-                let mut s = [(0i64, 0i64)];
-                m.step_positions(&mut s);
-                (a.setpoint, a.setpoint_velocity) = s[0];
+            if let Some(s) = &mut a.solo {
+                let mut smp = [(0i64, 0i64)];
+                s.motion.step_positions(&mut smp);
+                (a.setpoint, a.setpoint_velocity) = smp[0];
                 a.following = true;
-                let arrived = m.state() == GroupState::Done && a.feedback.motion_complete;
-                let stopped = m.state() == GroupState::Stopped && a.solo_stop;
-                if arrived || stopped {
-                    a.solo = None;
-                    a.solo_stop = false;
+                let state = s.motion.state();
+                let arrived = state == GroupState::Done && a.feedback.motion_complete;
+                let over = match (state, s.end) {
+                    (GroupState::Stopped, SoloEnd::Arrive) => {
+                        // Resumed while it was still ramping down: on along the path.
+                        let _ = s.motion.resume();
+                        false
+                    }
+                    (GroupState::Stopped, SoloEnd::Held) => false,
+                    (GroupState::Stopped | GroupState::Done, SoloEnd::Halt | SoloEnd::Stop) => true,
+                    // Held too late to stop short: arrived, but what waits stays held.
+                    (GroupState::Done, SoloEnd::Held) => arrived && s.next.is_none(),
+                    (GroupState::Done, SoloEnd::Arrive) => arrived,
+                    _ => false,
+                };
+                if over {
+                    let next = s.next;
+                    a.solo = next.and_then(|k| {
+                        plan_solo(&a.setup, a.setpoint, k, a.override_percent, cycle_ns).ok()
+                    });
                 }
             }
+            // A velocity or force record stands while its group is held or stopping.
+            let group_halted = a
+                .group
+                .is_some_and(|g| self.groups[usize::from(g)].halt != GroupHalt::None);
+            let a = &mut self.axes[i];
             let demand = match a.mode {
                 _ if !a.online => Demand::Disable,
                 Mode::Off => Demand::Disable,
                 Mode::QuickStopped => Demand::QuickStop,
                 Mode::Acknowledging { .. } => Demand::Acknowledge,
                 Mode::Homing => Demand::Home,
-                Mode::Jog { positive, velocity } => {
-                    let p = a.feedback.position;
-                    let at_limit = if positive {
-                        p >= a.setup.position_max
-                    } else {
-                        p <= a.setup.position_min
-                    };
-                    if at_limit {
-                        Demand::Halt
-                    } else {
-                        Demand::Jog { positive, velocity }
-                    }
-                }
+                // Not stored: a jog is a planned single-axis motion (see `axis_status`).
+                Mode::Jog { .. } => Demand::Standstill,
+                Mode::On if a.special.is_some() && group_halted => Demand::Halt,
                 Mode::On if a.special.is_some() => a.special.unwrap_or(Demand::Standstill),
                 Mode::On if a.following => Demand::Follow {
                     position: a.setpoint,
@@ -1486,7 +1833,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         axis: i as AxisId,
                     });
                 }
-                Mode::Jog { .. } | Mode::Homing | Mode::QuickStopped | Mode::Off => {
+                Mode::Homing | Mode::QuickStopped | Mode::Off => {
                     self.axes[i].setpoint = fb.position;
                 }
                 Mode::On if a.special.is_some() => {
@@ -1593,19 +1940,70 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     }
 }
 
-fn ready(a: &AxisRt) -> Result<(), Rejected> {
-    if a.fault != FaultReason::None {
-        return Err(Rejected::Faulted);
+/// A refusal of the admission table as the reply says it.
+fn refused(r: Refusal) -> Rejected {
+    match r {
+        Refusal::Faulted => Rejected::Faulted,
+        r => Rejected::WrongState(r.text()),
     }
-    if !a.online {
-        return Err(Rejected::WrongState("drive not booted"));
-    }
-    match a.mode {
-        Mode::On if a.solo.is_none() => Ok(()),
-        Mode::On => Err(Rejected::Busy),
-        Mode::Off | Mode::QuickStopped => Err(Rejected::WrongState("axis not enabled")),
-        Mode::Homing | Mode::Jog { .. } | Mode::Acknowledging { .. } => Err(Rejected::Busy),
-    }
+}
+
+/// A jog's speed, inc/s: ‰ of the velocity limit (at least 1 inc/s).
+fn jog_velocity(l: &AxisLimits, permille: i16) -> i64 {
+    let v = l
+        .velocity
+        .saturating_mul(u64::from(permille.unsigned_abs()))
+        / 1000;
+    v.max(1).min(i64::MAX as u64) as i64
+}
+
+/// Plans a single-axis motion from `from`: a move at its share of the limits, or a jog to the
+/// software limit in its direction at its speed with the full acceleration (so it stops
+/// exactly at the limit at the latest, and a release ramps down within the limits).
+fn plan_solo(
+    setup: &AxisSetup,
+    from: i64,
+    kind: SoloKind,
+    override_percent: u16,
+    cycle_ns: u32,
+) -> Result<Solo, Rejected> {
+    let (target, limits, max_override) = match kind {
+        SoloKind::Move {
+            position,
+            velocity_percent,
+        } => (
+            position,
+            scale(&setup.limits, velocity_percent, 100, 100),
+            override_headroom(velocity_percent, 100, 100),
+        ),
+        SoloKind::Jog { permille } => {
+            let mut l = setup.limits;
+            l.velocity = jog_velocity(&setup.limits, permille) as u64;
+            let share = (u32::from(permille.unsigned_abs()).div_ceil(10)).clamp(1, 100) as u8;
+            let to = if permille > 0 {
+                setup.position_max
+            } else {
+                setup.position_min
+            };
+            (to, l, override_headroom(share, 100, 100))
+        }
+    };
+    let mut motion = Group::plan(
+        [from],
+        PathTarget::Absolute([target]),
+        &[limits],
+        Shape::SCurve,
+        cycle_ns,
+    )
+    .map_err(|_| Rejected::Plan)?;
+    let _ = motion.set_override(override_percent.min(max_override));
+    Ok(Solo {
+        motion,
+        kind,
+        end: SoloEnd::Arrive,
+        next: None,
+        max_override,
+    })
 }
 
 fn in_range(axis: u16, v: i64, min: i64, max: i64) -> Result<(), Rejected> {
@@ -1759,7 +2157,8 @@ mod tests {
             c.command(&Command::MoveAxis {
                 axis: 0,
                 position: 200_000,
-                velocity_percent: 50
+                velocity_percent: 50,
+                buffer: BufferMode::Aborting,
             }),
             rej(Rejected::OutOfRange {
                 axis: 0,
@@ -1770,7 +2169,7 @@ mod tests {
         );
         assert_eq!(
             c.command(&Command::SetOverride {
-                group: 0,
+                target: Target::Group(0),
                 percent: 250
             }),
             rej(Rejected::OutOfRange {

@@ -16,6 +16,7 @@
 
 #![cfg_attr(not(feature = "std"), no_std)]
 
+pub mod admission;
 pub mod axis;
 pub mod budget;
 pub mod command;

@@ -32,7 +32,16 @@ enum Command {
         /// time.
         #[arg(long)]
         virtual_time: bool,
-        /// Only boot, enable and home; do not run the record chains.
+        /// Run the demonstration on a configured machine too: enable and home every axis, then
+        /// run each group's record chain over and over until an operator's stop. The embedded
+        /// default machine runs it unless `--no-demo`; with `--config` the drives are booted
+        /// and wait for commands.
+        #[arg(long, conflicts_with = "no_demo")]
+        demo: bool,
+        /// No demonstration on the embedded default machine either.
+        #[arg(long)]
+        no_demo: bool,
+        /// In the demonstration, only enable and home; do not run the record chains.
         #[arg(long)]
         no_chains: bool,
         /// No live status lines, only events and the summary.
@@ -81,6 +90,8 @@ fn main() -> ExitCode {
             config,
             duration,
             virtual_time,
+            demo,
+            no_demo,
             no_chains,
             quiet,
             shm_prefix,
@@ -119,6 +130,7 @@ fn main() -> ExitCode {
                 virtual_time,
                 status_every: (!quiet).then_some(Duration::from_millis(500)),
                 script: ScriptOptions {
+                    demo: (demo || config.is_none()) && !no_demo,
                     chains: !no_chains,
                     home: true,
                 },

@@ -28,6 +28,7 @@ fn options() -> RunOptions {
         duration: None,
         status_every: None,
         script: ScriptOptions {
+            demo: true,
             chains: false,
             home: true,
         },

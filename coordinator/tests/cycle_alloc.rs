@@ -7,7 +7,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::time::Duration;
 
-use coordinator::command::{Command, GroupId, Reply};
+use coordinator::command::{BufferMode, Command, GroupId, Reply};
 use coordinator::config::Config;
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::plan;
@@ -66,6 +66,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         virtual_time: true,
         status_every: None,
         script: ScriptOptions {
+            demo: true,
             chains: false,
             home: true,
         },
@@ -110,6 +111,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
                 group: g as GroupId,
                 positions,
                 velocity_percent: 100,
+                buffer: BufferMode::Aborting,
             });
             probe(false);
             // The moves run, so the steps counted below do the real work.

@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use coordinator::axis::AxisState;
-use coordinator::command::{Command, Rejected, Reply, Target};
+use coordinator::command::{BufferMode, Command, Rejected, Reply, Target};
 use coordinator::config::{Config, EXAMPLE};
 use coordinator::cycle::Mode;
 use coordinator::fault::FaultReason;
@@ -25,7 +25,11 @@ fn quiet(chains: bool) -> RunOptions {
         duration: None,
         virtual_time: true,
         status_every: None,
-        script: ScriptOptions { chains, home: true },
+        script: ScriptOptions {
+            demo: true,
+            chains,
+            home: true,
+        },
         shm: None,
         capture: None,
     }
@@ -102,6 +106,7 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
         group: g,
         positions,
         velocity_percent: 100,
+        buffer: BufferMode::Aborting,
     }));
     let mut started = [None, None];
     let mut arrived = [None, None];
@@ -165,6 +170,7 @@ fn a_bad_group_move_is_refused_whole_and_nothing_moves() {
         group: g,
         positions,
         velocity_percent: 50,
+        buffer: BufferMode::Aborting,
     });
     assert!(
         matches!(
@@ -182,7 +188,8 @@ fn a_bad_group_move_is_refused_whole_and_nothing_moves() {
         run.core.cycle.command(&Command::MoveGroup {
             group: 9,
             positions,
-            velocity_percent: 50
+            velocity_percent: 50,
+            buffer: BufferMode::Aborting,
         }),
         Reply::Rejected(Rejected::UnknownGroup(9))
     ));
@@ -207,6 +214,7 @@ fn fault_reaction(
         group: g,
         positions,
         velocity_percent: 50,
+        buffer: BufferMode::Aborting,
     }));
     steps(&mut run, 30);
     inject(&mut run);
@@ -246,7 +254,8 @@ fn fault_reaction(
             run.core.cycle.command(&Command::MoveGroup {
                 group: gi as u16,
                 positions,
-                velocity_percent: 50
+                velocity_percent: 50,
+                buffer: BufferMode::Aborting,
             }),
             Reply::Rejected(_)
         ));
@@ -631,6 +640,7 @@ fn hold_and_resume_continue_the_move_to_its_target() {
         group: g,
         positions,
         velocity_percent: 100,
+        buffer: BufferMode::Aborting,
     }));
     steps(&mut run, 300);
     latched(run.core.cycle.command(&Command::Hold(Target::Group(g))));
@@ -644,7 +654,7 @@ fn hold_and_resume_continue_the_move_to_its_target() {
         held.setpoint
     );
     latched(run.core.cycle.command(&Command::SetOverride {
-        group: g,
+        target: Target::Group(g),
         percent: 150,
     }));
     latched(run.core.cycle.command(&Command::Resume(Target::Group(g))));
@@ -664,7 +674,7 @@ fn hold_and_resume_continue_the_move_to_its_target() {
     );
     assert!(matches!(
         run.core.cycle.command(&Command::SetOverride {
-            group: g,
+            target: Target::Group(g),
             percent: 201
         }),
         Reply::Rejected(Rejected::OutOfRange { max: 200, .. })

@@ -32,6 +32,7 @@ fn six_drives_booted_together_come_online_without_a_fault() {
         virtual_time: false,
         status_every: None,
         script: ScriptOptions {
+            demo: true,
             chains: false,
             home: false,
         },

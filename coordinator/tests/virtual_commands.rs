@@ -24,6 +24,7 @@ fn a_virtual_time_run_answers_client_commands() {
         status_every: None,
         // The script stays out of the way: it only boots (no enable, no homing).
         script: ScriptOptions {
+            demo: true,
             chains: false,
             home: false,
         },

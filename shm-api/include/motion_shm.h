@@ -237,7 +237,7 @@ typedef struct MotionCommandRequest {
     uint16_t group;
     uint16_t record;  /* chains; the input bit for SET_INPUT */
     uint8_t sub;      /* parameter sub-index */
-    uint8_t reserved0;
+    uint8_t buffer;   /* moves: 0 aborting, 1 buffered */
     uint16_t pnu;     /* parameter number */
     uint16_t reserved1;
     int64_t value;    /* jog per mille, override %, parameter value, input level */
@@ -350,7 +350,7 @@ MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, axis) == 12, "MotionCommandR
 MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, group) == 14, "MotionCommandRequest.group offset");
 MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, record) == 16, "MotionCommandRequest.record offset");
 MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, sub) == 18, "MotionCommandRequest.sub offset");
-MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, reserved0) == 19, "MotionCommandRequest.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, buffer) == 19, "MotionCommandRequest.buffer offset");
 MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, pnu) == 20, "MotionCommandRequest.pnu offset");
 MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, reserved1) == 22, "MotionCommandRequest.reserved1 offset");
 MOTION_STATIC_ASSERT(offsetof(MotionCommandRequest, value) == 24, "MotionCommandRequest.value offset");

@@ -401,7 +401,7 @@ class CommandRequest(ctypes.Structure):
         ("group", U16),
         ("record", U16),
         ("sub", U8),
-        ("reserved0", U8),
+        ("buffer", U8),
         ("pnu", U16),
         ("reserved1", U16),
         ("value", I64),

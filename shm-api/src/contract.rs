@@ -303,6 +303,15 @@ pub mod command_kind {
     pub const SET_INPUT: u16 = 16;
 }
 
+/// How a move given while another runs takes over ([`CommandRequest::buffer`]), PLCopen's
+/// BufferMode.
+pub mod buffer_mode {
+    /// The running move ramps down along its path; the new one starts from where it stopped.
+    pub const ABORTING: u8 = 0;
+    /// The new move starts when the running one has arrived.
+    pub const BUFFERED: u8 = 1;
+}
+
 /// Which axes a command addresses ([`CommandRequest::target`]).
 pub mod target {
     /// One axis: `axis`.
@@ -334,8 +343,8 @@ pub struct CommandRequest {
     pub record: u16,
     /// The parameter's sub-index.
     pub sub: u8,
-    /// Padding, 0.
-    pub reserved0: u8,
+    /// How a move takes over from one that runs ([`buffer_mode`]; 0, aborting, by default).
+    pub buffer: u8,
     /// The parameter number.
     pub pnu: u16,
     /// Padding, 0.

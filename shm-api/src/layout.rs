@@ -48,7 +48,7 @@ macro_rules! for_each_payload {
             group_count, inputs, virtual_time, reserved0, bus, axes, groups,
         ]);
         $m!($($a)*; CommandRequest, [
-            tag, kind, target, percent, axis, group, record, sub, reserved0, pnu, reserved1,
+            tag, kind, target, percent, axis, group, record, sub, buffer, pnu, reserved1,
             value, positions,
         ]);
         $m!($($a)*; CommandReply, [tag, cycle, value, min, max, status, reserved0, reason]);

@@ -1,7 +1,9 @@
 //! Builders for [`CommandRequest`], the [`Target`] of a command, and [`name_str`] for the
 //! NUL-padded names of the contract.
 
-use crate::contract::{CommandReply, CommandRequest, MAX_GROUP_AXES, command_kind, status, target};
+use crate::contract::{
+    CommandReply, CommandRequest, MAX_GROUP_AXES, buffer_mode, command_kind, status, target,
+};
 
 /// Which axes a command addresses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -48,7 +50,7 @@ impl CommandRequest {
             group: 0,
             record: 0,
             sub: 0,
-            reserved0: 0,
+            buffer: buffer_mode::ABORTING,
             pnu: 0,
             reserved1: 0,
             value: 0,
@@ -131,6 +133,19 @@ impl CommandRequest {
             *dst = *src;
         }
         r.percent = percent;
+        r
+    }
+    /// The same move, taking over from a running one as `mode` says ([`buffer_mode`]).
+    pub const fn with_buffer(mut self, mode: u8) -> CommandRequest {
+        self.buffer = mode;
+        self
+    }
+    /// Set the feed override of `t` (an axis's own moves and jogs, a group's moves and its
+    /// members', or everything) to `percent` %.
+    pub fn set_override_of(t: Target, percent: u16) -> CommandRequest {
+        let mut r = Self::targeted(command_kind::SET_OVERRIDE, t);
+        r.value = i64::from(percent);
+        r.percent = u8::try_from(percent).unwrap_or(u8::MAX);
         r
     }
     /// Start `group`'s record chain at `record`.

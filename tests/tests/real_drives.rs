@@ -539,7 +539,12 @@ fn a_machine_of_drives_in_other_processes() {
     let coord = sc.coordinator(
         &config,
         &prefix,
-        &["--no-chains", "--capture", capture.to_str().unwrap()],
+        &[
+            "--demo",
+            "--no-chains",
+            "--capture",
+            capture.to_str().unwrap(),
+        ],
     );
     let mut c = connect(&prefix);
 
@@ -638,20 +643,25 @@ fn a_machine_of_drives_in_other_processes() {
         "a faulted group does not move: {refused:?}"
     );
 
-    // Acknowledge, then enable and home what needs it.
+    // Acknowledge (it clears e's fault and nothing else: t stays quick-stopped), then enable
+    // and home what needs it.
     c.command(&CommandRequest::acknowledge(Target::Group(cross)), REPLY)
         .expect("acknowledge latched");
     let s = sc.wait_state(&mut c, coord, "cross acknowledged", |s| {
-        [t, e].iter().all(|&a| {
-            s.axes[a].fault == fault::NONE
-                && !matches!(
-                    s.axes[a].mode,
-                    axis_mode::ACKNOWLEDGING | axis_mode::QUICK_STOPPED
-                )
-        })
+        [t, e]
+            .iter()
+            .all(|&a| s.axes[a].fault == fault::NONE && s.axes[a].mode != axis_mode::ACKNOWLEDGING)
     });
+    assert_eq!(
+        s.axes[t].mode,
+        axis_mode::QUICK_STOPPED,
+        "acknowledge does not undo a quick stop: {}",
+        describe(&s)
+    );
     for a in [t, e] {
-        if !has(&s.axes[a], axis_flags::ENABLED) || s.axes[a].mode == axis_mode::OFF {
+        if !has(&s.axes[a], axis_flags::ENABLED)
+            || matches!(s.axes[a].mode, axis_mode::OFF | axis_mode::QUICK_STOPPED)
+        {
             c.command(&CommandRequest::enable(Target::Axis(a as u16)), REPLY)
                 .expect("enable latched");
             sc.wait_state(&mut c, coord, "enabled", |s| {
@@ -761,7 +771,12 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
     let coord = sc.coordinator(
         &config,
         &prefix,
-        &["--no-chains", "--capture", capture.to_str().unwrap()],
+        &[
+            "--demo",
+            "--no-chains",
+            "--capture",
+            capture.to_str().unwrap(),
+        ],
     );
     sc.wait_output(coord, "drive ready: node 5 (TLC5xx \"z\")", 1);
     let status = sc.wait_exit(dump);
@@ -848,7 +863,7 @@ fn drives_that_appear_later_are_booted_and_a_wrong_device_is_refused_by_name() {
         ),
     );
     check(&config);
-    let coord = sc.coordinator(&config, &prefix, &["--no-chains"]);
+    let coord = sc.coordinator(&config, &prefix, &["--demo", "--no-chains"]);
     let vbus = format!("vbus:{bus}");
     sc.wait_output(
         coord,
@@ -994,7 +1009,11 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
     let first = sc.drive_sim(&config, &["a1", "a2", "a3", "a4"]);
     let second = sc.drive_sim(&config, &["a5", "a6", "a7", "a8"]);
     sc.wait_running(&[first, second]);
-    let coord = sc.coordinator(&config, &prefix, &["--duration", "30", "--no-chains"]);
+    let coord = sc.coordinator(
+        &config,
+        &prefix,
+        &["--duration", "30", "--demo", "--no-chains"],
+    );
     let mut c = connect(&prefix);
     sc.wait_state(&mut c, coord, "all eight enabled and homed", |s| {
         s.axis_count == 8 && axes(s).iter().all(ready)
@@ -1052,4 +1071,78 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
         Some(0),
         "exit status 0: no fault, no refusal"
     );
+}
+
+#[test]
+fn a_closed_terminal_stops_the_axes_and_disables_the_drives() {
+    // SIGHUP (the terminal closed), SIGTERM and SIGQUIT end a run as Ctrl-C does: the moving
+    // axes stop with their deceleration, the drives are disabled, then the process ends.
+    for (sig, name) in [
+        (libc::SIGHUP, "SIGHUP"),
+        (libc::SIGQUIT, "SIGQUIT"),
+        (libc::SIGTERM, "SIGTERM"),
+    ] {
+        let mut sc = Scene::new(&format!("signal-{}", name.to_lowercase()));
+        let bus = unique("rdh");
+        let prefix = unique("t-real-hup-");
+        let config = sc.write(
+            "hup.toml",
+            &format!(
+                "cycle_us = {CYCLE_US}\n\n\
+                 [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+                 [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
+                 increments_per_unit = 1000.0\n{}\n\n\
+                 [[groups]]\nname = \"lift\"\naxes = [\"z\"]\n",
+                limits(0.0, 100.0, 20.0, 100.0)
+            ),
+        );
+        check(&config);
+        let z_sim = sc.drive_sim(&config, &["z"]);
+        sc.wait_running(&[z_sim]);
+        let capture = sc.path("capture");
+        let coord = sc.coordinator(
+            &config,
+            &prefix,
+            &[
+                "--demo",
+                "--no-chains",
+                "--capture",
+                capture.to_str().unwrap(),
+            ],
+        );
+        let mut c = connect(&prefix);
+        sc.wait_state(&mut c, coord, "z enabled and homed", |s| {
+            s.axis_count == 1 && ready(&s.axes[0])
+        });
+        // A long move (5 s at 20 mm/s); the signal comes in the middle of it.
+        c.command(&CommandRequest::move_axis(0, 95 * MM, 100), REPLY)
+            .expect("the move is latched");
+        sc.wait_state(&mut c, coord, "z under way", |s| {
+            s.axes[0].position > 10 * MM
+        });
+        sc.signal(coord, sig);
+        let status = sc.wait_exit(coord);
+        assert_eq!(status.code(), Some(0), "{name}: a normal end");
+        let out = sc.output(coord);
+        assert!(!out.contains("panicked"), "{name}: {out}");
+        // The drive's last statusword (TPDO1, 185h) says disabled, and before that it came to
+        // a standstill short of the target (no jump: the stop ramped down).
+        let log = read_log(&capture.join(format!("{bus}.log")));
+        let tpdo: Vec<&Vec<u8>> = log
+            .iter()
+            .filter(|f| f.id == 0x185)
+            .filter_map(|f| f.data.as_ref())
+            .collect();
+        let last = tpdo.last().expect("TPDO1 in the capture");
+        let statusword = u16::from_le_bytes([last[0], last[1]]);
+        assert_ne!(
+            statusword & 0x6F,
+            0x27,
+            "{name}: still operation enabled at the end ({statusword:04X}h)"
+        );
+        assert!(
+            matches!(statusword & 0x4F, 0x40) || matches!(statusword & 0x6F, 0x21 | 0x23),
+            "{name}: disabled at the end ({statusword:04X}h)"
+        );
+    }
 }

@@ -360,18 +360,22 @@ fn pin_to_cpu(cpu: usize) -> io::Result<()> {
 static STOP: AtomicBool = AtomicBool::new(false);
 static INSTALL: Once = Once::new();
 
-/// The flag SIGINT and SIGTERM set. The first call installs the handlers (signal-hook's
-/// `flag` module: the handler only stores to the atomic, which is async-signal-safe). The run
-/// loop polls it each cycle and disables the drives before leaving. A second SIGINT while the
-/// flag is set ends the process at once (exit status 130), for a shutdown that hangs.
+/// The flag SIGINT, SIGTERM, SIGHUP (the terminal closed) and SIGQUIT set: each leads to the same
+/// safe stop. The first call installs the handlers (signal-hook's `flag` module: the handler
+/// only stores to the atomic, which is async-signal-safe). The run loop polls it each cycle,
+/// stops the axes with their configured deceleration, disables the drives and publishes the
+/// state before leaving (bounded: at most 3 s for the stop and 3 s for the disable, see
+/// `runtime::script`). A second SIGINT while the flag is set ends the process at once (exit
+/// status 130), for a shutdown that hangs.
 pub fn stop_flag() -> &'static AtomicBool {
     INSTALL.call_once(|| {
-        use signal_hook::consts::{SIGINT, SIGTERM};
+        use signal_hook::consts::{SIGHUP, SIGINT, SIGQUIT, SIGTERM};
         // Registration fails only for the forbidden signals (SIGKILL, SIGSTOP...), not for
-        // these two; there is nothing useful to do with an error here.
+        // these; there is nothing useful to do with an error here.
         let _ = signal_hook::flag::register_conditional_shutdown(SIGINT, 130, &STOP);
-        let _ = signal_hook::flag::register(SIGINT, &STOP);
-        let _ = signal_hook::flag::register(SIGTERM, &STOP);
+        for sig in [SIGINT, SIGTERM, SIGHUP, SIGQUIT] {
+            let _ = signal_hook::flag::register(sig, &STOP);
+        }
     });
     &STOP
 }

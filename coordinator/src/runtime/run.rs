@@ -72,6 +72,7 @@ impl Default for RunOptions {
             virtual_time: false,
             status_every: Some(Duration::from_millis(500)),
             script: ScriptOptions {
+                demo: true,
                 chains: true,
                 home: true,
             },

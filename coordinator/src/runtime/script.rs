@@ -1,7 +1,10 @@
-//! The demonstration script of the embedded default machine, a built-in client: boot, enable,
-//! home every axis, then run each group's record chain from its first record, over and over;
-//! at the end (duration or Ctrl-C) stop, then disable. It reads the cycle's published status
-//! and sends commands; it allocates nothing, so it may run on the cycle thread.
+//! The demonstration script of the embedded default machine (or `--demo`), a built-in client:
+//! boot, enable, home every axis, then run each group's record chain from its first record,
+//! over and over, until an operator's stop ends it for good. Without the demonstration the
+//! script does nothing until the end. At the end (duration or a signal) it stops, then
+//! disables, whatever ran. It reads the cycle's published status and sends commands through
+//! the cycle's admission like any client; it allocates nothing, so it may run on the cycle
+//! thread.
 
 use drivers::time::Instant;
 
@@ -13,6 +16,10 @@ use crate::records::ChainState;
 /// Where the script is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Phase {
+    /// No demonstration: the drives are booted and wait for an operator's commands.
+    Idle,
+    /// The demonstration was ended by an operator's stop (or quick stop): nothing restarts.
+    Stopped,
     /// Waiting for the drives to boot.
     Boot,
     /// Enable sent; waiting for operation enabled.
@@ -32,7 +39,10 @@ pub enum Phase {
 /// What the script does.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ScriptOptions {
-    /// Run the chains (the demo); without, the script only enables and homes.
+    /// Run the demonstration (enable, home, chains); without, the script only shuts down at the
+    /// end.
+    pub demo: bool,
+    /// Run the chains in the demonstration; without, it only enables and homes.
     pub chains: bool,
     /// Home the axes after enabling.
     pub home: bool,
@@ -50,6 +60,8 @@ pub struct Script {
     pub refused: u64,
     /// Set when the user or the duration asked for the end.
     shutdown: bool,
+    /// The cycle's count of accepted stops when the script began ([`Cycle::stops`]).
+    stops: Option<u32>,
 }
 
 /// How long a phase may wait before the script gives up on it and moves on.
@@ -62,11 +74,12 @@ impl Script {
     pub fn new(opts: ScriptOptions, now: Instant) -> Script {
         Script {
             opts,
-            phase: Phase::Boot,
+            phase: if opts.demo { Phase::Boot } else { Phase::Idle },
             since: now,
             laps: 0,
             refused: 0,
             shutdown: false,
+            stops: None,
         }
     }
 
@@ -113,7 +126,19 @@ impl Script {
             self.go(Phase::Stopping, now);
             return;
         }
+        // An operator's stop ends the demonstration for good: a stop is sticky.
+        let stops = c.stops();
+        if *self.stops.get_or_insert(stops) != stops
+            && matches!(
+                self.phase,
+                Phase::Boot | Phase::Enabling | Phase::Homing | Phase::Running
+            )
+        {
+            self.go(Phase::Stopped, now);
+            return;
+        }
         match self.phase {
+            Phase::Idle | Phase::Stopped => {}
             Phase::Boot => {
                 if all_booted {
                     // Axis by axis: a drive that failed to boot must not keep the others off.

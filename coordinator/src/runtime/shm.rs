@@ -6,7 +6,7 @@
 
 use shm_api::contract::{
     self as wire, AxisState as WireAxis, CommandReply, CommandRequest, EventRecord,
-    GroupState as WireGroup, MachineState, axis_flags, command_kind, status, target,
+    GroupState as WireGroup, MachineState, axis_flags, buffer_mode, command_kind, status, target,
 };
 
 use iceoryx2::prelude::{Node, ipc};
@@ -18,7 +18,7 @@ use shm_api::publisher::{
 use shm_api::request::name_bytes;
 
 use crate::axis::AxisState;
-use crate::command::{Command, Rejected, Reply, Target};
+use crate::command::{BufferMode, Command, Rejected, Reply, Target};
 use crate::cycle::{Cycle, Mode};
 use crate::event::Event;
 use crate::fault::FaultReason;
@@ -377,6 +377,11 @@ pub fn to_command(info: &StaticInfo, r: &CommandRequest) -> Result<Command, Comm
         target::ALL => Target::All,
         _ => return Err(bad()),
     };
+    let buffer = match r.buffer {
+        buffer_mode::ABORTING => BufferMode::Aborting,
+        buffer_mode::BUFFERED => BufferMode::Buffered,
+        _ => return Err(bad()),
+    };
     let group_positions = || {
         let mut p = [0i64; MAX_GROUP_AXES];
         if let Some(g) = info.groups.get(usize::from(r.group)) {
@@ -403,18 +408,20 @@ pub fn to_command(info: &StaticInfo, r: &CommandRequest) -> Result<Command, Comm
             axis: r.axis,
             position: info.to_inc(usize::from(r.axis), r.positions[0]),
             velocity_percent: r.percent,
+            buffer,
         },
         command_kind::MOVE_GROUP => Command::MoveGroup {
             group: r.group,
             positions: group_positions(),
             velocity_percent: r.percent,
+            buffer,
         },
         command_kind::START_CHAIN => Command::StartChain {
             group: r.group,
             record: r.record,
         },
         command_kind::SET_OVERRIDE => Command::SetOverride {
-            group: r.group,
+            target: tgt,
             percent: r.value.clamp(0, i64::from(u16::MAX)) as u16,
         },
         command_kind::READ_PARAMETER => Command::ReadParameter {
@@ -816,7 +823,8 @@ mod tests {
             Ok(Command::MoveGroup {
                 group: 0,
                 positions: [40_000, 50_000, 0, 0, 0, 0, 0, 0],
-                velocity_percent: 40
+                velocity_percent: 40,
+                buffer: BufferMode::Aborting,
             })
         );
         r.kind = 999;

@@ -97,6 +97,10 @@ pub enum Command {
         /// Share of the limits, %.
         #[arg(long, default_value_t = 100)]
         percent: u8,
+        /// If a move runs already, start this one when it has arrived (PLCopen Buffered);
+        /// without, the running move ramps down and this one starts from there (Aborting).
+        #[arg(long)]
+        buffered: bool,
     },
     /// Start a group's record chain.
     StartChain {
@@ -107,11 +111,12 @@ pub enum Command {
         #[arg(long)]
         record: u16,
     },
-    /// Set a group's feed override.
+    /// Set the feed override of an axis's own moves and jogs, of a group's moves (and its
+    /// members'), or of all.
     Override {
-        /// The group.
-        #[arg(long)]
-        group: String,
+        /// What it applies to.
+        #[command(flatten)]
+        target: TargetArgs,
         /// Override, % (0..=200).
         #[arg(long)]
         percent: u16,
@@ -190,8 +195,10 @@ pub fn build_request(
             target,
             to,
             percent,
+            buffered,
         } => match (&target.axis, &target.group) {
-            (Some(a), _) => C::move_axis(axis_index(state, a)?, parse_micro(to)?, *percent),
+            (Some(a), _) => C::move_axis(axis_index(state, a)?, parse_micro(to)?, *percent)
+                .with_buffer(buffer(*buffered)),
             (None, Some(g)) => {
                 let gi = group_index(state, g)?;
                 let positions = parse_micro_list(to)?;
@@ -205,7 +212,7 @@ pub fn build_request(
                         given: positions.len(),
                     });
                 }
-                C::move_group(gi, &positions, *percent)
+                C::move_group(gi, &positions, *percent).with_buffer(buffer(*buffered))
             }
             // clap requires one of the two.
             (None, None) => {
@@ -218,9 +225,7 @@ pub fn build_request(
         Command::StartChain { group, record } => {
             C::start_chain(group_index(state, group)?, *record)
         }
-        Command::Override { group, percent } => {
-            C::set_override(group_index(state, group)?, *percent)
-        }
+        Command::Override { target: t, percent } => C::set_override_of(target(state, t)?, *percent),
         Command::ReadParam { axis, pnu, sub } => {
             C::read_parameter(axis_index(state, axis)?, *pnu, *sub)
         }
@@ -339,5 +344,14 @@ pub fn run(
             let _ = writeln!(out, "rejected: {e}");
             exit::REJECTED
         }
+    }
+}
+
+/// The request's buffer mode for `--buffered`.
+fn buffer(buffered: bool) -> u8 {
+    if buffered {
+        crate::contract::buffer_mode::BUFFERED
+    } else {
+        crate::contract::buffer_mode::ABORTING
     }
 }
