@@ -133,6 +133,10 @@ struct Scene {
 
 impl Scene {
     fn new(test: &str) -> Scene {
+        // Every binary a scene starts, built (or found fresh) before its clock starts.
+        coordinator_bin();
+        drive_sim_bin();
+        canbus_bin();
         let slot = Slot::take();
         let dir = std::env::temp_dir().join(unique(&format!("real-drives-{test}-")));
         std::fs::create_dir_all(&dir).unwrap();

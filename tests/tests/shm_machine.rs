@@ -16,7 +16,11 @@ fn bin(package: &str, name: &str) -> PathBuf {
     integration_tests::workspace_bin(package, name)
 }
 
+/// A test's unique prefix. The binaries the tests start are built (or found fresh) here,
+/// before any scene starts its clock: a build in the middle of a 14-second run could outlast it.
 fn prefix(test: &str) -> String {
+    bin("coordinator", "coordinator");
+    bin("shm-api", "motion-watch");
     format!("t-{test}-{}", std::process::id())
 }
 
@@ -83,7 +87,7 @@ fn wait_ready(c: &mut Client) {
 #[test]
 fn eight_clients_see_every_cycle_in_order_and_a_killed_one_disturbs_nothing() {
     let p = prefix("fanout");
-    let coordinator = Coordinator::start(&p, 14);
+    let coordinator = Coordinator::start(&p, 60);
     let mut c = connect(&p);
     c.next(Duration::from_secs(5)).unwrap();
     let watch = bin("shm-api", "motion-watch");
