@@ -117,10 +117,10 @@ fn stop_all_is_sticky_and_ends_the_demonstration() {
     let still: Vec<i64> = (0..n).map(|a| axis(&run, a).setpoint).collect();
     for _ in 0..5 {
         steps(&mut run, 500);
-        for a in 0..n {
+        for (a, &at) in still.iter().enumerate() {
             let s = axis(&run, a);
             assert_eq!(s.setpoint_velocity, 0, "axis {a} moves again: {s:?}");
-            assert_eq!(s.setpoint, still[a], "axis {a} moved after the stop");
+            assert_eq!(s.setpoint, at, "axis {a} moved after the stop");
         }
     }
     assert_eq!(run.lp.script.phase(), Phase::Stopped);
