@@ -36,7 +36,7 @@ extern "C" {
 /* The contract's version; bumped on any incompatible change. */
 #define MOTION_LAYOUT_VERSION 1u
 /* The layout hash the coordinator writes into MotionMachineState.layout_hash. */
-#define MOTION_LAYOUT_HASH 0x4a452e31u
+#define MOTION_LAYOUT_HASH 0x781f0463u
 #define MOTION_MAX_AXES 128
 #define MOTION_MAX_GROUPS 16
 #define MOTION_MAX_GROUP_AXES 8
@@ -47,10 +47,10 @@ extern "C" {
 #define MOTION_MICRO 1000000LL
 
 /* iceoryx2 type names of the service payloads (equal to the Rust #[type_name]). */
-#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1::4a452e31"
-#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1::4a452e31"
-#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1::4a452e31"
-#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1::4a452e31"
+#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1::781f0463"
+#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1::781f0463"
+#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1::781f0463"
+#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1::781f0463"
 /* The default service prefix. */
 #define MOTION_DEFAULT_PREFIX "motion"
 
@@ -71,6 +71,31 @@ extern "C" {
 #define MOTION_AXIS_MODE_JOG 3
 #define MOTION_AXIS_MODE_QUICK_STOPPED 4
 #define MOTION_AXIS_MODE_ACKNOWLEDGING 5
+
+/* MotionAxisState.activity: what the axis is doing (docs/motion.md, the admission table) */
+#define MOTION_AXIS_ACTIVITY_OFFLINE 0
+#define MOTION_AXIS_ACTIVITY_DISABLED 1
+#define MOTION_AXIS_ACTIVITY_STANDSTILL 2
+#define MOTION_AXIS_ACTIVITY_HOMING 3
+#define MOTION_AXIS_ACTIVITY_MOVING 4
+#define MOTION_AXIS_ACTIVITY_JOGGING 5
+#define MOTION_AXIS_ACTIVITY_IN_GROUP_MOVE 6
+#define MOTION_AXIS_ACTIVITY_STOPPING 7
+#define MOTION_AXIS_ACTIVITY_QUICK_STOPPED 8
+#define MOTION_AXIS_ACTIVITY_FAULTED 9
+
+/* MotionGroupState.activity */
+#define MOTION_GROUP_ACTIVITY_DISABLED 0
+#define MOTION_GROUP_ACTIVITY_STANDBY 1
+#define MOTION_GROUP_ACTIVITY_MOVING 2
+#define MOTION_GROUP_ACTIVITY_CHAIN 3
+#define MOTION_GROUP_ACTIVITY_HELD 4
+#define MOTION_GROUP_ACTIVITY_STOPPING 5
+#define MOTION_GROUP_ACTIVITY_FAULTED 6
+
+/* MotionCommandRequest.buffer: how a move takes over from a running one */
+#define MOTION_BUFFER_MODE_ABORTING 0
+#define MOTION_BUFFER_MODE_BUFFERED 1
 
 /* MotionAxisState.flags bits */
 #define MOTION_AXIS_FLAGS_ONLINE (1u << 0)
@@ -173,7 +198,7 @@ typedef struct MotionAxisState {
     uint8_t state;         /* MOTION_AXIS_STATE_* */
     uint8_t mode;          /* MOTION_AXIS_MODE_* */
     uint8_t fault;         /* MOTION_FAULT_* */
-    uint8_t reserved0;
+    uint8_t activity;      /* MOTION_AXIS_ACTIVITY_* */
     uint16_t fault_code;   /* EMCY error code or drive fault number */
     int16_t active_record; /* the record the group chain is at, or -1 */
     uint8_t name[MOTION_NAME_LEN];
@@ -192,7 +217,8 @@ typedef struct MotionGroupState {
     uint8_t rcc;               /* the chain ran to its end */
     uint8_t motion;            /* MOTION_MOTION_STATE_* */
     uint8_t axis_count;        /* member axes */
-    uint8_t reserved0[3];
+    uint8_t activity;          /* MOTION_GROUP_ACTIVITY_* */
+    uint8_t reserved0[2];
     uint8_t axes[MOTION_MAX_GROUP_AXES]; /* indices into MotionMachineState.axes */
     uint8_t name[MOTION_NAME_LEN];
     uint8_t reserved1[8];
@@ -290,7 +316,7 @@ MOTION_STATIC_ASSERT(offsetof(MotionAxisState, flags) == 62, "MotionAxisState.fl
 MOTION_STATIC_ASSERT(offsetof(MotionAxisState, state) == 64, "MotionAxisState.state offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisState, mode) == 65, "MotionAxisState.mode offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisState, fault) == 66, "MotionAxisState.fault offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisState, reserved0) == 67, "MotionAxisState.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisState, activity) == 67, "MotionAxisState.activity offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisState, fault_code) == 68, "MotionAxisState.fault_code offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisState, active_record) == 70, "MotionAxisState.active_record offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisState, name) == 72, "MotionAxisState.name offset");
@@ -308,7 +334,8 @@ MOTION_STATIC_ASSERT(offsetof(MotionGroupState, rc1) == 9, "MotionGroupState.rc1
 MOTION_STATIC_ASSERT(offsetof(MotionGroupState, rcc) == 10, "MotionGroupState.rcc offset");
 MOTION_STATIC_ASSERT(offsetof(MotionGroupState, motion) == 11, "MotionGroupState.motion offset");
 MOTION_STATIC_ASSERT(offsetof(MotionGroupState, axis_count) == 12, "MotionGroupState.axis_count offset");
-MOTION_STATIC_ASSERT(offsetof(MotionGroupState, reserved0) == 13, "MotionGroupState.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, activity) == 13, "MotionGroupState.activity offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupState, reserved0) == 14, "MotionGroupState.reserved0 offset");
 MOTION_STATIC_ASSERT(offsetof(MotionGroupState, axes) == 16, "MotionGroupState.axes offset");
 MOTION_STATIC_ASSERT(offsetof(MotionGroupState, name) == 24, "MotionGroupState.name offset");
 MOTION_STATIC_ASSERT(offsetof(MotionGroupState, reserved1) == 40, "MotionGroupState.reserved1 offset");

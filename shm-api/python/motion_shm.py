@@ -29,7 +29,7 @@ import json
 #: The contract's version; bumped on any incompatible change.
 LAYOUT_VERSION = 1
 #: The layout hash the coordinator writes into ``MachineState.layout_hash``.
-LAYOUT_HASH = 0x4A452E31
+LAYOUT_HASH = 0x781F0463
 #: Axes a MachineState holds.
 MAX_AXES = 128
 #: Groups a MachineState holds.
@@ -47,10 +47,10 @@ MICRO = 1_000_000
 DEFAULT_PREFIX = "motion"
 
 #: The iceoryx2 type names; they must equal the Rust ``#[type_name]`` (the test checks it).
-MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1::4a452e31"
-COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1::4a452e31"
-COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1::4a452e31"
-EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1::4a452e31"
+MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1::781f0463"
+COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1::781f0463"
+COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1::781f0463"
+EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1::781f0463"
 
 
 class AxisStateKind(enum.IntEnum):
@@ -75,6 +75,42 @@ class AxisMode(enum.IntEnum):
     JOG = 3
     QUICK_STOPPED = 4
     ACKNOWLEDGING = 5
+
+
+class AxisActivity(enum.IntEnum):
+    """What an axis is doing as the admission table sees it (``AxisState.activity``; Rust
+    ``axis_activity``)."""
+
+    OFFLINE = 0
+    DISABLED = 1
+    STANDSTILL = 2
+    HOMING = 3
+    MOVING = 4
+    JOGGING = 5
+    IN_GROUP_MOVE = 6
+    STOPPING = 7
+    QUICK_STOPPED = 8
+    FAULTED = 9
+
+
+class GroupActivity(enum.IntEnum):
+    """What a group is doing (``GroupState.activity``; Rust ``group_activity``)."""
+
+    DISABLED = 0
+    STANDBY = 1
+    MOVING = 2
+    CHAIN = 3
+    HELD = 4
+    STOPPING = 5
+    FAULTED = 6
+
+
+class BufferMode(enum.IntEnum):
+    """How a move takes over from a running one (``CommandRequest.buffer``; Rust
+    ``buffer_mode``)."""
+
+    ABORTING = 0
+    BUFFERED = 1
 
 
 class AxisFlags(enum.IntFlag):
@@ -189,6 +225,9 @@ class EventId(enum.IntEnum):
 CONSTANT_GROUPS = {
     "axis_state": AxisStateKind,
     "axis_mode": AxisMode,
+    "axis_activity": AxisActivity,
+    "group_activity": GroupActivity,
+    "buffer_mode": BufferMode,
     "axis_flags": AxisFlags,
     "fault": Fault,
     "chain_state": ChainState,
@@ -275,7 +314,7 @@ class AxisState(ctypes.Structure):
         ("state", U8),
         ("mode", U8),
         ("fault", U8),
-        ("reserved0", U8),
+        ("activity", U8),
         ("fault_code", U16),
         ("active_record", I16),
         ("name", U8 * NAME_LEN),
@@ -322,7 +361,8 @@ class GroupState(ctypes.Structure):
         ("rcc", U8),
         ("motion", U8),
         ("axis_count", U8),
-        ("reserved0", U8 * 3),
+        ("activity", U8),
+        ("reserved0", U8 * 2),
         ("axes", U8 * MAX_GROUP_AXES),
         ("name", U8 * NAME_LEN),
         ("reserved1", U8 * 8),

@@ -10,7 +10,7 @@ use iceoryx2::prelude::ZeroCopySend;
 pub const LAYOUT_VERSION: u32 = 1;
 /// A hash of the layout of every payload (sizes and field offsets), checked by a test that
 /// recomputes it: see `layout::compute_hash`.
-pub const LAYOUT_HASH: u32 = 0x4a45_2e31;
+pub const LAYOUT_HASH: u32 = 0x781f_0463;
 /// Axes a [`MachineState`] holds.
 pub const MAX_AXES: usize = 128;
 /// Groups a [`MachineState`] holds.
@@ -59,6 +59,49 @@ pub mod axis_mode {
     pub const QUICK_STOPPED: u8 = 4;
     /// Acknowledging a fault.
     pub const ACKNOWLEDGING: u8 = 5;
+}
+
+/// What an axis is doing as the coordinator's admission table sees it ([`AxisState::activity`];
+/// docs/motion.md has the table of which command each allows).
+pub mod axis_activity {
+    /// The drive is not booted or not in the cycle.
+    pub const OFFLINE: u8 = 0;
+    /// Power stage off.
+    pub const DISABLED: u8 = 1;
+    /// Enabled, not moving.
+    pub const STANDSTILL: u8 = 2;
+    /// Homing runs.
+    pub const HOMING: u8 = 3;
+    /// A single-axis move (PLCopen Discrete motion).
+    pub const MOVING: u8 = 4;
+    /// A jog (PLCopen Continuous motion).
+    pub const JOGGING: u8 = 5;
+    /// Its group's move or chain drives it (PLCopen Synchronized motion).
+    pub const IN_GROUP_MOVE: u8 = 6;
+    /// A stop's ramp runs.
+    pub const STOPPING: u8 = 7;
+    /// Stopped by a quick stop until enabled again.
+    pub const QUICK_STOPPED: u8 = 8;
+    /// Faulted until acknowledged (PLCopen ErrorStop).
+    pub const FAULTED: u8 = 9;
+}
+
+/// What a group is doing ([`GroupState::activity`]).
+pub mod group_activity {
+    /// A member is offline, off or quick-stopped.
+    pub const DISABLED: u8 = 0;
+    /// Every member enabled; no move, no chain.
+    pub const STANDBY: u8 = 1;
+    /// A move runs.
+    pub const MOVING: u8 = 2;
+    /// Its record chain runs.
+    pub const CHAIN: u8 = 3;
+    /// Held by the operator until resumed.
+    pub const HELD: u8 = 4;
+    /// A stop's ramp runs.
+    pub const STOPPING: u8 = 5;
+    /// A member is faulted.
+    pub const FAULTED: u8 = 6;
 }
 
 /// Bits of [`AxisState::flags`].
@@ -166,8 +209,8 @@ pub struct AxisState {
     pub mode: u8,
     /// [`fault`] kind.
     pub fault: u8,
-    /// Padding, 0.
-    pub reserved0: u8,
+    /// [`axis_activity`].
+    pub activity: u8,
     /// EMCY error code or drive fault number.
     pub fault_code: u16,
     /// The record the axis's group chain is at, or -1.
@@ -202,8 +245,10 @@ pub struct GroupState {
     pub motion: u8,
     /// Number of member axes.
     pub axis_count: u8,
+    /// [`group_activity`].
+    pub activity: u8,
     /// Padding, 0.
-    pub reserved0: [u8; 3],
+    pub reserved0: [u8; 2],
     /// Member axes (indices into [`MachineState::axes`]); the first `axis_count` count.
     pub axes: [u8; MAX_GROUP_AXES],
     /// The group name.
@@ -235,7 +280,7 @@ pub struct BusStats {
 /// The whole machine, published once per cycle on `PREFIX/state`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::MachineState::v1::4a452e31")]
+#[type_name("motion::MachineState::v1::781f0463")]
 pub struct MachineState {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -325,7 +370,7 @@ pub mod target {
 /// A command, on `PREFIX/command` (request-response).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandRequest::v1::4a452e31")]
+#[type_name("motion::CommandRequest::v1::781f0463")]
 pub struct CommandRequest {
     /// The client's tag, echoed in the reply.
     pub tag: u64,
@@ -384,7 +429,7 @@ pub mod status {
 /// The answer to a [`CommandRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandReply::v1::4a452e31")]
+#[type_name("motion::CommandReply::v1::781f0463")]
 pub struct CommandReply {
     /// The request's tag.
     pub tag: u64,
@@ -437,7 +482,7 @@ pub mod event_id {
 /// event service and read the details here.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::EventRecord::v1::4a452e31")]
+#[type_name("motion::EventRecord::v1::781f0463")]
 pub struct EventRecord {
     /// A sequence number, counting every record published.
     pub seq: u64,

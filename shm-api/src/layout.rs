@@ -32,12 +32,12 @@ macro_rules! for_each_payload {
     ($m:ident ! ($($a:tt)*)) => {
         $m!($($a)*; AxisState, [
             position, setpoint, velocity, position_inc, setpoint_inc, fault_value, fault_limit,
-            force_permille, status_bits, flags, state, mode, fault, reserved0, fault_code,
+            force_permille, status_bits, flags, state, mode, fault, activity, fault_code,
             active_record, name, unit, reserved1,
         ]);
         $m!($($a)*; GroupState, [
             active_record, record, reached, override_percent, chain_state, rc1, rcc, motion,
-            axis_count, reserved0, axes, name, reserved1,
+            axis_count, activity, reserved0, axes, name, reserved1,
         ]);
         $m!($($a)*; BusStats, [
             frames_sent, frames_received, tx_refused, rx_dropped, skipped_cycles, step_ns,

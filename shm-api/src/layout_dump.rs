@@ -119,6 +119,12 @@ pub fn constants() -> Vec<(&'static str, i64)> {
     constants!(out;
         axis_state: [OFFLINE, DISABLED, ENABLING, READY, HOMING, MOVING, STOPPING, FAULT],
         axis_mode: [OFF, ON, HOMING, JOG, QUICK_STOPPED, ACKNOWLEDGING],
+        axis_activity: [
+            OFFLINE, DISABLED, STANDSTILL, HOMING, MOVING, JOGGING, IN_GROUP_MOVE, STOPPING,
+            QUICK_STOPPED, FAULTED,
+        ],
+        group_activity: [DISABLED, STANDBY, MOVING, CHAIN, HELD, STOPPING, FAULTED],
+        buffer_mode: [ABORTING, BUFFERED],
         axis_flags: [ONLINE, ENABLED, HOMED, MOTION_COMPLETE, WARNING, FOLLOWING, FHPP],
         fault: [
             NONE, HEARTBEAT_LOST, GUARDING_LOST, EMCY, FOLLOWING_ERROR, DRIVE_FAULT,

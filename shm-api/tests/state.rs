@@ -261,8 +261,8 @@ fn mismatched_layout_is_refused_with_a_clear_message() {
             };
             assert_eq!(
                 found,
-                "motion::MachineState::v1::4a452e31"
-                    .replace("v1::4a452e31", "v0::00000000")
+                "motion::MachineState::v1::781f0463"
+                    .replace("v1::781f0463", "v0::00000000")
                     .as_str()
             );
             assert!(expected.ends_with(&shm_api::layout::type_name_suffix()));

@@ -257,6 +257,63 @@ fn commands_latch_in_the_reported_cycle_and_bad_ones_are_refused_with_their_reas
 }
 
 #[test]
+fn stop_all_from_a_client_ends_the_demonstration_for_good() {
+    use shm_api::contract::{axis_activity, group_activity};
+    let p = prefix("sticky");
+    let coordinator = Coordinator::start(&p, 60);
+    let mut c = connect(&p);
+    wait_ready(&mut c);
+    let t = Duration::from_secs(5);
+    // The demonstration runs the chains: some axis moves in its group.
+    let started = Instant::now();
+    loop {
+        let s = *c.next(t).expect("states");
+        let n = usize::from(s.axis_count);
+        if s.axes[..n]
+            .iter()
+            .any(|a| a.activity == axis_activity::IN_GROUP_MOVE && a.setpoint != a.position)
+        {
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "nothing moves: {s:?}"
+        );
+    }
+    c.command(&CommandRequest::stop(Target::All), t)
+        .expect("stop latched");
+    // Every axis comes to a standstill and every group to standby...
+    let started = Instant::now();
+    let still = loop {
+        let s = *c.next(t).expect("states");
+        let (n, g) = (usize::from(s.axis_count), usize::from(s.group_count));
+        if s.axes[..n]
+            .iter()
+            .all(|a| a.activity == axis_activity::STANDSTILL)
+            && s.groups[..g]
+                .iter()
+                .all(|g| g.activity == group_activity::STANDBY)
+        {
+            break s;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "not at a standstill: {s:?}"
+        );
+    };
+    // ...and stays there: the demonstration does not start the chains again.
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_secs(3) {
+        let s = *c.next(t).expect("states");
+        for (a, b) in s.axes[..usize::from(s.axis_count)].iter().zip(&still.axes) {
+            assert_eq!(a.activity, axis_activity::STANDSTILL, "{s:?}");
+            assert_eq!(a.setpoint, b.setpoint, "an axis moved after the stop");
+        }
+    }
+    drop(coordinator);
+}
+
+#[test]
 fn the_python_example_reads_the_state_and_commands_the_coordinator() {
     let have = Command::new("python3")
         .args(["-c", "import iceoryx2"])

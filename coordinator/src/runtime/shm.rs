@@ -17,6 +17,7 @@ use shm_api::publisher::{
 };
 use shm_api::request::name_bytes;
 
+use crate::admission::{AxisActivity, GroupActivity};
 use crate::axis::AxisState;
 use crate::command::{BufferMode, Command, Rejected, Reply, Target};
 use crate::cycle::{Cycle, Mode};
@@ -143,6 +144,35 @@ fn axis_state(s: AxisState) -> u8 {
         AxisState::Moving => w::MOVING,
         AxisState::Stopping => w::STOPPING,
         AxisState::Fault => w::FAULT,
+    }
+}
+
+fn axis_activity(a: AxisActivity) -> u8 {
+    use wire::axis_activity as w;
+    match a {
+        AxisActivity::Offline => w::OFFLINE,
+        AxisActivity::Disabled => w::DISABLED,
+        AxisActivity::Standstill => w::STANDSTILL,
+        AxisActivity::Homing => w::HOMING,
+        AxisActivity::Discrete => w::MOVING,
+        AxisActivity::Continuous => w::JOGGING,
+        AxisActivity::Synchronized => w::IN_GROUP_MOVE,
+        AxisActivity::Stopping => w::STOPPING,
+        AxisActivity::QuickStopped => w::QUICK_STOPPED,
+        AxisActivity::ErrorStop => w::FAULTED,
+    }
+}
+
+fn group_activity(a: GroupActivity) -> u8 {
+    use wire::group_activity as w;
+    match a {
+        GroupActivity::Disabled => w::DISABLED,
+        GroupActivity::Standby => w::STANDBY,
+        GroupActivity::Moving => w::MOVING,
+        GroupActivity::Chain => w::CHAIN,
+        GroupActivity::Held => w::HELD,
+        GroupActivity::Stopping => w::STOPPING,
+        GroupActivity::ErrorStop => w::FAULTED,
     }
 }
 
@@ -280,7 +310,7 @@ pub fn fill_state<const A: usize, const G: usize>(
             state: axis_state(fb.state),
             mode: axis_mode(st.mode),
             fault: kind,
-            reserved0: 0,
+            activity: axis_activity(st.activity),
             fault_code: if code != 0 { code } else { fb.fault_code },
             active_record: record(active),
             name: ai.name,
@@ -303,7 +333,8 @@ pub fn fill_state<const A: usize, const G: usize>(
             rcc: u8::from(st.chain.rcc),
             motion: motion_state(st.motion),
             axis_count: gi.count,
-            reserved0: [0; 3],
+            activity: group_activity(st.activity),
+            reserved0: [0; 2],
             axes: gi.axes,
             name: gi.name,
             reserved1: [0; 8],
@@ -326,7 +357,7 @@ fn empty_axis() -> WireAxis {
         state: 0,
         mode: 0,
         fault: 0,
-        reserved0: 0,
+        activity: 0,
         fault_code: 0,
         active_record: -1,
         name: [0; wire::NAME_LEN],
@@ -346,7 +377,8 @@ fn empty_group() -> WireGroup {
         rcc: 0,
         motion: 0,
         axis_count: 0,
-        reserved0: [0; 3],
+        activity: 0,
+        reserved0: [0; 2],
         axes: [0; MAX_GROUP_AXES],
         name: [0; wire::NAME_LEN],
         reserved1: [0; 8],
