@@ -16,6 +16,14 @@ fn bin(package: &str, name: &str) -> PathBuf {
     integration_tests::workspace_bin(package, name)
 }
 
+/// One scene at a time: each runs a real-time coordinator with its simulated drives, and two
+/// at once beside other test binaries on this 2-core host starved their drives into faults.
+/// Poisoning from a failed test does not stop the others.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// A test's unique prefix. The binaries the tests start are built (or found fresh) here,
 /// before any scene starts its clock: a build in the middle of a 14-second run could outlast it.
 fn prefix(test: &str) -> String {
@@ -67,6 +75,26 @@ fn connect(prefix: &str) -> Client {
     Client::connect_timeout(prefix, Duration::from_secs(20)).expect("the coordinator appears")
 }
 
+/// The axes of a state in one line each: name, state, mode, activity, fault (codes).
+fn describe(s: &shm_api::contract::MachineState) -> String {
+    s.axes[..usize::from(s.axis_count)]
+        .iter()
+        .map(|a| {
+            format!(
+                "{}: state {} mode {} activity {} fault {} ({}), flags {:#x}",
+                shm_api::request::name_str(&a.name),
+                a.state,
+                a.mode,
+                a.activity,
+                a.fault,
+                a.fault_value,
+                a.flags
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
 /// Waits until every axis is enabled and homed (the coordinator's script has run).
 fn wait_ready(c: &mut Client) {
     let t = Instant::now();
@@ -80,12 +108,17 @@ fn wait_ready(c: &mut Client) {
         if ready {
             return;
         }
-        assert!(t.elapsed() < Duration::from_secs(30), "not homed: {s:?}");
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "not homed: {}",
+            describe(&s)
+        );
     }
 }
 
 #[test]
 fn eight_clients_see_every_cycle_in_order_and_a_killed_one_disturbs_nothing() {
+    let _scene = one_at_a_time();
     let p = prefix("fanout");
     let coordinator = Coordinator::start(&p, 60);
     let mut c = connect(&p);
@@ -152,6 +185,7 @@ fn eight_clients_see_every_cycle_in_order_and_a_killed_one_disturbs_nothing() {
 
 #[test]
 fn a_restarted_coordinator_is_found_again_after_a_crash() {
+    let _scene = one_at_a_time();
     let p = prefix("restart");
     let mut first = Coordinator::start(&p, 30);
     let mut c = connect(&p);
@@ -177,6 +211,7 @@ fn a_restarted_coordinator_is_found_again_after_a_crash() {
 
 #[test]
 fn commands_latch_in_the_reported_cycle_and_bad_ones_are_refused_with_their_reason() {
+    let _scene = one_at_a_time();
     let p = prefix("commands");
     let coordinator = Coordinator::start(&p, 30);
     let mut c = connect(&p);
@@ -259,6 +294,7 @@ fn commands_latch_in_the_reported_cycle_and_bad_ones_are_refused_with_their_reas
 #[test]
 fn stop_all_from_a_client_ends_the_demonstration_for_good() {
     use shm_api::contract::{axis_activity, group_activity};
+    let _scene = one_at_a_time();
     let p = prefix("sticky");
     let coordinator = Coordinator::start(&p, 60);
     let mut c = connect(&p);
@@ -277,7 +313,8 @@ fn stop_all_from_a_client_ends_the_demonstration_for_good() {
         }
         assert!(
             started.elapsed() < Duration::from_secs(30),
-            "nothing moves: {s:?}"
+            "nothing moves: {}",
+            describe(&s)
         );
     }
     c.command(&CommandRequest::stop(Target::All), t)
@@ -298,7 +335,8 @@ fn stop_all_from_a_client_ends_the_demonstration_for_good() {
         }
         assert!(
             started.elapsed() < Duration::from_secs(10),
-            "not at a standstill: {s:?}"
+            "not at a standstill: {}",
+            describe(&s)
         );
     };
     // ...and stays there: the demonstration does not start the chains again.
@@ -306,7 +344,7 @@ fn stop_all_from_a_client_ends_the_demonstration_for_good() {
     while started.elapsed() < Duration::from_secs(3) {
         let s = *c.next(t).expect("states");
         for (a, b) in s.axes[..usize::from(s.axis_count)].iter().zip(&still.axes) {
-            assert_eq!(a.activity, axis_activity::STANDSTILL, "{s:?}");
+            assert_eq!(a.activity, axis_activity::STANDSTILL, "{}", describe(&s));
             assert_eq!(a.setpoint, b.setpoint, "an axis moved after the stop");
         }
     }
@@ -335,6 +373,7 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
         }
         return;
     }
+    let _scene = one_at_a_time();
     let p = prefix("python");
     let coordinator = Coordinator::start(&p, 20);
     let mut c = connect(&p);
@@ -350,7 +389,11 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
         {
             break;
         }
-        assert!(t.elapsed() < Duration::from_secs(30), "not booted: {s:?}");
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "not booted: {}",
+            describe(&s)
+        );
     }
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
     let out = Command::new("python3")
@@ -379,6 +422,7 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
 
 #[test]
 fn an_event_driven_client_is_woken_for_the_states_in_order() {
+    let _scene = one_at_a_time();
     let p = prefix("evdriven");
     let coordinator = Coordinator::start(&p, 15);
     let mut c = connect(&p);
