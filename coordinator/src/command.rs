@@ -4,10 +4,7 @@
 
 pub use crate::admission::BufferMode;
 
-/// Index of an axis in the machine (configuration order).
-pub type AxisId = u16;
-/// Index of a group in the machine (configuration order).
-pub type GroupId = u16;
+pub use crate::ids::{AxisId, GroupId};
 
 /// Which axes a command addresses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -55,7 +52,7 @@ pub enum Command {
         /// The group.
         group: GroupId,
         /// Targets, increments.
-        positions: [i64; crate::records::MAX_GROUP_AXES],
+        positions: [i64; crate::ids::MAX_GROUP_AXES],
         /// Share of the velocity limits, 1..=100 %.
         velocity_percent: u8,
         /// How it takes over from a group move that runs.

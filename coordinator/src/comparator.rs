@@ -11,7 +11,25 @@ use core::time::Duration;
 
 pub use drivers::sim::comparator::{Comparator, Window};
 
-use crate::records::{Edge, Quantity};
+/// Which actual value a comparator condition watches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Quantity {
+    /// Actual position, increments.
+    Position,
+    /// Actual velocity, inc/s.
+    Velocity,
+    /// Actual force, ‰.
+    Force,
+}
+
+/// Which edge of a digital input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Edge {
+    /// 0 → 1.
+    Rising,
+    /// 1 → 0.
+    Falling,
+}
 
 /// The actual value of `quantity` on the axis at `axis` (group order), from this cycle's
 /// values; `None` if the slice has no such axis (a missing value is never inside a window).

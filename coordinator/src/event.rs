@@ -3,8 +3,8 @@
 //! them (console, `motion/events`).
 
 use crate::axis::AxisState;
-use crate::command::{AxisId, GroupId};
 use crate::fault::FaultReason;
+use crate::ids::{AxisId, GroupId};
 
 /// One event of the cycle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -3,7 +3,8 @@
 //! multi-axis setpoints in fixed point and writes them back.
 //!
 //! The `no_std` core: [`axis`] (FHPP and CiA 402 master-side state machines), [`profile`]
-//! (trapezoidal and jerk-limited profiles, time-synchronised group moves, fixed point),
+//! (trapezoidal and jerk-limited profiles, time-synchronised group moves, fixed point), [`ids`]
+//! (the indices every module shares), [`admission`] (which command each activity allows),
 //! [`comparator`] and [`records`] (host-side record chains across axes), [`budget`] (the
 //! bus-load admission check), [`command`], [`event`] and [`fault`] (what goes in and out of
 //! the cycle) and [`cycle`] (the pure step that ties them together). With the `std` feature:
@@ -26,6 +27,7 @@ pub mod config;
 pub mod cycle;
 pub mod event;
 pub mod fault;
+pub mod ids;
 pub mod profile;
 pub mod records;
 #[cfg(feature = "std")]

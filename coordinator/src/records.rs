@@ -39,8 +39,8 @@ use drivers::time::Instant;
 use crate::comparator::{self, Comparator, Window};
 use crate::event::Event;
 
-/// The most axes a group (and so a record) holds.
-pub const MAX_GROUP_AXES: usize = 8;
+pub use crate::comparator::{Edge, Quantity};
+pub use crate::ids::MAX_GROUP_AXES;
 /// Records per group table (numbers 0..RECORDS; 0 is a valid record here, unlike FHPP's homing 0).
 pub const RECORDS: usize = 256;
 
@@ -67,26 +67,6 @@ pub enum RecordMode {
     Velocity,
     /// Push with `force_permille` (drives that offer force mode), toward the target.
     Force,
-}
-
-/// Which actual value a comparator condition watches.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Quantity {
-    /// Actual position, increments.
-    Position,
-    /// Actual velocity, inc/s.
-    Velocity,
-    /// Actual force, ‰.
-    Force,
-}
-
-/// Which edge of a digital input.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Edge {
-    /// 0 → 1.
-    Rising,
-    /// 1 → 0.
-    Falling,
 }
 
 /// When a chain steps from a record to its next (the FHPP step-enabling conditions, plus two
