@@ -8,9 +8,10 @@ use clap::Parser;
 use crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
 use ratatui::Terminal;
 use ratatui::backend::TestBackend;
+use ratatui::buffer::Buffer;
 use ratatui::style::Color;
 use shm_api::cli::cmd::{self, CmdArgs};
-use shm_api::cli::top::{App, Selection};
+use shm_api::cli::top::{App, Link, Selection};
 use shm_api::cli::watch::{self, WatchArgs};
 use shm_api::cli::{ClientError, Latched, Machine, Rejected, Target, exit, resolve};
 use shm_api::contract::{
@@ -198,12 +199,37 @@ fn csv_every_cycle_prints_header_then_count_lines() {
         lines,
         [
             "cycle,time_s,x_position,x_setpoint,x_velocity,x_state,z_position,z_setpoint,z_velocity,z_state",
-            "1,0.001000000,12.500001,12.500000,-0.250000,3,0.000000,0.000000,0.000000,3",
-            "2,0.002000000,12.500002,12.500000,-0.250000,3,0.000000,0.000000,0.000000,3",
-            "3,0.003000000,12.500003,12.500000,-0.250000,3,0.000000,0.000000,0.000000,3",
+            "1,0.000000000,12.500001,12.500000,-0.250000,ready,0.000000,0.000000,0.000000,ready",
+            "2,0.001000000,12.500002,12.500000,-0.250000,ready,0.000000,0.000000,0.000000,ready",
+            "3,0.002000000,12.500003,12.500000,-0.250000,ready,0.000000,0.000000,0.000000,ready",
         ]
     );
     assert!(err.is_empty());
+}
+
+/// The CSV names the states and counts its time from the first line, whenever the watch
+/// starts (a late start reads 0 too, not the coordinator's clock).
+#[test]
+fn csv_names_states_and_starts_its_time_at_zero() {
+    let mut fake = Fake::new(5000..=5002);
+    let (code, out, err) = run_watch(
+        &mut fake,
+        &["--axes", "y", "--every-cycle", "--csv", "--count", "3"],
+    );
+    assert_eq!(code, exit::OK, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(
+        lines[0],
+        "cycle,time_s,y_position,y_setpoint,y_velocity,y_state"
+    );
+    let times: Vec<&str> = lines[1..]
+        .iter()
+        .map(|l| l.split(',').nth(1).unwrap())
+        .collect();
+    assert_eq!(times, ["0.000000000", "0.001000000", "0.002000000"]);
+    for l in &lines[1..] {
+        assert!(l.ends_with(",FAULT"), "the state by name: {l}");
+    }
 }
 
 #[test]
@@ -494,7 +520,7 @@ fn read_param_waits_for_its_own_answer() {
 
 fn draw(app: &App, state: Option<&MachineState>) -> ratatui::buffer::Buffer {
     let mut t = Terminal::new(TestBackend::new(140, 20)).unwrap();
-    t.draw(|f| app.render(f, state, false)).unwrap();
+    t.draw(|f| app.render(f, state, Link::Live)).unwrap();
     t.backend().buffer().clone()
 }
 
@@ -580,14 +606,62 @@ fn top_shows_answers() {
     assert!(row_of(&buf, "rejected: ").is_some());
 }
 
+fn draw_at(width: u16, app: &App, state: Option<&MachineState>, link: Link) -> Buffer {
+    let mut t = Terminal::new(TestBackend::new(width, 20)).unwrap();
+    t.draw(|f| app.render(f, state, link)).unwrap();
+    t.backend().buffer().clone()
+}
+
+fn line_at(buf: &Buffer, y: u16) -> String {
+    (0..buf.area.width).map(|x| buf[(x, y)].symbol()).collect()
+}
+
 #[test]
 fn top_marks_a_stale_state() {
-    let mut t = Terminal::new(TestBackend::new(160, 20)).unwrap();
-    t.draw(|f| App::new("motion").render(f, Some(&machine(3)), true))
-        .unwrap();
-    let buf = t.backend().buffer().clone();
-    let y = row_of(&buf, "STALE: no new state").expect("stale marker");
+    let buf = draw_at(160, &App::new("motion"), Some(&machine(3)), Link::Stale(5));
+    let y = row_of(&buf, "STALE: no new state for 5 s").expect("stale marker");
     assert_eq!(buf[(0, y)].fg, Color::Yellow);
+}
+
+/// At 80 columns the first line says whether the coordinator is stale or gone, readable in
+/// full; a live one shows no such word.
+#[test]
+fn top_says_stale_and_gone_at_80_columns() {
+    let mut app = App::new("motion");
+    app.message = "connected to 'motion'".into();
+    let s = machine(3);
+    let live = line_at(&draw_at(80, &app, Some(&s), Link::Live), 0);
+    assert!(live.starts_with("motion  cycle 3"), "{live}");
+    assert!(!live.contains("STALE") && !live.contains("GONE"), "{live}");
+
+    let buf = draw_at(80, &app, Some(&s), Link::Stale(7));
+    let first = line_at(&buf, 0);
+    assert!(first.starts_with("STALE: no new state for 7 s"), "{first}");
+    assert_eq!(buf[(0, 0)].fg, Color::Yellow);
+
+    let buf = draw_at(80, &app, Some(&s), Link::Gone);
+    let first = line_at(&buf, 0);
+    assert!(
+        first.starts_with("GONE: coordinator stopped, last state shown"),
+        "{first}"
+    );
+    assert!(first.contains("cycle 3"), "the last cycle shown: {first}");
+    assert_eq!(buf[(0, 0)].fg, Color::Red);
+}
+
+/// The step time is in µs with one decimal (12 345 ns is 12.3 µs, not 0.012).
+#[test]
+fn top_shows_the_step_time_in_microseconds() {
+    let buf = draw_at(80, &App::new("motion"), Some(&machine(3)), Link::Live);
+    let first = line_at(&buf, 0);
+    assert!(first.contains("step 12.3 µs"), "{first}");
+    assert!(row_of(&buf, "0.012").is_none());
+    // The bus counters have their own line.
+    assert!(
+        line_at(&buf, 1).starts_with("tx 10 rx 20 refused 0"),
+        "{}",
+        line_at(&buf, 1)
+    );
 }
 
 /// The binaries as processes: exit codes without a coordinator and on usage errors (clap's
