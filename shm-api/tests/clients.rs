@@ -16,7 +16,7 @@ use shm_api::cli::watch::{self, WatchArgs};
 use shm_api::cli::{ClientError, Latched, Machine, Rejected, Target, exit, resolve};
 use shm_api::contract::{
     AxisState, BusStats, CommandRequest, EventRecord, GroupState, MAX_AXES, MAX_GROUP_AXES,
-    MAX_GROUPS, MachineState, axis_mode, axis_state, event_id, fault,
+    MAX_GROUPS, MachineState, axis_mode, axis_state, buffer_mode, event_id, fault,
 };
 
 fn name<const N: usize>(s: &str) -> [u8; N] {
@@ -361,6 +361,26 @@ fn every_command_builds_its_request() {
         C::set_override(0, 80)
     );
     assert_eq!(
+        ok(&["override", "--axis", "z", "--percent", "120"]),
+        C::set_override_of(Target::Axis(2), 120)
+    );
+    assert_eq!(
+        ok(&["override", "--all", "--percent", "0"]),
+        C::set_override_of(Target::All, 0)
+    );
+    assert_eq!(
+        ok(&["move", "--axis", "x", "--to", "5", "--buffered"]),
+        C::move_axis(0, 5_000_000, 100).with_buffer(buffer_mode::BUFFERED)
+    );
+    assert_eq!(
+        ok(&["move", "--group", "xy", "--to", "1,2", "--buffered"]),
+        C::move_group(0, &[1_000_000, 2_000_000], 100).with_buffer(buffer_mode::BUFFERED)
+    );
+    assert_eq!(
+        ok(&["move", "--axis", "x", "--to", "5"]).buffer,
+        buffer_mode::ABORTING
+    );
+    assert_eq!(
         ok(&["read-param", "--axis", "x", "--pnu", "502"]),
         C::read_parameter(0, 502, 0)
     );
@@ -446,6 +466,105 @@ fn cmd_exit_codes() {
         run_cmd(&mut Fake::new([]), &["enable", "--all"]).0,
         exit::ERROR
     );
+}
+
+/// What motion-cmd prints for a refusal `answer` of the command `args`, on a machine whose x
+/// has 400 increments per mm and y 100 (published as position and position_inc).
+fn refusal(answer: Rejected, args: &[&str]) -> String {
+    let mut fake = Fake::new([7]);
+    let s = &mut fake.states[0];
+    s.axes[0].position = 10_000_000;
+    s.axes[0].position_inc = 4000;
+    s.axes[1].position = 10_000_000;
+    s.axes[1].position_inc = 1000;
+    fake.answer = Err(answer);
+    let (code, out, err) = run_cmd(&mut fake, args);
+    assert_eq!(code, exit::REJECTED, "{out}{err}");
+    out.strip_prefix("rejected: ")
+        .and_then(|o| o.strip_suffix('\n'))
+        .unwrap_or_else(|| panic!("one refusal line: {out:?}"))
+        .to_owned()
+}
+
+#[test]
+fn refusals_are_in_the_units_typed() {
+    let range = |value, min, max| Rejected::OutOfRange { value, min, max };
+    // The coordinator answers positions in increments: 1000 mm are 400 000 increments on x.
+    assert_eq!(
+        refusal(
+            range(400_000, 0, 160_000),
+            &["move", "--axis", "x", "--to", "1000"]
+        ),
+        "axis x: 1000 mm outside 0..=400 mm"
+    );
+    assert_eq!(
+        refusal(
+            range(-40, 0, 160_000),
+            &["move", "--axis", "x", "--to", "-0.1"]
+        ),
+        "axis x: -0.1 mm outside 0..=400 mm"
+    );
+    // In a group move, the member whose position was refused (y: 100 increments per mm).
+    assert_eq!(
+        refusal(
+            range(70_000, 0, 50_000),
+            &["move", "--group", "xy", "--to", "50,700"]
+        ),
+        "axis y: 700 mm outside 0..=500 mm"
+    );
+    assert_eq!(
+        refusal(
+            range(0, 1, 100),
+            &["move", "--axis", "x", "--to", "1", "--percent", "0"]
+        ),
+        "--percent 0 % outside 1..=100 %"
+    );
+    assert_eq!(
+        refusal(
+            range(2000, -1000, 1000),
+            &["jog", "--axis", "x", "--permille", "2000"]
+        ),
+        "axis x: jog 2000 ‰ outside -1000..=1000 ‰"
+    );
+    assert_eq!(
+        refusal(
+            range(250, 0, 200),
+            &["override", "--group", "xy", "--percent", "250"]
+        ),
+        "group xy: override 250 % outside 0..=200 %"
+    );
+    assert_eq!(
+        refusal(
+            range(40, 0, 31),
+            &["set-input", "--bit", "40", "--value", "1"]
+        ),
+        "input bit 40 outside 0..=31"
+    );
+}
+
+#[test]
+fn refusals_name_their_target_and_the_tables_reason() {
+    assert_eq!(
+        refusal(
+            Rejected::WrongState("axis not enabled".into()),
+            &["home", "--axis", "z"]
+        ),
+        "axis z: axis not enabled"
+    );
+    assert_eq!(
+        refusal(
+            Rejected::WrongState("the group is held: resume or stop it".into()),
+            &["move", "--group", "xy", "--to", "1,2"]
+        ),
+        "group xy: the group is held: resume or stop it"
+    );
+    assert_eq!(
+        refusal(Rejected::Faulted, &["enable", "--all"]),
+        "every axis: a fault must be acknowledged first (motion-cmd acknowledge)"
+    );
+    let plan = refusal(Rejected::Plan, &["move", "--axis", "x", "--to", "1"]);
+    assert_eq!(plan, Rejected::Plan.to_string());
+    assert!(!plan.contains('{') && !plan.contains("Some("), "{plan}");
 }
 
 #[test]
