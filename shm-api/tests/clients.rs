@@ -768,6 +768,17 @@ fn top_says_stale_and_gone_at_80_columns() {
     assert_eq!(buf[(0, 0)].fg, Color::Red);
 }
 
+#[test]
+fn top_link_is_gone_before_stale_before_live() {
+    use shm_api::cli::top::STALE_AFTER;
+    let quiet = STALE_AFTER * 3;
+    assert_eq!(Link::of(true, true, Duration::ZERO), Link::Gone);
+    assert_eq!(Link::of(false, true, quiet), Link::Stale(quiet.as_secs()));
+    assert_eq!(Link::of(false, true, Duration::ZERO), Link::Live);
+    // Nothing seen yet: the no-coordinator line says it, not "stale".
+    assert_eq!(Link::of(false, false, quiet), Link::Live);
+}
+
 /// The step time is in µs with one decimal (12 345 ns is 12.3 µs, not 0.012).
 #[test]
 fn top_shows_the_step_time_in_microseconds() {

@@ -37,6 +37,23 @@ pub enum Link {
     Gone,
 }
 
+/// How long without a new state before the status line says [`Link::Stale`].
+pub const STALE_AFTER: Duration = Duration::from_secs(2);
+
+impl Link {
+    /// The link when the coordinator is `gone` (its publisher vanished), a state was `seen`,
+    /// and the last new one came `quiet` ago.
+    pub fn of(gone: bool, seen: bool, quiet: Duration) -> Link {
+        if gone {
+            Link::Gone
+        } else if seen && quiet > STALE_AFTER {
+            Link::Stale(quiet.as_secs())
+        } else {
+            Link::Live
+        }
+    }
+}
+
 /// The UI's state between frames.
 #[derive(Debug, Clone)]
 pub struct App {
@@ -371,14 +388,7 @@ pub fn run<M: Machine>(
                 None => shown = Some(Box::new(*s)),
             }
         }
-        let quiet = last_change.elapsed();
-        let link = if gone {
-            Link::Gone
-        } else if shown.is_some() && quiet > Duration::from_secs(2) {
-            Link::Stale(quiet.as_secs())
-        } else {
-            Link::Live
-        };
+        let link = Link::of(gone, shown.is_some(), last_change.elapsed());
         if matches!(link, Link::Stale(_)) && app.message.starts_with("connected") {
             app.message = format!("no new state from '{prefix}'");
         }
