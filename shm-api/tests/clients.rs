@@ -8,14 +8,15 @@ use clap::Parser;
 use crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
 use ratatui::Terminal;
 use ratatui::backend::TestBackend;
+use ratatui::buffer::Buffer;
 use ratatui::style::Color;
 use shm_api::cli::cmd::{self, CmdArgs};
-use shm_api::cli::top::{App, Selection};
+use shm_api::cli::top::{App, Link, Selection};
 use shm_api::cli::watch::{self, WatchArgs};
 use shm_api::cli::{ClientError, Latched, Machine, Rejected, Target, exit, resolve};
 use shm_api::contract::{
     AxisState, BusStats, CommandRequest, EventRecord, GroupState, MAX_AXES, MAX_GROUP_AXES,
-    MAX_GROUPS, MachineState, axis_mode, axis_state, event_id, fault,
+    MAX_GROUPS, MachineState, axis_mode, axis_state, buffer_mode, event_id, fault,
 };
 
 fn name<const N: usize>(s: &str) -> [u8; N] {
@@ -199,12 +200,37 @@ fn csv_every_cycle_prints_header_then_count_lines() {
         lines,
         [
             "cycle,time_s,x_position,x_setpoint,x_velocity,x_state,z_position,z_setpoint,z_velocity,z_state",
-            "1,0.001000000,12.500001,12.500000,-0.250000,3,0.000000,0.000000,0.000000,3",
-            "2,0.002000000,12.500002,12.500000,-0.250000,3,0.000000,0.000000,0.000000,3",
-            "3,0.003000000,12.500003,12.500000,-0.250000,3,0.000000,0.000000,0.000000,3",
+            "1,0.000000000,12.500001,12.500000,-0.250000,ready,0.000000,0.000000,0.000000,ready",
+            "2,0.001000000,12.500002,12.500000,-0.250000,ready,0.000000,0.000000,0.000000,ready",
+            "3,0.002000000,12.500003,12.500000,-0.250000,ready,0.000000,0.000000,0.000000,ready",
         ]
     );
     assert!(err.is_empty());
+}
+
+/// The CSV names the states and counts its time from the first line, whenever the watch
+/// starts (a late start reads 0 too, not the coordinator's clock).
+#[test]
+fn csv_names_states_and_starts_its_time_at_zero() {
+    let mut fake = Fake::new(5000..=5002);
+    let (code, out, err) = run_watch(
+        &mut fake,
+        &["--axes", "y", "--every-cycle", "--csv", "--count", "3"],
+    );
+    assert_eq!(code, exit::OK, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(
+        lines[0],
+        "cycle,time_s,y_position,y_setpoint,y_velocity,y_state"
+    );
+    let times: Vec<&str> = lines[1..]
+        .iter()
+        .map(|l| l.split(',').nth(1).unwrap())
+        .collect();
+    assert_eq!(times, ["0.000000000", "0.001000000", "0.002000000"]);
+    for l in &lines[1..] {
+        assert!(l.ends_with(",FAULT"), "the state by name: {l}");
+    }
 }
 
 #[test]
@@ -336,6 +362,26 @@ fn every_command_builds_its_request() {
         C::set_override(0, 80)
     );
     assert_eq!(
+        ok(&["override", "--axis", "z", "--percent", "120"]),
+        C::set_override_of(Target::Axis(2), 120)
+    );
+    assert_eq!(
+        ok(&["override", "--all", "--percent", "0"]),
+        C::set_override_of(Target::All, 0)
+    );
+    assert_eq!(
+        ok(&["move", "--axis", "x", "--to", "5", "--buffered"]),
+        C::move_axis(0, 5_000_000, 100).with_buffer(buffer_mode::BUFFERED)
+    );
+    assert_eq!(
+        ok(&["move", "--group", "xy", "--to", "1,2", "--buffered"]),
+        C::move_group(0, &[1_000_000, 2_000_000], 100).with_buffer(buffer_mode::BUFFERED)
+    );
+    assert_eq!(
+        ok(&["move", "--axis", "x", "--to", "5"]).buffer,
+        buffer_mode::ABORTING
+    );
+    assert_eq!(
         ok(&["read-param", "--axis", "x", "--pnu", "502"]),
         C::read_parameter(0, 502, 0)
     );
@@ -423,6 +469,105 @@ fn cmd_exit_codes() {
     );
 }
 
+/// What motion-cmd prints for a refusal `answer` of the command `args`, on a machine whose x
+/// has 400 increments per mm and y 100 (published as position and position_inc).
+fn refusal(answer: Rejected, args: &[&str]) -> String {
+    let mut fake = Fake::new([7]);
+    let s = &mut fake.states[0];
+    s.axes[0].position = 10_000_000;
+    s.axes[0].position_inc = 4000;
+    s.axes[1].position = 10_000_000;
+    s.axes[1].position_inc = 1000;
+    fake.answer = Err(answer);
+    let (code, out, err) = run_cmd(&mut fake, args);
+    assert_eq!(code, exit::REJECTED, "{out}{err}");
+    out.strip_prefix("rejected: ")
+        .and_then(|o| o.strip_suffix('\n'))
+        .unwrap_or_else(|| panic!("one refusal line: {out:?}"))
+        .to_owned()
+}
+
+#[test]
+fn refusals_are_in_the_units_typed() {
+    let range = |value, min, max| Rejected::OutOfRange { value, min, max };
+    // The coordinator answers positions in increments: 1000 mm are 400 000 increments on x.
+    assert_eq!(
+        refusal(
+            range(400_000, 0, 160_000),
+            &["move", "--axis", "x", "--to", "1000"]
+        ),
+        "axis x: 1000 mm outside 0..=400 mm"
+    );
+    assert_eq!(
+        refusal(
+            range(-40, 0, 160_000),
+            &["move", "--axis", "x", "--to", "-0.1"]
+        ),
+        "axis x: -0.1 mm outside 0..=400 mm"
+    );
+    // In a group move, the member whose position was refused (y: 100 increments per mm).
+    assert_eq!(
+        refusal(
+            range(70_000, 0, 50_000),
+            &["move", "--group", "xy", "--to", "50,700"]
+        ),
+        "axis y: 700 mm outside 0..=500 mm"
+    );
+    assert_eq!(
+        refusal(
+            range(0, 1, 100),
+            &["move", "--axis", "x", "--to", "1", "--percent", "0"]
+        ),
+        "--percent 0 % outside 1..=100 %"
+    );
+    assert_eq!(
+        refusal(
+            range(2000, -1000, 1000),
+            &["jog", "--axis", "x", "--permille", "2000"]
+        ),
+        "axis x: jog 2000 ‰ outside -1000..=1000 ‰"
+    );
+    assert_eq!(
+        refusal(
+            range(250, 0, 200),
+            &["override", "--group", "xy", "--percent", "250"]
+        ),
+        "group xy: override 250 % outside 0..=200 %"
+    );
+    assert_eq!(
+        refusal(
+            range(40, 0, 31),
+            &["set-input", "--bit", "40", "--value", "1"]
+        ),
+        "input bit 40 outside 0..=31"
+    );
+}
+
+#[test]
+fn refusals_name_their_target_and_the_tables_reason() {
+    assert_eq!(
+        refusal(
+            Rejected::WrongState("axis not enabled".into()),
+            &["home", "--axis", "z"]
+        ),
+        "axis z: axis not enabled"
+    );
+    assert_eq!(
+        refusal(
+            Rejected::WrongState("the group is held: resume or stop it".into()),
+            &["move", "--group", "xy", "--to", "1,2"]
+        ),
+        "group xy: the group is held: resume or stop it"
+    );
+    assert_eq!(
+        refusal(Rejected::Faulted, &["enable", "--all"]),
+        "every axis: a fault must be acknowledged first (motion-cmd acknowledge)"
+    );
+    let plan = refusal(Rejected::Plan, &["move", "--axis", "x", "--to", "1"]);
+    assert_eq!(plan, Rejected::Plan.to_string());
+    assert!(!plan.contains('{') && !plan.contains("Some("), "{plan}");
+}
+
 #[test]
 fn connect_fails_at_once_without_a_coordinator() {
     let prefix = format!("clients-test-{}", std::process::id());
@@ -495,7 +640,7 @@ fn read_param_waits_for_its_own_answer() {
 
 fn draw(app: &App, state: Option<&MachineState>) -> ratatui::buffer::Buffer {
     let mut t = Terminal::new(TestBackend::new(140, 20)).unwrap();
-    t.draw(|f| app.render(f, state, false)).unwrap();
+    t.draw(|f| app.render(f, state, Link::Live)).unwrap();
     t.backend().buffer().clone()
 }
 
@@ -581,14 +726,73 @@ fn top_shows_answers() {
     assert!(row_of(&buf, "rejected: ").is_some());
 }
 
+fn draw_at(width: u16, app: &App, state: Option<&MachineState>, link: Link) -> Buffer {
+    let mut t = Terminal::new(TestBackend::new(width, 20)).unwrap();
+    t.draw(|f| app.render(f, state, link)).unwrap();
+    t.backend().buffer().clone()
+}
+
+fn line_at(buf: &Buffer, y: u16) -> String {
+    (0..buf.area.width).map(|x| buf[(x, y)].symbol()).collect()
+}
+
 #[test]
 fn top_marks_a_stale_state() {
-    let mut t = Terminal::new(TestBackend::new(160, 20)).unwrap();
-    t.draw(|f| App::new("motion").render(f, Some(&machine(3)), true))
-        .unwrap();
-    let buf = t.backend().buffer().clone();
-    let y = row_of(&buf, "STALE: no new state").expect("stale marker");
+    let buf = draw_at(160, &App::new("motion"), Some(&machine(3)), Link::Stale(5));
+    let y = row_of(&buf, "STALE: no new state for 5 s").expect("stale marker");
     assert_eq!(buf[(0, y)].fg, Color::Yellow);
+}
+
+/// At 80 columns the first line says whether the coordinator is stale or gone, readable in
+/// full; a live one shows no such word.
+#[test]
+fn top_says_stale_and_gone_at_80_columns() {
+    let mut app = App::new("motion");
+    app.message = "connected to 'motion'".into();
+    let s = machine(3);
+    let live = line_at(&draw_at(80, &app, Some(&s), Link::Live), 0);
+    assert!(live.starts_with("motion  cycle 3"), "{live}");
+    assert!(!live.contains("STALE") && !live.contains("GONE"), "{live}");
+
+    let buf = draw_at(80, &app, Some(&s), Link::Stale(7));
+    let first = line_at(&buf, 0);
+    assert!(first.starts_with("STALE: no new state for 7 s"), "{first}");
+    assert_eq!(buf[(0, 0)].fg, Color::Yellow);
+
+    let buf = draw_at(80, &app, Some(&s), Link::Gone);
+    let first = line_at(&buf, 0);
+    assert!(
+        first.starts_with("GONE: coordinator stopped, last state shown"),
+        "{first}"
+    );
+    assert!(first.contains("cycle 3"), "the last cycle shown: {first}");
+    assert_eq!(buf[(0, 0)].fg, Color::Red);
+}
+
+#[test]
+fn top_link_is_gone_before_stale_before_live() {
+    use shm_api::cli::top::STALE_AFTER;
+    let quiet = STALE_AFTER * 3;
+    assert_eq!(Link::of(true, true, Duration::ZERO), Link::Gone);
+    assert_eq!(Link::of(false, true, quiet), Link::Stale(quiet.as_secs()));
+    assert_eq!(Link::of(false, true, Duration::ZERO), Link::Live);
+    // Nothing seen yet: the no-coordinator line says it, not "stale".
+    assert_eq!(Link::of(false, false, quiet), Link::Live);
+}
+
+/// The step time is in µs with one decimal (12 345 ns is 12.3 µs, not 0.012).
+#[test]
+fn top_shows_the_step_time_in_microseconds() {
+    let buf = draw_at(80, &App::new("motion"), Some(&machine(3)), Link::Live);
+    let first = line_at(&buf, 0);
+    assert!(first.contains("step 12.3 µs"), "{first}");
+    assert!(row_of(&buf, "0.012").is_none());
+    // The bus counters have their own line.
+    assert!(
+        line_at(&buf, 1).starts_with("tx 10 rx 20 refused 0"),
+        "{}",
+        line_at(&buf, 1)
+    );
 }
 
 /// The binaries as processes: exit codes without a coordinator and on usage errors (clap's

@@ -92,7 +92,7 @@ fn every_request_gets_its_answer_and_refusals_carry_their_numbers() {
         ),
         (
             CommandRequest::home(Target::Axis(3)),
-            Rejected::WrongState("axis 3 is not enabled".to_owned()),
+            Rejected::WrongState("axis not enabled".to_owned()),
         ),
         (CommandRequest::new(99), Rejected::BadRequest),
     ];
@@ -164,4 +164,47 @@ fn a_command_dropped_unanswered_is_refused_as_overloaded() {
     );
     drop(pending);
     assert_eq!(client.join().expect("client"), Err(Rejected::Overloaded));
+}
+
+/// `motion-cmd` as a process against the stand-in: a position refused in increments reads in
+/// millimetres, the admission table's reason in words with its axis, a buffered move latches.
+#[test]
+fn motion_cmd_says_refusals_in_the_units_typed() {
+    let _g = serial();
+    let p = prefix("cmd-units");
+    let standin = Standin::spawn(&p, &["--period-us", "1000", "--axes", "4", "--groups", "2"]);
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_motion-cmd"))
+            .args(["--prefix", &p])
+            .args(args)
+            .output()
+            .expect("motion-cmd runs");
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stdout).into_owned(),
+        )
+    };
+    let rejected = Some(shm_api::cli::exit::REJECTED);
+    assert_eq!(
+        run(&["move", "--axis", "X0", "--to", "1000"]),
+        (
+            rejected,
+            "rejected: axis X0: 1000 mm outside 0..=400 mm\n".to_owned()
+        )
+    );
+    assert_eq!(
+        run(&["home", "--axis", "X3"]),
+        (rejected, "rejected: axis X3: axis not enabled\n".to_owned())
+    );
+    assert_eq!(
+        run(&["override", "--axis", "X1", "--percent", "250"]),
+        (
+            rejected,
+            "rejected: axis X1: override 250 % outside 0..=200 %\n".to_owned()
+        )
+    );
+    let (code, out) = run(&["move", "--axis", "X0", "--to", "12.5", "--buffered"]);
+    assert_eq!(code, Some(shm_api::cli::exit::OK), "{out}");
+    assert!(out.starts_with("latched in cycle "), "{out}");
+    standin.stop();
 }

@@ -14,10 +14,15 @@
 //! SIGINT and SIGTERM stop it cleanly. Prints `ready` once every service is up, `cleaned N` whenever it removed dead nodes, and
 //! `done published=N commands=N events=N` when `--count` samples are out (0: run forever).
 //!
+//! The axes are in mm at 400 increments per mm (`position_inc` is published beside
+//! `position`) with positions limited to 0..=400 mm (0..=160 000 increments).
+//!
 //! Command rules: axis ≥ `--axes` → unknown axis; group ≥ `--groups` → unknown group; record
-//! ≥ 64 → unknown record; move percent outside 1..=100 and jog outside ±1000 ‰ → out of range;
-//! homing axis 3 → wrong state; an unknown kind or target → bad request; everything else
-//! latches at the next cycle.
+//! ≥ 64 → unknown record; an axis move outside the position limits → out of range in
+//! increments, as the coordinator answers; move percent outside 1..=100, jog outside ±1000 ‰
+//! and override above 200 % → out of range; homing axis 3 → wrong state with the admission
+//! table's reason (`axis not enabled`); an unknown kind or target → bad request; everything
+//! else latches at the next cycle.
 
 use iceoryx2::prelude::SignalHandlingMode;
 use shm_api::contract::{
@@ -95,6 +100,12 @@ fn answer(req: &CommandRequest, args: &Args, cycle: u64) -> CommandReply {
         };
     }
     match req.kind {
+        command_kind::MOVE_AXIS if !(0..=POSITION_MAX_INC).contains(&to_inc(req.positions[0])) => {
+            return CommandReply::out_of_range(tag, to_inc(req.positions[0]), 0, POSITION_MAX_INC);
+        }
+        command_kind::SET_OVERRIDE if req.value > 200 => {
+            return CommandReply::out_of_range(tag, req.value, 0, 200);
+        }
         command_kind::MOVE_AXIS | command_kind::MOVE_GROUP if !(1..=100).contains(&req.percent) => {
             return CommandReply::out_of_range(tag, i64::from(req.percent), 1, 100);
         }
@@ -105,12 +116,22 @@ fn answer(req: &CommandRequest, args: &Args, cycle: u64) -> CommandReply {
             return CommandReply::rejected(tag, status::UNKNOWN_RECORD, i64::from(req.record));
         }
         command_kind::HOME if req.target == target::AXIS && req.axis == 3 => {
-            return CommandReply::wrong_state(tag, "axis 3 is not enabled");
+            return CommandReply::wrong_state(tag, "axis not enabled");
         }
         command_kind::ENABLE..=command_kind::SET_INPUT => {}
         _ => return CommandReply::rejected(tag, status::BAD_REQUEST, i64::from(req.kind)),
     }
     CommandReply::latched(tag, cycle + 1)
+}
+
+/// µunits per increment: 400 increments per mm.
+const MICRO_PER_INC: i64 = 2500;
+/// The highest position, increments (400 mm).
+const POSITION_MAX_INC: i64 = 160_000;
+
+/// µunits → increments, rounded to nearest.
+fn to_inc(micro: i64) -> i64 {
+    (micro + micro.signum() * MICRO_PER_INC / 2) / MICRO_PER_INC
 }
 
 fn template(args: &Args) -> Box<MachineState> {
@@ -253,6 +274,8 @@ fn run(args: &Args) -> Result<(), String> {
         for (i, a) in s.axes.iter_mut().enumerate().take(usize::from(args.axes)) {
             a.position = (cycle as i64) * 1000 + i as i64;
             a.setpoint = a.position;
+            a.position_inc = to_inc(a.position);
+            a.setpoint_inc = a.position_inc;
         }
         s.send().map_err(|e| e.to_string())?;
         if args.events_every > 0 && cycle % args.events_every == 0 {

@@ -8,10 +8,11 @@ use std::time::{Duration, Instant};
 use clap::{Args, Parser, Subcommand};
 
 use super::resolve::{
-    ResolveError, axis_index, group_index, group_members, groups, parse_micro, parse_micro_list,
+    ResolveError, axes, axis_index, group_index, group_members, groups, parse_micro,
+    parse_micro_list,
 };
-use super::{Latched, Machine, Rejected, Target, exit, name_str};
-use crate::contract::{CommandRequest, EventRecord, MachineState, event_id};
+use super::{Latched, Machine, Rejected, Target, exit, format, name_str};
+use crate::contract::{AxisState, CommandRequest, EventRecord, MachineState, event_id};
 
 /// Arguments of `motion-cmd`.
 #[derive(Debug, Clone, Parser)]
@@ -341,10 +342,173 @@ pub fn run(
             exit::ERROR
         }
         Err(e) => {
-            let _ = writeln!(out, "rejected: {e}");
+            let _ = writeln!(
+                out,
+                "rejected: {}",
+                refusal_text(&state, &args.command, &req, &e)
+            );
             exit::REJECTED
         }
     }
+}
+
+/// What `command` addressed, in words: `axis x`, `group gantry`, `every axis`.
+fn target_text(state: &MachineState, req: &CommandRequest) -> String {
+    match req.target() {
+        Some(Target::Axis(a)) => format!("axis {}", axis_name(state, a)),
+        Some(Target::Group(g)) => format!(
+            "group {}",
+            groups(state)
+                .get(usize::from(g))
+                .map_or("?", |g| name_str(&g.name))
+        ),
+        Some(Target::All) | None => "every axis".into(),
+    }
+}
+
+fn axis_name(state: &MachineState, axis: u16) -> &str {
+    axes(state)
+        .get(usize::from(axis))
+        .map_or("?", |a| name_str(&a.name))
+}
+
+/// A refusal in words and in the units the user typed: positions in the axis's unit (the
+/// coordinator answers them in increments), jog in ‰, override and shares in %; the admission
+/// table's reason with the target it concerns.
+pub fn refusal_text(
+    state: &MachineState,
+    command: &Command,
+    req: &CommandRequest,
+    why: &Rejected,
+) -> String {
+    match why {
+        Rejected::OutOfRange { value, min, max } => {
+            out_of_range_text(state, command, req, *value, *min, *max)
+        }
+        Rejected::WrongState(reason) => format!("{}: {reason}", target_text(state, req)),
+        Rejected::Faulted => format!(
+            "{}: a fault must be acknowledged first (motion-cmd acknowledge)",
+            target_text(state, req)
+        ),
+        other => other.to_string(),
+    }
+}
+
+fn out_of_range_text(
+    state: &MachineState,
+    command: &Command,
+    req: &CommandRequest,
+    value: i64,
+    min: i64,
+    max: i64,
+) -> String {
+    let range = |unit: &str| format!("{value} {unit} outside {min}..={max} {unit}");
+    match command {
+        Command::Move { .. } if !(1..=100).contains(&req.percent) => {
+            format!("--percent {}", range("%"))
+        }
+        Command::Move { target, .. } => {
+            let members: Vec<(usize, u16)> = if target.axis.is_some() {
+                vec![(0, req.axis)]
+            } else {
+                groups(state)
+                    .get(usize::from(req.group))
+                    .map(|g| {
+                        group_members(g)
+                            .iter()
+                            .enumerate()
+                            .map(|(k, &m)| (k, u16::from(m)))
+                            .collect()
+                    })
+                    .unwrap_or_default()
+            };
+            position_text(state, req, &members, value, min, max).unwrap_or_else(|| {
+                format!("a position outside {min}..={max} increments ({value} increments)")
+            })
+        }
+        Command::Jog { axis, .. } => format!("axis {axis}: jog {}", range("‰")),
+        Command::Override { .. } => {
+            format!("{}: override {}", target_text(state, req), range("%"))
+        }
+        Command::SetInput { .. } => format!("input bit {value} outside {min}..={max}"),
+        _ => format!("{value} outside {min}..={max}"),
+    }
+}
+
+/// µunits per increment of an axis as a fraction: from what the user typed and what the
+/// coordinator made of it (`typed` µunits are `value` increments), else from the axis's
+/// published position (`position` µunits are `position_inc` increments).
+fn scale(typed: i64, value: i64, axis: Option<&AxisState>) -> Option<(i128, i128)> {
+    if typed != 0 && value != 0 {
+        return Some((i128::from(typed), i128::from(value)));
+    }
+    axis.filter(|a| a.position_inc != 0 && a.position != 0)
+        .map(|a| (i128::from(a.position), i128::from(a.position_inc)))
+}
+
+/// Increments to µunits at `scale`, rounded to the axis's resolution (the largest power of ten
+/// of µunits not above one increment), so that a limit reads `400`, not `399.999998`.
+fn inc_to_micro(inc: i64, (num, den): (i128, i128)) -> i64 {
+    let exact = i128::from(inc) * num;
+    let half = den.abs() / 2;
+    let v = if (exact < 0) == (den < 0) {
+        (exact.abs() + half) / den.abs()
+    } else {
+        -((exact.abs() + half) / den.abs())
+    };
+    let per_inc = (num.abs() / den.abs().max(1)).max(1);
+    let mut step = 1_i128;
+    while step * 10 <= per_inc && step < i128::from(crate::contract::MICRO) {
+        step *= 10;
+    }
+    let rounded = if v < 0 {
+        -((-v + step / 2) / step * step)
+    } else {
+        (v + step / 2) / step * step
+    };
+    i64::try_from(rounded).unwrap_or(if rounded < 0 { i64::MIN } else { i64::MAX })
+}
+
+/// `axis x: 1000 mm outside 0..=400 mm` for the member (`(position index, axis)`) whose
+/// position the coordinator refused; `None` when it cannot be told or converted.
+fn position_text(
+    state: &MachineState,
+    req: &CommandRequest,
+    members: &[(usize, u16)],
+    value: i64,
+    min: i64,
+    max: i64,
+) -> Option<String> {
+    let all = axes(state);
+    let typed_of = |k: usize| req.positions.get(k).copied().unwrap_or(0);
+    // An axis move names its axis; in a group, the member whose typed position comes out as
+    // the refused increments at its published scale (the coordinator refuses the first one).
+    let (k, axis) = if members.len() == 1 {
+        members[0]
+    } else {
+        *members.iter().find(|&&(k, m)| {
+            all.get(usize::from(m))
+                .and_then(|a| scale(0, 0, Some(a)))
+                .is_some_and(|(num, den)| {
+                    let est = i128::from(typed_of(k)) * den / num;
+                    let tolerance = (i128::from(value).abs() / 1000).max(2);
+                    (est - i128::from(value)).abs() <= tolerance
+                })
+        })?
+    };
+    let a = all.get(usize::from(axis));
+    let typed = typed_of(k);
+    let sc = scale(typed, value, a)?;
+    let unit = a.map_or("", |a| name_str(&a.unit));
+    let (lo, hi) = (inc_to_micro(min, sc), inc_to_micro(max, sc));
+    let (lo, hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
+    Some(format!(
+        "axis {}: {} {unit} outside {}..={} {unit}",
+        axis_name(state, axis),
+        format::user(typed),
+        format::user(lo),
+        format::user(hi)
+    ))
 }
 
 /// The request's buffer mode for `--buffered`.

@@ -164,7 +164,8 @@ pub fn csv_field(text: &str) -> String {
 }
 
 /// The CSV header: `cycle,time_s`, then per axis `NAME_position,NAME_setpoint,NAME_velocity,
-/// NAME_state` (positions in user units, velocity in units/s, state as its numeric code).
+/// NAME_state` (positions in user units, velocity in units/s, the state by its name as
+/// [`state_name`] spells it; `time_s` counts from the first line).
 pub fn csv_header(state: &MachineState, axes: &[u16]) -> String {
     let mut s = String::from("cycle,time_s");
     for &i in axes {
@@ -180,8 +181,14 @@ pub fn csv_header(state: &MachineState, axes: &[u16]) -> String {
 }
 
 /// One CSV line of `state` for `axes` (columns as in [`csv_header`]; 6 decimals, exact).
-pub fn csv_line(state: &MachineState, axes: &[u16]) -> String {
-    let mut s = format!("{},{}", state.cycle, seconds(state.sync_time_ns));
+/// `time_s` is the SYNC time since `start_ns`, the SYNC time of the first line (so the first
+/// line reads 0).
+pub fn csv_line(state: &MachineState, axes: &[u16], start_ns: u64) -> String {
+    let mut s = format!(
+        "{},{}",
+        state.cycle,
+        seconds(state.sync_time_ns.saturating_sub(start_ns))
+    );
     for &i in axes {
         match state.axes.get(usize::from(i)) {
             Some(a) => {
@@ -191,13 +198,31 @@ pub fn csv_line(state: &MachineState, axes: &[u16]) -> String {
                     micro(a.position, 6),
                     micro(a.setpoint, 6),
                     micro(a.velocity, 6),
-                    a.state
+                    state_name(a.state)
                 );
             }
             None => s.push_str(",,,,"),
         }
     }
     s
+}
+
+/// Nanoseconds as microseconds with one decimal (`4359` → `4.4`), exactly (no floats).
+pub fn ns_as_us(ns: u64) -> String {
+    micro(
+        i64::try_from(ns)
+            .unwrap_or(i64::MAX / 1000)
+            .saturating_mul(1000),
+        1,
+    )
+}
+
+/// A number in µunits as user units, with as many decimals as it needs (`400_000_000` →
+/// `400`, `-1_250_000` → `-1.25`).
+pub fn user(value: i64) -> String {
+    let s = micro(value, 6);
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" { "0".into() } else { s.into() }
 }
 
 #[cfg(test)]
@@ -219,6 +244,17 @@ mod tests {
     fn seconds_have_nine_decimals() {
         assert_eq!(seconds(1_000_000_001), "1.000000001");
         assert_eq!(seconds(5), "0.000000005");
+    }
+
+    #[test]
+    fn step_times_and_user_numbers_read_in_their_units() {
+        assert_eq!(ns_as_us(4359), "4.4");
+        assert_eq!(ns_as_us(12_345), "12.3");
+        assert_eq!(ns_as_us(0), "0.0");
+        assert_eq!(user(400_000_000), "400");
+        assert_eq!(user(-1_250_000), "-1.25");
+        assert_eq!(user(1), "0.000001");
+        assert_eq!(user(0), "0");
     }
 
     #[test]

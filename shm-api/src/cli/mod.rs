@@ -28,6 +28,10 @@ pub trait Machine {
     fn command(&mut self, req: &CommandRequest, timeout: Duration) -> Result<Latched, Rejected>;
     /// The next event record, waiting up to `timeout` (`Ok(None)`: none came).
     fn wait_event(&mut self, timeout: Duration) -> Result<Option<EventRecord>, ClientError>;
+    /// Whether the coordinator still publishes the state (a fake that cannot tell says yes).
+    fn coordinator_present(&self) -> bool {
+        true
+    }
 }
 
 /// Connects to the coordinator publishing under `prefix`; fails at once when there is none.
@@ -47,6 +51,9 @@ impl Machine for crate::client::Client {
     }
     fn wait_event(&mut self, timeout: Duration) -> Result<Option<EventRecord>, ClientError> {
         crate::client::Client::wait_event(self, timeout)
+    }
+    fn coordinator_present(&self) -> bool {
+        crate::client::Client::coordinator_present(self)
     }
 }
 

@@ -26,6 +26,34 @@ pub enum Selection {
     Group(u16),
 }
 
+/// How the state on screen relates to the coordinator, as the status line says it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Link {
+    /// New states arrive.
+    Live,
+    /// The coordinator is there but published nothing new for this many seconds.
+    Stale(u64),
+    /// The coordinator went away: the screen shows its last state.
+    Gone,
+}
+
+/// How long without a new state before the status line says [`Link::Stale`].
+pub const STALE_AFTER: Duration = Duration::from_secs(2);
+
+impl Link {
+    /// The link when the coordinator is `gone` (its publisher vanished), a state was `seen`,
+    /// and the last new one came `quiet` ago.
+    pub fn of(gone: bool, seen: bool, quiet: Duration) -> Link {
+        if gone {
+            Link::Gone
+        } else if seen && quiet > STALE_AFTER {
+            Link::Stale(quiet.as_secs())
+        } else {
+            Link::Live
+        }
+    }
+}
+
 /// The UI's state between frames.
 #[derive(Debug, Clone)]
 pub struct App {
@@ -132,11 +160,12 @@ impl App {
         };
     }
 
-    /// Draws the UI: the status line, the axes, the groups, the message and the keys. `state`
-    /// is `None` while no coordinator is connected; `stale` says the state stopped changing.
-    pub fn render(&self, frame: &mut Frame, state: Option<&MachineState>, stale: bool) {
+    /// Draws the UI: the status lines, the axes, the groups, the message and the keys. `state`
+    /// is `None` while no coordinator was ever seen; `link` says whether it is live, stale or
+    /// gone (then `state` is the last one it published).
+    pub fn render(&self, frame: &mut Frame, state: Option<&MachineState>, link: Link) {
         let [status, axes_area, groups_area, message, keys] = Layout::vertical([
-            Constraint::Length(1),
+            Constraint::Length(2),
             Constraint::Min(3),
             Constraint::Length(groups_height(state)),
             Constraint::Length(1),
@@ -161,7 +190,7 @@ impl App {
             return;
         };
         frame.render_widget(
-            Paragraph::new(status_line(state, &self.prefix, stale)),
+            Paragraph::new(status_lines(state, &self.prefix, link).to_vec()),
             status,
         );
 
@@ -269,11 +298,14 @@ fn flag(f: u8) -> String {
     if f != 0 { "1".into() } else { "0".into() }
 }
 
-/// The status line: prefix, cycle, period, bus counters, step time.
-pub fn status_line<'a>(state: &MachineState, prefix: &str, stale: bool) -> Line<'a> {
+/// The two status lines. The first leads with the link when it is not live (`GONE: ...`,
+/// `STALE: ...`, so that an 80-column terminal shows it), then the prefix, cycle, period, the
+/// last step's compute time and the wake-up lateness; the second the bus counters and the
+/// input word.
+pub fn status_lines<'a>(state: &MachineState, prefix: &str, link: Link) -> [Line<'a>; 2] {
     let b = &state.bus;
-    let mut text = format!(
-        "{prefix}  cycle {}  period {} µs{}  tx {} rx {} refused {} dropped {} skipped {}  step {} µs  late {} µs  inputs 0x{:08X}",
+    let times = format!(
+        "{prefix}  cycle {}  period {} µs{}  step {} µs  late {} µs",
         state.cycle,
         state.cycle_ns / 1000,
         if state.virtual_time != 0 {
@@ -281,20 +313,34 @@ pub fn status_line<'a>(state: &MachineState, prefix: &str, stale: bool) -> Line<
         } else {
             ""
         },
+        format::ns_as_us(u64::from(b.step_ns)),
+        b.wake_late_us,
+    );
+    let bus = format!(
+        "tx {} rx {} refused {} dropped {} skipped {}  inputs 0x{:08X}",
         b.frames_sent,
         b.frames_received,
         b.tx_refused,
         b.rx_dropped,
         b.skipped_cycles,
-        format::micro(i64::from(b.step_ns), 3),
-        b.wake_late_us,
         state.inputs,
     );
-    if stale {
-        text.push_str("  STALE: no new state");
-        return Line::styled(text, Style::new().fg(Color::Yellow));
-    }
-    Line::raw(text)
+    let first = match link {
+        Link::Live => Line::raw(times),
+        Link::Stale(secs) => Line::styled(
+            format!("STALE: no new state for {secs} s  {times}"),
+            Style::new().fg(Color::Yellow).add_modifier(Modifier::BOLD),
+        ),
+        Link::Gone => Line::styled(
+            format!("GONE: coordinator stopped, last state shown, reconnecting  {times}"),
+            Style::new().fg(Color::Red).add_modifier(Modifier::BOLD),
+        ),
+    };
+    let second = match link {
+        Link::Live => Line::raw(bus),
+        _ => Line::styled(bus, Style::new().add_modifier(Modifier::DIM)),
+    };
+    [first, second]
 }
 
 /// Runs the UI until `q`: connects with `connect` (retrying every second while there is no
@@ -310,17 +356,27 @@ pub fn run<M: Machine>(
     let mut shown: Option<Box<MachineState>> = None;
     let mut last_cycle = 0_u64;
     let mut last_change = Instant::now();
+    let mut gone = false;
     let result = loop {
         if machine.is_none() && last_try.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
             last_try = Some(Instant::now());
             match connect(prefix) {
                 Ok(m) => {
                     machine = Some(m);
+                    gone = false;
                     app.message = format!("connected to '{prefix}'");
                     last_change = Instant::now();
                 }
+                // Gone: the message says so already.
+                Err(_) if gone => {}
                 Err(e) => app.message = format!("{e}"),
             }
+        }
+        if machine.as_ref().is_some_and(|m| !m.coordinator_present()) {
+            // Its publisher is gone: show the last state as such and reconnect.
+            machine = None;
+            gone = true;
+            app.message = format!("the coordinator under '{prefix}' went away; reconnecting");
         }
         if let Some(s) = machine.as_mut().and_then(|m| m.latest()) {
             if s.cycle != last_cycle {
@@ -332,8 +388,11 @@ pub fn run<M: Machine>(
                 None => shown = Some(Box::new(*s)),
             }
         }
-        let stale = shown.is_some() && last_change.elapsed() > Duration::from_secs(2);
-        if let Err(e) = terminal.draw(|f| app.render(f, shown.as_deref(), stale)) {
+        let link = Link::of(gone, shown.is_some(), last_change.elapsed());
+        if matches!(link, Link::Stale(_)) && app.message.starts_with("connected") {
+            app.message = format!("no new state from '{prefix}'");
+        }
+        if let Err(e) = terminal.draw(|f| app.render(f, shown.as_deref(), link)) {
             break Err(e);
         }
         match event::poll(Duration::from_millis(100)) {
@@ -346,6 +405,7 @@ pub fn run<M: Machine>(
                             if matches!(answer, Err(Rejected::Disconnected)) {
                                 // Reconnect on the next pass rather than talk to nobody.
                                 machine = None;
+                                gone = true;
                             }
                             app.set_answer(&answer);
                         }

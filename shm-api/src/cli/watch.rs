@@ -28,7 +28,8 @@ pub struct WatchArgs {
     /// One line per cycle (every state published; gaps are reported on stderr).
     #[arg(long)]
     pub every_cycle: bool,
-    /// CSV: a header, then `cycle,time_s` and per axis position, setpoint, velocity, state.
+    /// CSV: a header, then `cycle,time_s` (seconds since the first line) and per axis
+    /// position, setpoint, velocity (user units) and state (its name).
     #[arg(long)]
     pub csv: bool,
     /// Exit 0 after this many lines (the header not counted).
@@ -47,9 +48,9 @@ impl WatchArgs {
     }
 }
 
-fn line(state: &MachineState, axes: &[u16], csv: bool) -> String {
+fn line(state: &MachineState, axes: &[u16], csv: bool, start_ns: u64) -> String {
     if csv {
-        return format::csv_line(state, axes);
+        return format::csv_line(state, axes, start_ns);
     }
     let mut s = format!("cycle {}", state.cycle);
     for &i in axes {
@@ -98,7 +99,8 @@ pub fn run(
     let mut printed = 0_u64;
     let mut last_cycle = first.cycle;
     let mut last_change = Instant::now();
-    let mut text = line(&first, &axes, args.csv);
+    let start_ns = first.sync_time_ns;
+    let mut text = line(&first, &axes, args.csv, start_ns);
     loop {
         // A closed pipe (`| head`) ends the watch quietly.
         if writeln!(out, "{text}").and_then(|()| out.flush()).is_err() {
@@ -119,7 +121,7 @@ pub fn run(
                         );
                     }
                     last_cycle = s.cycle;
-                    text = line(s, &axes, args.csv);
+                    text = line(s, &axes, args.csv, start_ns);
                 }
                 Err(e) => {
                     let _ = writeln!(err, "error: no new state: {e}");
@@ -143,7 +145,7 @@ pub fn run(
                 );
                 return exit::ERROR;
             }
-            text = line(s, &axes, args.csv);
+            text = line(s, &axes, args.csv, start_ns);
         }
     }
 }
