@@ -4,8 +4,8 @@
 use std::fmt::Write as _;
 
 use crate::contract::{
-    AxisState, GroupState, MICRO, MachineState, axis_flags, axis_mode, axis_state, chain_state,
-    fault, motion_state,
+    AxisState, GroupState, MICRO, MachineState, axis_activity, axis_flags, axis_mode, axis_state,
+    chain_state, fault, group_activity, motion_state,
 };
 
 use super::name_str;
@@ -57,6 +57,37 @@ pub fn mode_name(mode: u8) -> &'static str {
         axis_mode::JOG => "jog",
         axis_mode::QUICK_STOPPED => "quick-stopped",
         axis_mode::ACKNOWLEDGING => "acknowledging",
+        _ => "?",
+    }
+}
+
+/// The name of an [`axis_activity`] code (the coordinator's admission table's words).
+pub fn activity_name(activity: u8) -> &'static str {
+    match activity {
+        axis_activity::OFFLINE => "offline",
+        axis_activity::DISABLED => "disabled",
+        axis_activity::STANDSTILL => "standstill",
+        axis_activity::HOMING => "homing",
+        axis_activity::MOVING => "moving",
+        axis_activity::JOGGING => "jogging",
+        axis_activity::IN_GROUP_MOVE => "in group move",
+        axis_activity::STOPPING => "stopping",
+        axis_activity::QUICK_STOPPED => "quick-stopped",
+        axis_activity::FAULTED => "faulted",
+        _ => "?",
+    }
+}
+
+/// The name of a [`group_activity`] code.
+pub fn group_activity_name(activity: u8) -> &'static str {
+    match activity {
+        group_activity::DISABLED => "disabled",
+        group_activity::STANDBY => "standby",
+        group_activity::MOVING => "moving",
+        group_activity::CHAIN => "chain runs",
+        group_activity::HELD => "held",
+        group_activity::STOPPING => "stopping",
+        group_activity::FAULTED => "faulted",
         _ => "?",
     }
 }

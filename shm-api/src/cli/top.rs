@@ -195,14 +195,15 @@ impl App {
         );
 
         let header = Row::new([
-            "axis", "state", "mode", "position", "setpoint", "velocity", "unit", "homed", "fault",
+            "axis", "state", "activity", "position", "setpoint", "velocity", "unit", "homed",
+            "fault",
         ])
         .style(Style::new().add_modifier(Modifier::BOLD));
         let rows = axes(state).iter().map(|a| {
             let row = Row::new([
                 name_str(&a.name).to_string(),
                 format::state_name(a.state).to_string(),
-                format::mode_name(a.mode).to_string(),
+                format::activity_name(a.activity).to_string(),
                 format::micro(a.position, 3),
                 format::micro(a.setpoint, 3),
                 format::micro(a.velocity, 3),
@@ -242,7 +243,7 @@ impl App {
         );
 
         let header = Row::new([
-            "group", "axes", "chain", "record", "active", "RC1", "RCC", "move", "override",
+            "group", "axes", "chain", "record", "active", "RC1", "RCC", "activity", "override",
         ])
         .style(Style::new().add_modifier(Modifier::BOLD));
         let rows = groups(state).iter().map(|g| {
@@ -254,7 +255,7 @@ impl App {
                 record(g.active_record),
                 flag(g.rc1),
                 flag(g.rcc),
-                format::motion_name(g.motion).to_string(),
+                format::group_activity_name(g.activity).to_string(),
                 format!("{} %", g.override_percent),
             ])
         });
