@@ -95,3 +95,94 @@ pub enum Event {
         result: Result<u32, u16>,
     },
 }
+
+impl Event {
+    /// The cycle the event happened in.
+    pub fn cycle(&self) -> u64 {
+        match *self {
+            Event::Overrun { cycle, .. }
+            | Event::AxisState { cycle, .. }
+            | Event::Fault { cycle, .. }
+            | Event::Acknowledged { cycle, .. }
+            | Event::RecordReached { cycle, .. }
+            | Event::ChainComplete { cycle, .. }
+            | Event::ChainAborted { cycle, .. }
+            | Event::LateModbus { cycle, .. }
+            | Event::Parameter { cycle, .. } => cycle,
+        }
+    }
+}
+
+impl core::fmt::Display for Event {
+    /// The event in words, axes and groups by number (the runtime, which knows their names,
+    /// writes its own lines).
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Event::Overrun {
+                cycle,
+                skipped,
+                late_us,
+            } => write!(
+                f,
+                "cycle {cycle}: overrun: the coordinator was away {}.{} ms ({skipped} cycle(s) \
+                 skipped)",
+                late_us / 1000,
+                late_us % 1000 / 100
+            ),
+            Event::AxisState { cycle, axis, state } => {
+                write!(f, "cycle {cycle}: axis {axis} {state}")
+            }
+            Event::Fault {
+                cycle,
+                axis,
+                reason,
+            } => write!(f, "cycle {cycle}: axis {axis} faulted: {reason}"),
+            Event::Acknowledged { cycle, axis } => {
+                write!(f, "cycle {cycle}: axis {axis}: fault acknowledged")
+            }
+            Event::RecordReached {
+                cycle,
+                group,
+                record,
+            } => write!(f, "cycle {cycle}: group {group} reached record {record}"),
+            Event::ChainComplete {
+                cycle,
+                group,
+                record,
+            } => write!(
+                f,
+                "cycle {cycle}: group {group} chain complete at record {record}"
+            ),
+            Event::ChainAborted {
+                cycle,
+                group,
+                record,
+            } => write!(
+                f,
+                "cycle {cycle}: group {group} chain aborted at record {record}"
+            ),
+            Event::LateModbus {
+                cycle,
+                axis,
+                cycles,
+            } => write!(
+                f,
+                "cycle {cycle}: axis {axis}: Modbus answer {cycles} cycle(s) late"
+            ),
+            Event::Parameter {
+                cycle,
+                axis,
+                pnu,
+                sub,
+                result,
+            } => match result {
+                Ok(v) => write!(f, "cycle {cycle}: axis {axis}: PNU {pnu}:{sub} = {v}"),
+                Err(0xFFFF) => write!(f, "cycle {cycle}: axis {axis}: PNU {pnu}:{sub}: no reply"),
+                Err(n) => write!(
+                    f,
+                    "cycle {cycle}: axis {axis}: PNU {pnu}:{sub} refused: error {n}"
+                ),
+            },
+        }
+    }
+}

@@ -32,6 +32,30 @@ pub enum FaultReason {
     DriveReset,
 }
 
+impl core::fmt::Display for FaultReason {
+    /// The reason in words, as an operator reads it ("heartbeat lost", "no TPDO for 3
+    /// cycles"); a following error in increments, the drive's unit (the runtime adds the
+    /// axis's own unit where it knows it).
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            FaultReason::None => f.write_str("none"),
+            FaultReason::HeartbeatLost => f.write_str("heartbeat lost"),
+            FaultReason::GuardingLost => f.write_str("node guarding lost"),
+            FaultReason::Emcy(c) => write!(f, "EMCY {c:04X}h"),
+            FaultReason::FollowingError { error, limit } => {
+                write!(f, "following error {error} inc > {limit} inc")
+            }
+            FaultReason::DriveFault(c) => write!(f, "drive fault {c:04X}h"),
+            FaultReason::ModbusTimeout => f.write_str("Modbus TCP timeout"),
+            FaultReason::LateTpdo(n) => write!(f, "no TPDO for {n} cycles"),
+            FaultReason::BootFailed => f.write_str("boot failed"),
+            FaultReason::DriveReset => {
+                f.write_str("the drive reset itself (boot-up while running)")
+            }
+        }
+    }
+}
+
 /// What the coordinator does when it missed cycles itself (an overrun: the host stalled it).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum OverrunReaction {

@@ -16,7 +16,7 @@
 use std::io::Write;
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
@@ -65,10 +65,18 @@ struct RealIo {
     ends: CycleEnds,
     exchanges: Vec<(usize, ModbusCycleSide)>,
     snapshots: Producer<'static, Snapshot>,
+    /// The last wake-up's time.
+    now: Instant,
+    /// The orderly end (the duration, Ctrl-C) has begun.
+    ending: bool,
+    /// The cycle of the first event after the orderly end began (`u64::MAX` before): the
+    /// printer says what was aborted from then on as the end's own stop.
+    end_cycle: Arc<AtomicU64>,
 }
 
-impl CycleIo for RealIo {
-    fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
+impl RealIo {
+    /// Waits for the next cycle: the absolute deadline (producer) or the received SYNC.
+    fn next_wake(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
         if self.producer {
             let tick = self.ticker.wait();
             for (b, port) in self.ports.iter_mut().enumerate() {
@@ -130,6 +138,14 @@ impl CycleIo for RealIo {
             }
         }
     }
+}
+
+impl CycleIo for RealIo {
+    fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
+        let wake = self.next_wake(rx);
+        self.now = wake.now;
+        wake
+    }
 
     fn node_report(&mut self) -> Option<NodeReport> {
         self.ends.boot_report()
@@ -173,6 +189,14 @@ impl CycleIo for RealIo {
     }
 
     fn event(&mut self, e: Event) {
+        // The loop asked for the end before this cycle's step if the duration is over or a
+        // stop signal came: from this event's cycle on, an aborted chain is the end's stop.
+        if !self.ending
+            && (self.end.is_some_and(|t| self.now >= t) || rt::stop_flag().load(Ordering::Relaxed))
+        {
+            self.ending = true;
+            self.end_cycle.store(e.cycle(), Ordering::Release);
+        }
         let _ = self.ends.event(e);
     }
 
@@ -189,7 +213,6 @@ struct CycleResult {
     summary: Summary,
     late: (u64, u64, u64),
     skipped: u64,
-    rt_report: String,
 }
 
 /// A bus as the main thread opens it before the cycle starts.
@@ -238,6 +261,16 @@ pub fn run_real(
         lock_memory: true,
     });
     let t0 = monotonic_now();
+    say(
+        out,
+        &format!(
+            "machine: {} axes, {} groups, {} bus(es), cycle {} us, real time",
+            plan.axes.len(),
+            plan.groups.len(),
+            plan.buses.len(),
+            plan.period.as_micros()
+        ),
+    );
 
     // The buses, as configured. A SocketCAN interface that cannot be opened stops the run here,
     // naming the interface and the reason.
@@ -375,6 +408,11 @@ pub fn run_real(
     let period = plan.period;
     let mut summary = Summary::default();
     let tty = out_is_tty();
+    // The cycle thread's real-time set-up (scheduler, memory lock, warnings), said before the
+    // run's first line of status; and the cycle from which aborts are the end's own stop.
+    let (rt_tx, rt_rx) = mpsc::channel::<String>();
+    let end_cycle = Arc::new(AtomicU64::new(u64::MAX));
+    let end_cycle_io = end_cycle.clone();
 
     // `--capture DIR`: a thread per bus with a monitor endpoint of its own.
     let capture = match &opts.capture {
@@ -472,6 +510,9 @@ pub fn run_real(
                 report
                     .warnings
                     .splice(0..0, memory.warnings.iter().cloned());
+                // Said now, before the first cycle (the printer waits for it).
+                let _ = rt_tx.send(report.to_string());
+                drop(rt_tx);
                 let relay_stop = Arc::new(AtomicBool::new(false));
                 let mut relay = None;
                 let start = monotonic_now() + period;
@@ -510,6 +551,9 @@ pub fn run_real(
                     ends: cycle_ends,
                     exchanges,
                     snapshots: snap_tx,
+                    now: start,
+                    ending: false,
+                    end_cycle: end_cycle_io,
                 };
                 while lp.iterate(&mut core, &mut io).is_some() {}
                 // The rest (summary, closing the ports and services) is no cycle work.
@@ -533,12 +577,16 @@ pub fn run_real(
                     summary,
                     late: lp.lateness(),
                     skipped: lp.skipped,
-                    rt_report: report.to_string(),
                 })
             })
             .map_err(|e| RunError::Io(e.to_string()))?;
 
-        // This thread prints: reports, events, status; and watches the buses.
+        // This thread prints: the real-time set-up first (it comes before the first cycle; if
+        // the cycle thread failed before, the channel is closed and its error follows), then
+        // reports, events, status; and it watches the buses.
+        if let Ok(report) = rt_rx.recv() {
+            say(out, &report);
+        }
         let mut lines = 0usize;
         let mut hash = FrameHash::default();
         let mut busy = vec![Duration::ZERO; plan.buses.len()];
@@ -547,7 +595,10 @@ pub fn run_real(
             let finished = cycle_thread.is_finished();
             while let Ok(e) = report_rx.try_recv() {
                 match e {
-                    ServiceEvent::Cycle(ev) => note_event(plan, &ev, &mut summary, out),
+                    ServiceEvent::Cycle(ev) => {
+                        let ending = ev.cycle() >= end_cycle.load(Ordering::Acquire);
+                        note_event(plan, &ev, ending, &mut summary, out);
+                    }
                     ServiceEvent::Node(r) => report_node(plan, &r, out, &mut summary),
                     ServiceEvent::BootFinished => {}
                     other => say(out, &format!("services: {other}")),
@@ -573,9 +624,6 @@ pub fn run_real(
         let mut r = cycle_thread
             .join()
             .map_err(|_| RunError::Io("the cycle thread panicked".into()))??;
-        if !r.rt_report.is_empty() {
-            say(out, &r.rt_report);
-        }
         let secs = r.summary.machine_time.as_secs_f64().max(1e-9);
         r.summary.frames_on_bus = frames.iter().sum();
         r.summary.frame_hash = hash.value();

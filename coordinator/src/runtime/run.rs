@@ -26,6 +26,8 @@ use crate::cycle::{
 };
 use crate::event::Event;
 use crate::fault::FaultReason;
+use crate::profile::GroupState;
+use crate::records::{ChainState, ChainStatus};
 use crate::runtime::boot::FailureDetail;
 use crate::runtime::capture::InlineCapture;
 use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
@@ -130,6 +132,8 @@ pub struct Summary {
     pub axes: Vec<(String, String, f64, AxisState)>,
     /// The script's last phase.
     pub phase: Option<Phase>,
+    /// Per axis: name, unit and increments per unit (to say faults in the axis's unit).
+    pub units: Vec<(String, String, f64)>,
     /// What the capture wrote, a line per bus.
     pub captures: Vec<String>,
 }
@@ -211,7 +215,11 @@ impl std::fmt::Display for Summary {
             writeln!(f, "  refused: {b}")?;
         }
         for (a, r) in &self.faults {
-            writeln!(f, "  fault: {a}: {}", describe(*r))?;
+            let text = match self.units.iter().find(|u| u.0 == *a) {
+                Some((_, unit, scale)) => describe_in(*r, unit, *scale),
+                None => describe(*r),
+            };
+            writeln!(f, "  fault: {a}: {text}")?;
         }
         for (name, unit, pos, state) in &self.axes {
             writeln!(f, "  axis {name}: {pos:.3} {unit}, {}", state)?;
@@ -220,21 +228,48 @@ impl std::fmt::Display for Summary {
     }
 }
 
-/// A fault reason in words.
+/// A fault reason in words (a following error in increments).
 pub fn describe(r: FaultReason) -> String {
+    r.to_string()
+}
+
+/// A fault reason in words, a following error in the axis's own unit (with the increments the
+/// drive counts).
+pub fn describe_in(r: FaultReason, unit: &str, scale: f64) -> String {
     match r {
-        FaultReason::None => "none".into(),
-        FaultReason::HeartbeatLost => "heartbeat lost".into(),
-        FaultReason::GuardingLost => "node guarding lost".into(),
-        FaultReason::Emcy(c) => format!("EMCY {c:04X}h"),
-        FaultReason::FollowingError { error, limit } => {
-            format!("following error {error} inc > {limit} inc")
-        }
-        FaultReason::DriveFault(c) => format!("drive fault {c:04X}h"),
-        FaultReason::ModbusTimeout => "Modbus TCP timeout".into(),
-        FaultReason::LateTpdo(n) => format!("no TPDO for {n} cycles"),
-        FaultReason::BootFailed => "boot failed".into(),
-        FaultReason::DriveReset => "the drive reset itself (boot-up while running)".into(),
+        FaultReason::FollowingError { error, limit } if scale > 0.0 => format!(
+            "following error {:.3} {unit} > limit {:.3} {unit} ({error} inc > {limit} inc)",
+            error as f64 / scale,
+            limit as f64 / scale
+        ),
+        _ => r.to_string(),
+    }
+}
+
+/// A group's move in words: "no move", "move running", "move holding", "move arrived", ...
+pub fn group_move_text(m: Option<GroupState>) -> &'static str {
+    match m {
+        None => "no move",
+        Some(GroupState::Moving) => "move running",
+        Some(GroupState::Holding) => "move holding",
+        Some(GroupState::QuickStopping) => "move quick-stopping",
+        Some(GroupState::Stopped) => "move stopped on its path",
+        Some(GroupState::Done) => "move arrived",
+    }
+}
+
+/// A chain's state in words, with its record: "chain idle", "record 3 moving", "record 3
+/// waiting for its step condition", "chain complete at record 13", "chain stopped at record
+/// 10" (an abort: by a stop, a fault, or the run's end).
+pub fn chain_text(c: &ChainStatus) -> String {
+    let at = |r: Option<u16>| r.map_or_else(|| "?".to_owned(), |r| r.to_string());
+    match c.state {
+        ChainState::Idle => "chain idle".into(),
+        ChainState::Delay => format!("record {} in its start delay", at(c.active)),
+        ChainState::Moving => format!("record {} moving", at(c.active)),
+        ChainState::Waiting => format!("record {} waiting for its step condition", at(c.active)),
+        ChainState::Complete => format!("chain complete at record {}", at(c.record)),
+        ChainState::Aborted => format!("chain stopped at record {}", at(c.record)),
     }
 }
 
@@ -316,39 +351,46 @@ impl Snapshot {
     }
 }
 
-/// One status line per axis (and one per group).
+/// One status line per axis (and one per group), in words and the axes' units: the drive's
+/// state, what the axis does (the admission table's activity), position and setpoint; the
+/// group's activity, its chain, its move and override.
 pub fn status_lines(plan: &MachinePlan, snap: &Snapshot) -> String {
     let mut s = format!("t={:8.3}s cycle {:8}\n", snap.t.as_secs_f64(), snap.cycle);
     for (a, st) in plan.axes.iter().zip(&snap.axes) {
         let fb = st.feedback;
-        let mode = format!("{:?}", st.mode);
         let _ = writeln!(
             s,
-            "  {:<8} {:<8} {:<13} pos {:>10.3} {:<3} set {:>10.3}{}{}",
+            "  {:<8} {:<9} {:<15} pos {:>10.3} {:<3} set {:>10.3} {}{}{}",
             a.name,
             fb.state.name(),
-            mode.split_whitespace().next().unwrap_or(""),
+            st.activity.name(),
             fb.position as f64 / a.scale,
             a.unit,
             st.setpoint as f64 / a.scale,
+            a.unit,
             if fb.homed { " homed" } else { "" },
             if st.fault != FaultReason::None {
-                format!("  FAULT: {}", describe(st.fault))
+                format!("  FAULT: {}", describe_in(st.fault, &a.unit, a.scale))
             } else {
                 String::new()
             }
         );
     }
     for ((name, _, _), gs) in plan.groups.iter().zip(&snap.groups) {
+        let mut flags = String::new();
+        if gs.chain.rc1 {
+            flags.push_str(", RC1");
+        }
+        if gs.chain.rcc {
+            flags.push_str(", RCC");
+        }
         let _ = writeln!(
             s,
-            "  group {:<8} chain {:?} record {} RC1={} RCC={} move {:?} override {} %",
+            "  group {:<8} {:<18} {}{flags}; {}; override {} %",
             name,
-            gs.chain.state,
-            gs.chain.active.map_or("-".into(), |r| r.to_string()),
-            u8::from(gs.chain.rc1),
-            u8::from(gs.chain.rcc),
-            gs.motion,
+            format!("{}:", gs.activity.name()),
+            chain_text(&gs.chain),
+            group_move_text(gs.motion),
             gs.override_percent
         );
     }
@@ -588,6 +630,8 @@ pub struct VirtualIo<'p> {
     pub synced: u64,
     /// SYNC-consumer mode: periods that passed without a SYNC.
     pub missed_syncs: u64,
+    /// The orderly end has begun (set before each step from the loop).
+    ending: bool,
 }
 
 impl std::fmt::Debug for VirtualIo<'_> {
@@ -762,7 +806,11 @@ impl CycleIo for VirtualIo<'_> {
     }
 
     fn event(&mut self, e: Event) {
-        note_event(self.plan, &e, &mut self.summary, &mut self.text);
+        // The loop asks for the end before the step (the duration, or Ctrl-C seen in this
+        // iteration): what the step aborts then is the end's own stop.
+        let ending = self.ending
+            || crate::runtime::rt::stop_flag().load(std::sync::atomic::Ordering::Relaxed);
+        note_event(self.plan, &e, ending, &mut self.summary, &mut self.text);
         self.nodes.event(&e);
         if let Some(svc) = &mut self.commands {
             svc.event(&e);
@@ -891,6 +939,7 @@ impl<'p> VirtualRun<'p> {
                 pending_rx: Vec::with_capacity(RX_CAPACITY),
                 synced: 0,
                 missed_syncs: 0,
+                ending: false,
             },
         })
     }
@@ -925,6 +974,7 @@ impl<'p> VirtualRun<'p> {
     /// Runs one cycle: the drives up to this SYNC, receive, boot, Modbus, commands, script,
     /// step, send. Events, reports and status are printed to `out`.
     pub fn step(&mut self, out: &mut dyn Write) {
+        self.io.ending = self.lp.ending();
         self.lp.iterate(&mut self.core, &mut self.io);
         if !self.io.text.is_empty() {
             let _ = out.write_all(&self.io.text);
@@ -1045,6 +1095,11 @@ pub fn finish_summary<const A: usize, const G: usize>(
     summary.laps = script.laps;
     summary.refused = script.refused;
     summary.phase = Some(script.phase());
+    summary.units = plan
+        .axes
+        .iter()
+        .map(|a| (a.name.clone(), a.unit.clone(), a.scale))
+        .collect();
     summary.axes = plan
         .axes
         .iter()
@@ -1102,8 +1157,16 @@ pub fn report_node(plan: &MachinePlan, r: &NodeReport, out: &mut dyn Write, summ
     }
 }
 
-/// Records one event in the summary; prints faults and chain ends.
-pub fn note_event(plan: &MachinePlan, e: &Event, summary: &mut Summary, out: &mut dyn Write) {
+/// Records one event in the summary; prints faults, acknowledges, chain aborts, parameter
+/// results and overruns. `ending`: the run's orderly end (duration, Ctrl-C) has begun, so a
+/// chain aborted now was stopped by the end's own stop and is said as such, not as a problem.
+pub fn note_event(
+    plan: &MachinePlan,
+    e: &Event,
+    ending: bool,
+    summary: &mut Summary,
+    out: &mut dyn Write,
+) {
     let axis = |a: AxisId| {
         plan.axes
             .get(usize::from(a))
@@ -1120,43 +1183,46 @@ pub fn note_event(plan: &MachinePlan, e: &Event, summary: &mut Summary, out: &mu
             axis: a,
             reason,
         } => {
+            let text = match plan.axes.get(usize::from(a)) {
+                Some(p) => describe_in(reason, &p.unit, p.scale),
+                None => describe(reason),
+            };
             say(
                 out,
-                &format!(
-                    "cycle {cycle}: FAULT axis {}: {}",
-                    axis(a),
-                    describe(reason)
-                ),
+                &format!("cycle {cycle}: FAULT axis {}: {text}", axis(a)),
             );
             summary.faults.push((axis(a), reason));
         }
         Event::Acknowledged { cycle, axis: a } => {
             say(
                 out,
-                &format!("cycle {cycle}: axis {} acknowledged", axis(a)),
+                &format!("cycle {cycle}: axis {}: fault acknowledged", axis(a)),
             );
         }
         Event::RecordReached { .. } => summary.records_reached += 1,
-        Event::ChainComplete {
-            cycle,
-            group: g,
-            record,
-        } => {
-            summary.records_reached += 1;
-            let _ = (cycle, g, record, group(g));
-        }
+        Event::ChainComplete { .. } => summary.records_reached += 1,
         Event::ChainAborted {
             cycle,
             group: g,
             record,
         } => {
-            say(
-                out,
-                &format!(
-                    "cycle {cycle}: group {} chain aborted at record {record}",
-                    group(g)
-                ),
-            );
+            if ending {
+                say(
+                    out,
+                    &format!(
+                        "cycle {cycle}: group {}: chain stopped at record {record} for the end of the run",
+                        group(g)
+                    ),
+                );
+            } else {
+                say(
+                    out,
+                    &format!(
+                        "cycle {cycle}: group {}: chain aborted at record {record}",
+                        group(g)
+                    ),
+                );
+            }
         }
         Event::LateModbus { .. } => summary.late_modbus += 1,
         Event::Parameter {
@@ -1168,12 +1234,19 @@ pub fn note_event(plan: &MachinePlan, e: &Event, summary: &mut Summary, out: &mu
         } => match result {
             Ok(v) => say(
                 out,
-                &format!("cycle {cycle}: axis {} PNU {pnu}:{sub} = {v}", axis(a)),
+                &format!("cycle {cycle}: axis {}: PNU {pnu}:{sub} = {v}", axis(a)),
+            ),
+            Err(u16::MAX) => say(
+                out,
+                &format!(
+                    "cycle {cycle}: axis {}: PNU {pnu}:{sub}: the drive did not reply in time",
+                    axis(a)
+                ),
             ),
             Err(n) => say(
                 out,
                 &format!(
-                    "cycle {cycle}: axis {} PNU {pnu}:{sub} refused: error {n}",
+                    "cycle {cycle}: axis {}: PNU {pnu}:{sub} refused: error {n}",
                     axis(a)
                 ),
             ),

@@ -261,7 +261,7 @@ pub enum ServiceEvent {
 impl core::fmt::Display for ServiceEvent {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            ServiceEvent::Cycle(e) => write!(f, "{e:?}"),
+            ServiceEvent::Cycle(e) => write!(f, "{e}"),
             ServiceEvent::Node(r) => write!(f, "{}", r.report),
             ServiceEvent::BootFinished => f.write_str("boot finished"),
             ServiceEvent::Emcy {
@@ -289,7 +289,7 @@ pub enum ClientError {
     #[error("the services have stopped")]
     Stopped,
     /// No answer within the time given.
-    #[error("no answer within {0:?}")]
+    #[error("no answer within {} ms", .0.as_millis())]
     Timeout(Duration),
 }
 
