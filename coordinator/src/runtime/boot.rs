@@ -188,10 +188,10 @@ pub struct BootPlan {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum BootPlanError {
     /// The device is not on CANopen (the CMMO-ST speaks Modbus TCP).
-    #[error("{0:?} is not a CANopen device")]
+    #[error("{0} is not a CANopen device")]
     NotCanopen(DeviceKind),
     /// The device has no heartbeat producer (MTR-DCI, EMCA): guard it instead.
-    #[error("{0:?} has no heartbeat (1017h); use node guarding")]
+    #[error("{0} has no heartbeat (1017h); use node guarding")]
     NoHeartbeat(DeviceKind),
     /// A mapping has more than [`MAX_MAPPING`] entries.
     #[error("a PDO mapping of {0} entries (at most {MAX_MAPPING})")]
@@ -378,7 +378,14 @@ impl fmt::Display for FailureDetail {
         match self {
             FailureDetail::NoBootUp { waited_ms } => write!(f, "no boot-up within {waited_ms} ms"),
             FailureDetail::UnexpectedBootUp => f.write_str("the node sent a boot-up (it reset)"),
-            FailureDetail::Aborted { by } => write!(f, "SDO aborted by the {by:?}"),
+            FailureDetail::Aborted { by } => write!(
+                f,
+                "SDO aborted by the {}",
+                match by {
+                    AbortedBy::Client => "coordinator",
+                    AbortedBy::Server => "drive",
+                }
+            ),
             FailureDetail::SdoTimeout { timeout_ms } => {
                 write!(f, "no SDO answer within {timeout_ms} ms")
             }

@@ -77,13 +77,13 @@ impl Default for ModbusSettings {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum DownReason {
     /// Connecting failed (refused, unreachable, timed out).
-    #[error("cannot connect: {0:?}")]
+    #[error("cannot connect: {0}")]
     Connect(ErrorKind),
     /// The device closed the connection.
     #[error("connection closed by the device")]
     Closed,
     /// Reading or writing the socket failed.
-    #[error("socket error: {0:?}")]
+    #[error("socket error: {0}")]
     Io(ErrorKind),
     /// The device answered with an exception or with a frame that is not the answer asked
     /// for. An exception keeps the connection; a malformed frame closes it.
@@ -684,7 +684,7 @@ mod tests {
             link,
             Link::Down(DownReason::Connect(ErrorKind::ConnectionRefused))
         );
-        assert_eq!(link.to_string(), "down: cannot connect: ConnectionRefused");
+        assert_eq!(link.to_string(), "down: cannot connect: connection refused");
         thread.stop();
     }
 }
