@@ -1,7 +1,8 @@
 //! The shared-memory contract of the motion coordinator over iceoryx2: the `#[repr(C)]`
 //! payloads ([`contract`]), the service names under a configurable prefix (default `motion`),
 //! the coordinator's publishing side and the client library, and the clients that ship
-//! (`motion-watch`, `motion-top`, `motion-cmd`). `docs/clients.md` describes the contract field
+//! (`motion-watch`, `motion-top`, `motion-cmd`; the `clients` feature, on by default: the
+//! coordinator depends on this crate without it, so it links no terminal UI crates). `docs/clients.md` describes the contract field
 //! by field and how to write a client in Rust, Python and C.
 //!
 //! # Access rights
@@ -22,6 +23,7 @@
 //! assert_eq!(core::mem::size_of::<shm_api::contract::GroupState>(), 48);
 //! ```
 
+#[cfg(feature = "clients")]
 pub mod cli;
 pub mod client;
 pub mod contract;

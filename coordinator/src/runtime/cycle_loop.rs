@@ -239,6 +239,9 @@ impl<'p> CycleLoop<'p> {
         if let Some(p) = self.probe {
             p(true);
         }
+        // The one command path: a client's request, the script's commands and a signal's
+        // safe stop (the script's, after `shut_down`) all reach the cycle through
+        // `Cycle::command`, its admission table and its replies, in this order each cycle.
         while let Some(req) = io.request() {
             let reply = core.cycle.command(&req.command);
             io.answer(Answer {
@@ -251,7 +254,11 @@ impl<'p> CycleLoop<'p> {
             self.shut_down();
         }
         let booted = self.booted();
-        self.script.poll(&mut core.cycle, booted, now);
+        self.script.poll(&core.cycle, booted, now);
+        while let Some(c) = self.script.next_command() {
+            let reply = core.cycle.command(&c);
+            self.script.answered(reply);
+        }
         if std::mem::take(&mut self.capture) {
             self.captured = Some(core.capture(now));
         }

@@ -354,9 +354,10 @@ pub fn run_real(
         exchange_threads.push(thread);
     }
 
-    // Services: the drives' boot and lifecycle, commands, reports, on their executor; their
-    // reports reach this thread over a channel.
-    let (cycle_ends, service_ends) = services::channels();
+    // Services: the drives' boot and lifecycle and the events, on their executor; their
+    // reports reach this thread over a channel. The command port goes to the shared-memory
+    // command thread: clients' commands reach the cycle's queue without a relay.
+    let (cycle_ends, service_ends, command_port) = services::channels();
     let (report_tx, report_rx) = mpsc::channel::<ServiceEvent>();
     let (shm_tx, shm_rx) = mpsc::channel::<Event>();
     let shm_tx = opts.shm.as_ref().map(|_| shm_tx);
@@ -381,7 +382,7 @@ pub fn run_real(
                 crate::runtime::shm::spawn_command_thread(
                     prefix.clone(),
                     info.clone(),
-                    svc.client(),
+                    command_port,
                     shm_rx,
                 )
                 .map_err(|e| RunError::Io(e.to_string()))?,

@@ -2,9 +2,10 @@
 //! boot, enable, home every axis, then run each group's record chain from its first record,
 //! over and over, until an operator's stop ends it for good. Without the demonstration the
 //! script does nothing until the end. At the end (duration or a signal) it stops, then
-//! disables, whatever ran. It reads the cycle's published status and sends commands through
-//! the cycle's admission like any client; it allocates nothing, so it may run on the cycle
-//! thread.
+//! disables, whatever ran. It reads the cycle's published status; its commands take the same
+//! path into the cycle as every client's ([`crate::runtime::cycle_loop::CycleLoop`] hands them
+//! to the cycle's admission and gives the script the replies). It allocates nothing, so it may
+//! run on the cycle thread.
 
 use drivers::time::Instant;
 
@@ -60,9 +61,14 @@ pub struct Script {
     pub refused: u64,
     /// Set when the user or the duration asked for the end.
     shutdown: bool,
+    /// Commands given in the last poll, for the command path to take.
+    outbox: heapless::Deque<Command, OUTBOX>,
     /// The cycle's count of accepted stops when the script began ([`Cycle::stops`]).
     stops: Option<u32>,
 }
+
+/// Commands one poll can give: one per axis (enable, home) and a few more.
+const OUTBOX: usize = crate::config::MAX_AXES + 8;
 
 /// How long a phase may wait before the script gives up on it and moves on.
 const PHASE_TIMEOUT: core::time::Duration = core::time::Duration::from_secs(30);
@@ -80,6 +86,7 @@ impl Script {
             refused: 0,
             shutdown: false,
             stops: None,
+            outbox: heapless::Deque::new(),
         }
     }
 
@@ -98,8 +105,21 @@ impl Script {
         self.since = now;
     }
 
-    fn send<const A: usize, const G: usize>(&mut self, c: &mut Cycle<'_, A, G>, cmd: Command) {
-        if let Reply::Rejected(_) = c.command(&cmd) {
+    /// Gives a command: it goes into the cycle after this poll, by the clients' path.
+    fn send(&mut self, cmd: Command) {
+        if self.outbox.push_back(cmd).is_err() {
+            self.refused += 1;
+        }
+    }
+
+    /// The next command the script gave, for the command path.
+    pub fn next_command(&mut self) -> Option<Command> {
+        self.outbox.pop_front()
+    }
+
+    /// The cycle's reply to one of the script's commands.
+    pub fn answered(&mut self, reply: Reply) {
+        if let Reply::Rejected(_) = reply {
             self.refused += 1;
         }
     }
@@ -107,7 +127,7 @@ impl Script {
     /// Called once per cycle before the step; `all_booted` once the boot is over.
     pub fn poll<const A: usize, const G: usize>(
         &mut self,
-        c: &mut Cycle<'_, A, G>,
+        c: &Cycle<'_, A, G>,
         all_booted: bool,
         now: Instant,
     ) {
@@ -122,7 +142,7 @@ impl Script {
         }
         if self.shutdown && !matches!(self.phase, Phase::Stopping | Phase::Disabling | Phase::Done)
         {
-            self.send(c, Command::Stop(Target::All));
+            self.send(Command::Stop(Target::All));
             self.go(Phase::Stopping, now);
             return;
         }
@@ -146,7 +166,7 @@ impl Script {
                         if c.axis_status(a)
                             .is_some_and(|s| s.online && s.fault == crate::fault::FaultReason::None)
                         {
-                            self.send(c, Command::Enable(Target::Axis(a)));
+                            self.send(Command::Enable(Target::Axis(a)));
                         }
                     }
                     self.go(Phase::Enabling, now);
@@ -158,7 +178,7 @@ impl Script {
                     if self.opts.home {
                         for a in 0..axes {
                             if c.axis_status(a).is_some_and(|s| s.mode == Mode::On) {
-                                self.send(c, Command::Home(Target::Axis(a)));
+                                self.send(Command::Home(Target::Axis(a)));
                             }
                         }
                         self.go(Phase::Homing, now);
@@ -195,7 +215,7 @@ impl Script {
             Phase::Stopping => {
                 let still = online(c).all(|s| !s.moving);
                 if still || waited > STOP_TIMEOUT {
-                    self.send(c, Command::Disable(Target::All));
+                    self.send(Command::Disable(Target::All));
                     self.go(Phase::Disabling, now);
                 }
             }
@@ -217,19 +237,16 @@ impl Script {
         }
     }
 
-    fn start_chains<const A: usize, const G: usize>(&mut self, c: &mut Cycle<'_, A, G>) {
+    fn start_chains<const A: usize, const G: usize>(&mut self, c: &Cycle<'_, A, G>) {
         if !self.opts.chains {
             return;
         }
         for g in 0..c.group_count() as GroupId {
             if let Some(first) = c.first_record(g) {
-                self.send(
-                    c,
-                    Command::StartChain {
-                        group: g,
-                        record: first,
-                    },
-                );
+                self.send(Command::StartChain {
+                    group: g,
+                    record: first,
+                });
             }
         }
     }

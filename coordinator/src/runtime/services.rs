@@ -3,8 +3,10 @@
 //! queues (`heapless::spsc`), so the cycle never locks, allocates or waits for them.
 //!
 //! [`channels`] creates the queues once, in a leaked `'static` block, and splits them into the
-//! cycle thread's halves ([`CycleEnds`]) and the services' halves ([`ServiceEnds`]).
-//! [`spawn_services`] starts the executor thread with three tasks:
+//! cycle thread's halves ([`CycleEnds`]), the services' halves ([`ServiceEnds`]) and the
+//! clients' end of the command path ([`CommandPort`]: the shared-memory command server owns it
+//! and puts each client's command straight into the cycle's request queue; no task relays
+//! them). [`spawn_services`] starts the executor thread with two tasks:
 //!
 //! - **boot**: runs the drives' boot and lifecycle ([`Nodes`]: a boot sequencer per bus) over
 //!   the frame queues (it sends SDO/NMT frames the cycle puts on their bus after its PDOs, and
@@ -12,20 +14,17 @@
 //!   its timeouts, and hands every [`NodeReport`] to the cycle so it brings a booted axis
 //!   online or takes a lost one out. Drives the cycle loses (its fault events) are waited for
 //!   and configured again when they come back. It also reports EMCYs.
-//! - **commands**: takes [`Command`]s from [`CommandClient`]s, tags them, queues them for the
-//!   cycle and routes each [`Answer`] back to its caller by tag. A request the cycle's queue
-//!   cannot take is answered at once with `Rejected::Busy`, so every request gets an answer.
 //! - **events**: takes the cycle's [`Event`]s and hands them to the sink.
 //!
-//! The queues are polled every [`SERVICE_TICK`]: the cycle cannot wake an async task without a
-//! waker (which it would have to call from the real-time thread), and a millisecond of latency
-//! is nothing for services.
+//! The queues from the cycle are polled every [`SERVICE_TICK`]: the cycle cannot wake an async
+//! task without a waker, which would mean a futex call on the real-time thread (the design
+//! keeps syscalls off it); a millisecond of latency is nothing for services. The boot's own
+//! timeouts are embassy timers (docs/decisions.md).
 
 use std::cell::RefCell;
-use std::collections::HashMap;
 use std::rc::Rc;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, mpsc};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -35,7 +34,7 @@ use drivers::time::monotonic_now;
 use heapless::spsc::{Consumer, Producer, Queue};
 
 use super::nodes::{NodeReport, Nodes};
-use crate::command::{Answer, Command, Rejected, Reply, Request};
+use crate::command::{Answer, Command, Request};
 use crate::cycle::BusFrame;
 use crate::event::Event;
 
@@ -54,8 +53,6 @@ pub const TX_FRAMES: usize = 64;
 pub const RX_FRAMES: usize = 128;
 /// Boot reports waiting for the cycle (one per node).
 pub const BOOT_REPORTS: usize = 32;
-/// Commands a [`CommandClient`] can have queued before the intake task takes them.
-pub const CLIENT_QUEUE: usize = 64;
 /// How often the tasks look at the queues.
 pub const SERVICE_TICK: Duration = Duration::from_millis(1);
 
@@ -169,10 +166,6 @@ impl CycleEnds {
 
 /// The services' halves of the queues; given to [`spawn_services`].
 pub struct ServiceEnds {
-    /// Requests to the cycle.
-    pub requests: Producer<'static, Request>,
-    /// Answers from the cycle.
-    pub answers: Consumer<'static, Answer>,
     /// Events from the cycle.
     pub events: Consumer<'static, Event>,
     /// SDO/NMT frames for the cycle to send.
@@ -191,7 +184,7 @@ impl core::fmt::Debug for ServiceEnds {
 
 /// Creates the queues (leaked: they live as long as the program, which is what the cycle
 /// thread needs; call it once per machine) and splits them.
-pub fn channels() -> (CycleEnds, ServiceEnds) {
+pub fn channels() -> (CycleEnds, ServiceEnds, CommandPort) {
     let q: &'static mut Queues = Box::leak(Box::new(Queues {
         requests: Queue::new(),
         answers: Queue::new(),
@@ -217,14 +210,54 @@ pub fn channels() -> (CycleEnds, ServiceEnds) {
             sent: 0,
         },
         ServiceEnds {
-            requests: req_p,
-            answers: ans_c,
             events: ev_c,
             tx_frames: tx_p,
             rx_frames: rx_c,
             boot_reports: br_p,
         },
+        CommandPort {
+            requests: req_p,
+            answers: ans_c,
+            next_tag: 1,
+        },
     )
+}
+
+/// The clients' end of the command path: one thread (the shared-memory command server) owns
+/// it and puts each client's command straight into the cycle's request queue, and takes the
+/// cycle's answers back, matched by tag. Nothing stands between a client and the cycle's
+/// admission but this queue. Lock-free and allocation-free.
+pub struct CommandPort {
+    requests: Producer<'static, Request>,
+    answers: Consumer<'static, Answer>,
+    next_tag: u64,
+}
+
+impl core::fmt::Debug for CommandPort {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("CommandPort").finish_non_exhaustive()
+    }
+}
+
+impl CommandPort {
+    /// Queues `command` for the cycle; its answer will carry the returned tag. `Err` when the
+    /// cycle has [`REQUESTS`] waiting already (it is not keeping up): refuse the client at once.
+    pub fn submit(&mut self, command: Command) -> Result<u64, QueueFull> {
+        let tag = self.next_tag;
+        self.requests
+            .enqueue(Request { tag, command })
+            .map_err(|_| QueueFull {
+                queue: "requests",
+                capacity: REQUESTS,
+            })?;
+        self.next_tag = self.next_tag.wrapping_add(1);
+        Ok(tag)
+    }
+
+    /// The next answer of the cycle, if any.
+    pub fn answer(&mut self) -> Option<Answer> {
+        self.answers.dequeue()
+    }
 }
 
 /// Whether a received frame is the services' business: SDO answers (580h + n), NMT error
@@ -279,67 +312,15 @@ impl core::fmt::Display for ServiceEvent {
 /// Where the services' reports go (called on the executor thread).
 pub type Sink = Box<dyn FnMut(ServiceEvent) + Send>;
 
-/// Why a command could not be sent or answered.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
-pub enum ClientError {
-    /// The client queue is full: too many commands in flight.
-    #[error("too many commands in flight ({CLIENT_QUEUE})")]
-    Full,
-    /// The services have stopped.
-    #[error("the services have stopped")]
-    Stopped,
-    /// No answer within the time given.
-    #[error("no answer within {} ms", .0.as_millis())]
-    Timeout(Duration),
-}
-
-type ClientRequest = (Command, mpsc::Sender<Answer>);
-
-/// A handle that sends commands to the cycle through the services; cheap to clone, usable
-/// from any thread. Never blocks on a full queue: it returns [`ClientError::Full`].
-#[derive(Debug, Clone)]
-pub struct CommandClient {
-    tx: mpsc::SyncSender<ClientRequest>,
-}
-
-impl CommandClient {
-    /// Sends a command; the answer arrives on the returned receiver.
-    pub fn send(&self, command: Command) -> Result<mpsc::Receiver<Answer>, ClientError> {
-        let (atx, arx) = mpsc::channel();
-        self.tx.try_send((command, atx)).map_err(|e| match e {
-            mpsc::TrySendError::Full(_) => ClientError::Full,
-            mpsc::TrySendError::Disconnected(_) => ClientError::Stopped,
-        })?;
-        Ok(arx)
-    }
-
-    /// Sends a command and waits up to `timeout` for its answer.
-    pub fn call(&self, command: Command, timeout: Duration) -> Result<Answer, ClientError> {
-        self.send(command)?
-            .recv_timeout(timeout)
-            .map_err(|e| match e {
-                mpsc::RecvTimeoutError::Timeout => ClientError::Timeout(timeout),
-                mpsc::RecvTimeoutError::Disconnected => ClientError::Stopped,
-            })
-    }
-}
-
-/// The running services: a client handle and the way to stop them.
+/// The running services: the way to stop them.
 #[derive(Debug)]
 pub struct ServicesHandle {
-    client: CommandClient,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
 }
 
 impl ServicesHandle {
-    /// A command client.
-    pub fn client(&self) -> CommandClient {
-        self.client.clone()
-    }
-
-    /// Stops the tasks and joins the executor thread. Commands still waiting for an answer
-    /// see [`ClientError::Stopped`].
+    /// Stops the tasks and joins the executor thread.
     pub fn stop(mut self) {
         self.shutdown();
     }
@@ -474,43 +455,6 @@ fn emcy_of(f: &Frame) -> Option<ServiceEvent> {
 }
 
 #[embassy_executor::task(pool_size = 4)]
-async fn command_task(
-    shared: Rc<Shared>,
-    clients: mpsc::Receiver<ClientRequest>,
-    mut requests: Producer<'static, Request>,
-    mut answers: Consumer<'static, Answer>,
-) {
-    let _alive = Alive(shared.live.clone());
-    let mut pending: HashMap<u64, mpsc::Sender<Answer>> = HashMap::new();
-    let mut next_tag: u64 = 1;
-    while !shared.stopping() {
-        while let Ok((command, reply_to)) = clients.try_recv() {
-            let tag = next_tag;
-            next_tag = next_tag.wrapping_add(1);
-            match requests.enqueue(Request { tag, command }) {
-                Ok(()) => {
-                    pending.insert(tag, reply_to);
-                }
-                // The cycle is not keeping up: refuse now rather than hold it somewhere.
-                Err(_) => {
-                    let _ = reply_to.send(Answer {
-                        tag,
-                        reply: Reply::Rejected(Rejected::Busy),
-                    });
-                }
-            }
-        }
-        while let Some(a) = answers.dequeue() {
-            if let Some(to) = pending.remove(&a.tag) {
-                // The caller may have gone; its answer is then dropped.
-                let _ = to.send(a);
-            }
-        }
-        tick(SERVICE_TICK).await;
-    }
-}
-
-#[embassy_executor::task(pool_size = 4)]
 async fn event_task(shared: Rc<Shared>, mut events: Consumer<'static, Event>) {
     let _alive = Alive(shared.live.clone());
     while !shared.stopping() {
@@ -531,15 +475,13 @@ pub fn spawn_services(
     nodes: Nodes,
     sink: Sink,
 ) -> Result<ServicesHandle, SpawnError> {
-    let (ctx, crx) = mpsc::sync_channel(CLIENT_QUEUE);
     let stop = Arc::new(AtomicBool::new(false));
     let live = Arc::new(AtomicUsize::new(0));
     let stop2 = stop.clone();
     let thread = std::thread::Builder::new()
         .name("services".into())
-        .spawn(move || run_executor(ends, nodes, sink, crx, stop2, live))?;
+        .spawn(move || run_executor(ends, nodes, sink, stop2, live))?;
     Ok(ServicesHandle {
-        client: CommandClient { tx: ctx },
         stop,
         thread: Some(thread),
     })
@@ -549,7 +491,6 @@ fn run_executor(
     ends: ServiceEnds,
     nodes: Nodes,
     sink: Sink,
-    clients: mpsc::Receiver<ClientRequest>,
     stop: Arc<AtomicBool>,
     live: Arc<AtomicUsize>,
 ) {
@@ -563,8 +504,6 @@ fn run_executor(
     let executor: &'static mut embassy_executor::Executor =
         Box::leak(Box::new(embassy_executor::Executor::new()));
     let ServiceEnds {
-        requests,
-        answers,
         events,
         tx_frames,
         rx_frames,
@@ -590,8 +529,6 @@ fn run_executor(
             }
             let t = boot_task(shared.clone(), nodes, tx_frames, rx_frames, boot_reports);
             go(spawner, t, &live, &stop);
-            let t = command_task(shared.clone(), clients, requests, answers);
-            go(spawner, t, &live, &stop);
             go(spawner, event_task(shared, events), &live, &stop);
         },
         // Every task has seen the stop flag and ended, so its pool slot is free again.
@@ -602,7 +539,7 @@ fn run_executor(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::command::Target;
+    use crate::command::{Reply, Target};
 
     fn frame(id: u16) -> Frame {
         Frame::std8(id, [0; 8])
@@ -620,7 +557,7 @@ mod tests {
 
     #[test]
     fn full_queues_return_errors() {
-        let (mut cycle, mut service) = channels();
+        let (mut cycle, _service, mut port) = channels();
         let on = |id| BusFrame::new(0, frame(id));
         assert_eq!(cycle.offer_received(&on(0x183)), Ok(false));
         for _ in 0..RX_FRAMES {
@@ -646,22 +583,19 @@ mod tests {
             cycle.event(e).unwrap();
         }
         assert!(cycle.event(e).is_err());
-        let r = Request {
-            tag: 1,
-            command: Command::Stop(Target::All),
-        };
+        let stop = Command::Stop(Target::All);
         for _ in 0..REQUESTS {
-            service.requests.enqueue(r).unwrap();
+            port.submit(stop).unwrap();
         }
-        assert!(service.requests.enqueue(r).is_err());
+        assert!(port.submit(stop).is_err());
         // Taking one makes room for one.
-        assert_eq!(cycle.requests.dequeue(), Some(r));
-        assert!(service.requests.enqueue(r).is_ok());
+        assert_eq!(cycle.requests.dequeue().map(|r| r.command), Some(stop));
+        assert!(port.submit(stop).is_ok());
     }
 
     #[test]
     fn a_boot_report_waits_for_the_frames_queued_before_it() {
-        let (mut cycle, mut service) = channels();
+        let (mut cycle, mut service, _port) = channels();
         let report = NodeReport {
             axis: 2,
             bus: 0,
@@ -699,64 +633,37 @@ mod tests {
     }
 
     #[test]
-    fn a_full_client_queue_is_an_error_not_a_wait() {
-        let (tx, _rx) = mpsc::sync_channel(CLIENT_QUEUE);
-        let c = CommandClient { tx };
-        for _ in 0..CLIENT_QUEUE {
-            c.send(Command::Stop(Target::All)).unwrap();
-        }
-        assert_eq!(
-            c.send(Command::Stop(Target::All)).err(),
-            Some(ClientError::Full)
-        );
-        drop(_rx);
-        assert_eq!(
-            c.send(Command::Stop(Target::All)).err(),
-            Some(ClientError::Stopped)
-        );
-    }
-
-    #[test]
-    fn requests_the_cycle_cannot_take_are_answered_busy_and_the_rest_by_tag() {
-        let (mut cycle, service) = channels();
-        let h = spawn_services(service, Nodes::none(), Box::new(|_| {})).unwrap();
-        let c = h.client();
-        // The cycle takes nothing yet: REQUESTS fit its queue, the rest are refused at once.
-        let waiting: Vec<_> = (0..REQUESTS + 8)
-            .map(|_| c.send(Command::Stop(Target::All)).unwrap())
+    fn the_command_port_tags_requests_and_refuses_what_the_cycle_cannot_take() {
+        let (mut cycle, _service, mut port) = channels();
+        // The cycle takes nothing yet: REQUESTS fit its queue, the next is refused at once.
+        let tags: Vec<u64> = (0..REQUESTS)
+            .map(|_| port.submit(Command::Stop(Target::All)).unwrap())
             .collect();
-        let mut busy = 0;
-        for rx in &waiting[REQUESTS..] {
-            let a = rx.recv_timeout(Duration::from_secs(5)).unwrap();
-            assert_eq!(a.reply, Reply::Rejected(Rejected::Busy));
-            busy += 1;
+        assert_eq!(tags, (1..=REQUESTS as u64).collect::<Vec<_>>());
+        assert!(port.submit(Command::Stop(Target::All)).is_err());
+        // The cycle answers each with its tag; the port hands the answers back in order.
+        while let Some(r) = cycle.requests.dequeue() {
+            cycle
+                .answer(Answer {
+                    tag: r.tag,
+                    reply: Reply::Latched { cycle: r.tag * 10 },
+                })
+                .unwrap();
         }
-        assert_eq!(busy, 8);
-        // Now the cycle answers the queued ones, each with a cycle number of its own.
-        let mut tags = Vec::new();
-        let deadline = std::time::Instant::now() + Duration::from_secs(5);
-        while tags.len() < REQUESTS && std::time::Instant::now() < deadline {
-            if let Some(r) = cycle.requests.dequeue() {
-                tags.push(r.tag);
-                cycle
-                    .answer(Answer {
-                        tag: r.tag,
-                        reply: Reply::Latched { cycle: r.tag * 10 },
-                    })
-                    .unwrap();
-            } else {
-                std::thread::sleep(Duration::from_micros(200));
-            }
+        for &t in &tags {
+            assert_eq!(
+                port.answer(),
+                Some(Answer {
+                    tag: t,
+                    reply: Reply::Latched { cycle: t * 10 }
+                })
+            );
         }
-        assert_eq!(tags.len(), REQUESTS);
-        for rx in &waiting[..REQUESTS] {
-            let a = rx.recv_timeout(Duration::from_secs(5)).unwrap();
-            assert_eq!(a.reply, Reply::Latched { cycle: a.tag * 10 });
-        }
-        h.stop();
+        assert_eq!(port.answer(), None);
+        // Room again, and the tags go on.
         assert_eq!(
-            c.send(Command::Stop(Target::All)).err(),
-            Some(ClientError::Stopped)
+            port.submit(Command::Stop(Target::All)).unwrap(),
+            REQUESTS as u64 + 1
         );
     }
 }

@@ -760,51 +760,43 @@ impl ServiceSide {
     }
 }
 
-/// Real time: serves client commands on its own thread, through the services' command client
-/// (the services queue them to the cycle thread, which answers with the latching cycle), and
-/// publishes the events it is sent. Ends when `events` closes.
+/// Real time: serves client commands on its own thread, the one short path into the cycle:
+/// each request is translated and put straight into the cycle's request queue
+/// ([`crate::runtime::services::CommandPort`]); the cycle looks it up in the admission table,
+/// applies it and answers with the latching cycle; the answer goes back to the client matched
+/// by tag. A request the queue cannot take is answered OVERLOADED at once. The thread also
+/// publishes the events it is sent, and ends when `events` closes.
 pub fn spawn_command_thread(
     prefix: String,
     info: StaticInfo,
-    client: crate::runtime::services::CommandClient,
+    mut port: crate::runtime::services::CommandPort,
     events: std::sync::mpsc::Receiver<Event>,
 ) -> std::io::Result<std::thread::JoinHandle<Result<(), String>>> {
     std::thread::Builder::new()
         .name("shm-commands".into())
         .spawn(move || {
             let mut side = ServiceSide::create(&prefix, info)?;
-            let mut pending: Vec<(
-                PendingCommand,
-                std::sync::mpsc::Receiver<crate::command::Answer>,
-            )> = Vec::new();
+            // Requests with the cycle, by the port's tag.
+            let mut pending: Vec<(u64, PendingCommand)> = Vec::new();
             loop {
                 let mut idle = true;
                 while let Some((p, c)) = side.receive() {
                     idle = false;
                     let Ok(c) = c else { continue };
-                    match client.send(c) {
-                        Ok(rx) => pending.push((p, rx)),
+                    match port.submit(c) {
+                        Ok(tag) => pending.push((tag, p)),
                         Err(_) => {
                             let tag = p.request().tag;
                             let _ = p.reply(&overloaded(tag));
                         }
                     }
                 }
-                let mut i = 0;
-                while i < pending.len() {
-                    match pending[i].1.try_recv() {
-                        Ok(a) => {
-                            let (p, _) = pending.swap_remove(i);
-                            let tag = p.request().tag;
-                            let _ = p.reply(&to_reply(tag, a.reply));
-                            idle = false;
-                        }
-                        Err(std::sync::mpsc::TryRecvError::Empty) => i += 1,
-                        Err(std::sync::mpsc::TryRecvError::Disconnected) => {
-                            let (p, _) = pending.swap_remove(i);
-                            let tag = p.request().tag;
-                            let _ = p.reply(&overloaded(tag));
-                        }
+                while let Some(a) = port.answer() {
+                    idle = false;
+                    if let Some(i) = pending.iter().position(|(t, _)| *t == a.tag) {
+                        let (_, p) = pending.swap_remove(i);
+                        let tag = p.request().tag;
+                        let _ = p.reply(&to_reply(tag, a.reply));
                     }
                 }
                 loop {
@@ -814,7 +806,15 @@ pub fn spawn_command_thread(
                             idle = false;
                         }
                         Err(std::sync::mpsc::TryRecvError::Empty) => break,
-                        Err(std::sync::mpsc::TryRecvError::Disconnected) => return Ok(()),
+                        Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                            // The run is over: what the cycle will not answer any more is
+                            // answered OVERLOADED rather than left to the client's timeout.
+                            for (_, p) in pending.drain(..) {
+                                let tag = p.request().tag;
+                                let _ = p.reply(&overloaded(tag));
+                            }
+                            return Ok(());
+                        }
                     }
                 }
                 if idle {
