@@ -7,7 +7,7 @@
 
 use std::hint::black_box;
 
-use coordinator::profile::{AxisLimits, Group, SCurve, Shape, Target, Trapezoid};
+use coordinator::profile::{AxisLimits, PathMove, SCurve, Shape, Target, Trapezoid};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 const CYCLE_NS: u32 = 1_000_000;
@@ -29,7 +29,7 @@ fn bench(c: &mut Criterion) {
     });
     c.bench_function("plan scurve group of 3", |b| {
         b.iter(|| {
-            Group::plan(
+            PathMove::plan(
                 [0; 3],
                 Target::Relative(black_box([123_456, -50_000, 7_000])),
                 &[limits(); 3],
@@ -48,7 +48,7 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
-    if let Ok(g) = Group::plan(
+    if let Ok(g) = PathMove::plan(
         [0; 3],
         Target::Relative([123_456, -50_000, 7_000]),
         &[limits(); 3],
@@ -58,7 +58,7 @@ fn bench(c: &mut Criterion) {
         let mut run = g.clone();
         c.bench_function("step scurve group of 3", |b| {
             b.iter(|| {
-                if run.state() == coordinator::profile::GroupState::Done {
+                if run.state() == coordinator::profile::MoveState::Done {
                     run = g.clone();
                 }
                 run.step()

@@ -36,7 +36,7 @@ use crate::axis::{AxisError, AxisState, Demand, DeviceKind, DriveAxis, Feedback,
 use crate::command::{AxisId, Command, GroupId, Rejected, Reply, Target};
 use crate::event::Event;
 use crate::fault::{FaultReason, OverrunReaction, Reaction};
-use crate::profile::{AxisLimits, Group, GroupState, Shape, Target as PathTarget};
+use crate::profile::{AxisLimits, MoveState, PathMove, Shape, Target as PathTarget};
 use crate::records::{
     AxisTarget, Chain, ChainAction, ChainInputs, ChainStatus, MAX_GROUP_AXES, RecordMode,
     RecordTable,
@@ -226,7 +226,7 @@ impl CycleOutput<'_> {
 
 /// What the operator (or a fault) asked of one axis, published as the axis's mode.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum Mode {
+pub enum AxisMode {
     /// Power off.
     #[default]
     Off,
@@ -274,7 +274,7 @@ impl<const A: usize> BusRt<A> {
 struct AxisRt {
     setup: AxisSetup,
     drive: DriveAxis,
-    mode: Mode,
+    mode: AxisMode,
     online: bool,
     feedback: Feedback,
     input: Option<Image>,
@@ -337,7 +337,7 @@ enum SoloEnd {
 /// A single-axis motion the coordinator plans and streams.
 #[derive(Clone, Debug)]
 struct Solo {
-    motion: Group<1>,
+    motion: PathMove<1>,
     kind: SoloKind,
     end: SoloEnd,
     /// The motion that takes over when this one has stopped (aborting) or arrived (buffered).
@@ -372,7 +372,7 @@ struct GroupRt<'t> {
     setup: GroupSetup,
     table: &'t RecordTable,
     chain: Chain,
-    motion: Option<Group<MAX_GROUP_AXES>>,
+    motion: Option<PathMove<MAX_GROUP_AXES>>,
     halt: GroupHalt,
     /// A move given while another ran, to start when that one has stopped or arrived.
     next: Option<(GroupMove, BufferMode)>,
@@ -403,7 +403,7 @@ pub struct AxisStatus {
     /// The axis is enabled (or being enabled) by command.
     pub enabled: bool,
     /// What the axis is doing by command.
-    pub mode: Mode,
+    pub mode: AxisMode,
     /// A move (its own or its group's) streams setpoints to the axis.
     pub moving: bool,
     /// What the axis is doing, as the admission table sees it.
@@ -416,7 +416,7 @@ pub struct GroupStatus {
     /// The chain.
     pub chain: ChainStatus,
     /// The group's move, if one runs.
-    pub motion: Option<GroupState>,
+    pub motion: Option<MoveState>,
     /// Feed override, %.
     pub override_percent: u16,
     /// What the group is doing, as the admission table sees it.
@@ -486,7 +486,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 .push(AxisRt {
                     setup: *s,
                     drive,
-                    mode: Mode::Off,
+                    mode: AxisMode::Off,
                     online: false,
                     feedback: Feedback::default(),
                     input: None,
@@ -562,7 +562,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     pub fn axis_status(&self, axis: AxisId) -> Option<AxisStatus> {
         let a = self.axes.get(usize::from(axis))?;
         let mode = match (a.mode, a.solo.as_ref().map(|s| s.kind)) {
-            (Mode::On, Some(SoloKind::Jog { permille })) => Mode::Jog {
+            (AxisMode::On, Some(SoloKind::Jog { permille })) => AxisMode::Jog {
                 positive: permille > 0,
                 velocity: jog_velocity(&a.setup.limits, permille),
             },
@@ -574,7 +574,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             setpoint_velocity: if a.following { a.setpoint_velocity } else { 0 },
             fault: a.fault,
             online: a.online,
-            enabled: !matches!(a.mode, Mode::Off),
+            enabled: !matches!(a.mode, AxisMode::Off),
             mode,
             moving: a.following,
             activity: self.axis_activity(usize::from(axis)),
@@ -756,14 +756,14 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         if !a.online {
             return AxisActivity::Offline;
         }
-        if a.fault != FaultReason::None || matches!(a.mode, Mode::Acknowledging { .. }) {
+        if a.fault != FaultReason::None || matches!(a.mode, AxisMode::Acknowledging { .. }) {
             return AxisActivity::ErrorStop;
         }
         match a.mode {
-            Mode::Off => return AxisActivity::Disabled,
-            Mode::QuickStopped => return AxisActivity::QuickStopped,
-            Mode::Homing => return AxisActivity::Homing,
-            Mode::On | Mode::Jog { .. } | Mode::Acknowledging { .. } => {}
+            AxisMode::Off => return AxisActivity::Disabled,
+            AxisMode::QuickStopped => return AxisActivity::QuickStopped,
+            AxisMode::Homing => return AxisActivity::Homing,
+            AxisMode::On | AxisMode::Jog { .. } | AxisMode::Acknowledging { .. } => {}
         }
         if let Some(s) = &a.solo {
             return match (s.end, s.kind) {
@@ -789,14 +789,14 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let members = &self.groups[gi].setup.axes;
         let base = |m: &AxisId| {
             let a = &self.axes[usize::from(*m)];
-            if a.fault != FaultReason::None || matches!(a.mode, Mode::Acknowledging { .. }) {
+            if a.fault != FaultReason::None || matches!(a.mode, AxisMode::Acknowledging { .. }) {
                 AxisActivity::ErrorStop
             } else if !a.online {
                 AxisActivity::Offline
             } else {
                 match a.mode {
-                    Mode::Off => AxisActivity::Disabled,
-                    Mode::QuickStopped => AxisActivity::QuickStopped,
+                    AxisMode::Off => AxisActivity::Disabled,
+                    AxisMode::QuickStopped => AxisActivity::QuickStopped,
                     _ => AxisActivity::Standstill,
                 }
             }
@@ -881,7 +881,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             Command::Enable(t) => {
                 for a in self.admit_axes(t, AxisVerb::Enable)? {
                     let a = &mut self.axes[usize::from(a)];
-                    a.mode = Mode::On;
+                    a.mode = AxisMode::On;
                     a.setpoint = a.feedback.position;
                 }
                 Ok(())
@@ -898,7 +898,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 for a in self.admit_axes(t, AxisVerb::Disable)? {
                     let a = &mut self.axes[usize::from(a)];
-                    a.mode = Mode::Off;
+                    a.mode = AxisMode::Off;
                     a.solo = None;
                     a.following = false;
                 }
@@ -920,23 +920,23 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 // Only faulted axes: nothing else stops, aborts or changes.
                 for a in self.admit_axes(t, AxisVerb::Acknowledge)? {
                     let a = &mut self.axes[usize::from(a)];
-                    if matches!(a.mode, Mode::Acknowledging { .. }) {
+                    if matches!(a.mode, AxisMode::Acknowledging { .. }) {
                         continue;
                     }
-                    let enable_after = !matches!(a.mode, Mode::Off);
+                    let enable_after = !matches!(a.mode, AxisMode::Off);
                     a.fault = FaultReason::None;
                     a.drive_fault_seen = false;
                     a.missed = 0;
                     a.solo = None;
                     a.following = false;
-                    a.mode = Mode::Acknowledging { enable_after };
+                    a.mode = AxisMode::Acknowledging { enable_after };
                 }
                 Ok(())
             }
             Command::Home(t) => {
                 for a in self.admit_axes(t, AxisVerb::Home)? {
                     let a = &mut self.axes[usize::from(a)];
-                    a.mode = Mode::Homing;
+                    a.mode = AxisMode::Homing;
                     a.solo = None;
                 }
                 Ok(())
@@ -1012,7 +1012,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 let running = self.groups[gi]
                     .motion
                     .as_ref()
-                    .is_some_and(|m| m.state() != GroupState::Done)
+                    .is_some_and(|m| m.state() != MoveState::Done)
                     || self.groups[gi].next.is_some();
                 if !running {
                     self.groups[gi].motion = None;
@@ -1088,7 +1088,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     let g = &mut self.groups[gi];
                     g.next = None;
                     match &mut g.motion {
-                        Some(m) if m.state() != GroupState::Done => {
+                        Some(m) if m.state() != MoveState::Done => {
                             m.hold();
                             g.halt = GroupHalt::Stopping;
                         }
@@ -1105,8 +1105,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         s.end = SoloEnd::Stop;
                         s.next = None;
                     }
-                    if a.mode == Mode::Homing {
-                        a.mode = Mode::On;
+                    if a.mode == AxisMode::Homing {
+                        a.mode = AxisMode::On;
                         a.setpoint = a.feedback.position;
                     }
                 }
@@ -1128,7 +1128,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     let a = &mut self.axes[usize::from(a)];
                     a.solo = None;
                     a.following = false;
-                    a.mode = Mode::QuickStopped;
+                    a.mode = AxisMode::QuickStopped;
                 }
                 Ok(())
             }
@@ -1303,7 +1303,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             if a.fault != FaultReason::None {
                 return Err(Rejected::Faulted);
             }
-            if a.mode != Mode::On || a.solo.is_some() {
+            if a.mode != AxisMode::On || a.solo.is_some() {
                 return Err(Rejected::WrongState("axis not enabled and standing"));
             }
             start[i] = a.setpoint;
@@ -1324,7 +1324,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             start[i] = 0;
             end[i] = 0;
         }
-        let mut m = Group::plan(
+        let mut m = PathMove::plan(
             start,
             PathTarget::Absolute(end),
             &limits,
@@ -1477,8 +1477,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         a.fault = reason;
         a.solo = None;
         a.following = false;
-        if !matches!(a.mode, Mode::Off) {
-            a.mode = Mode::QuickStopped;
+        if !matches!(a.mode, AxisMode::Off) {
+            a.mode = AxisMode::QuickStopped;
         }
         let group = a.group;
         let cycle = self.cycle;
@@ -1504,8 +1504,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     let a = &mut self.axes[usize::from(m)];
                     a.solo = None;
                     a.following = false;
-                    if !matches!(a.mode, Mode::Off) {
-                        a.mode = Mode::QuickStopped;
+                    if !matches!(a.mode, AxisMode::Off) {
+                        a.mode = AxisMode::QuickStopped;
                     }
                 }
             }
@@ -1543,7 +1543,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 // force reached), not before they have seen it.
                 (_, Some(since)) => all_mc && self.cycle > since + 2,
                 (None, None) => all_mc,
-                (Some(m), None) => m.state() == GroupState::Done && all_mc,
+                (Some(m), None) => m.state() == MoveState::Done && all_mc,
             };
             let ngroups = self.groups.len();
             let g = &mut self.groups[gi];
@@ -1567,7 +1567,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 match act {
                     ChainAction::StartMotion { record } => {
                         let moving = self.groups[gi].motion.as_ref().is_some_and(|m| {
-                            !matches!(m.state(), GroupState::Done | GroupState::Stopped)
+                            !matches!(m.state(), MoveState::Done | MoveState::Stopped)
                         });
                         if self.groups[gi].halt != GroupHalt::None {
                             // Held: the record waits for the resume (a hold is kept across
@@ -1601,7 +1601,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 && self.groups[gi]
                     .motion
                     .as_ref()
-                    .is_none_or(|m| matches!(m.state(), GroupState::Done | GroupState::Stopped))
+                    .is_none_or(|m| matches!(m.state(), MoveState::Done | MoveState::Stopped))
             {
                 self.groups[gi].pending = None;
                 self.start_record(gi, record);
@@ -1620,8 +1620,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 };
                 let go = match (mode, g.motion.as_ref().map(|m| m.state())) {
                     (_, None) => true,
-                    (BufferMode::Aborting, Some(GroupState::Stopped | GroupState::Done)) => true,
-                    (BufferMode::Buffered, Some(GroupState::Done)) => arrived(),
+                    (BufferMode::Aborting, Some(MoveState::Stopped | MoveState::Done)) => true,
+                    (BufferMode::Buffered, Some(MoveState::Done)) => arrived(),
                     _ => false,
                 };
                 if go {
@@ -1643,12 +1643,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     (a.setpoint, a.setpoint_velocity) = samples[i];
                     a.following = true;
                 }
-                let arrived = state == GroupState::Done
+                let arrived = state == MoveState::Done
                     && g.setup
                         .axes
                         .iter()
                         .all(|&mm| self.axes[usize::from(mm)].feedback.motion_complete);
-                let stopped = state == GroupState::Stopped;
+                let stopped = state == MoveState::Stopped;
                 if stopped && g.halt == GroupHalt::Stopping {
                     g.motion = None;
                     g.halt = GroupHalt::None;
@@ -1769,18 +1769,18 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 (a.setpoint, a.setpoint_velocity) = smp[0];
                 a.following = true;
                 let state = s.motion.state();
-                let arrived = state == GroupState::Done && a.feedback.motion_complete;
+                let arrived = state == MoveState::Done && a.feedback.motion_complete;
                 let over = match (state, s.end) {
-                    (GroupState::Stopped, SoloEnd::Arrive) => {
+                    (MoveState::Stopped, SoloEnd::Arrive) => {
                         // Resumed while it was still ramping down: on along the path.
                         let _ = s.motion.resume();
                         false
                     }
-                    (GroupState::Stopped, SoloEnd::Held) => false,
-                    (GroupState::Stopped | GroupState::Done, SoloEnd::Halt | SoloEnd::Stop) => true,
+                    (MoveState::Stopped, SoloEnd::Held) => false,
+                    (MoveState::Stopped | MoveState::Done, SoloEnd::Halt | SoloEnd::Stop) => true,
                     // Held too late to stop short: arrived, but what waits stays held.
-                    (GroupState::Done, SoloEnd::Held) => arrived && s.next.is_none(),
-                    (GroupState::Done, SoloEnd::Arrive) => arrived,
+                    (MoveState::Done, SoloEnd::Held) => arrived && s.next.is_none(),
+                    (MoveState::Done, SoloEnd::Arrive) => arrived,
                     _ => false,
                 };
                 if over {
@@ -1797,19 +1797,19 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let a = &mut self.axes[i];
             let demand = match a.mode {
                 _ if !a.online => Demand::Disable,
-                Mode::Off => Demand::Disable,
-                Mode::QuickStopped => Demand::QuickStop,
-                Mode::Acknowledging { .. } => Demand::Acknowledge,
-                Mode::Homing => Demand::Home,
+                AxisMode::Off => Demand::Disable,
+                AxisMode::QuickStopped => Demand::QuickStop,
+                AxisMode::Acknowledging { .. } => Demand::Acknowledge,
+                AxisMode::Homing => Demand::Home,
                 // Not stored: a jog is a planned single-axis motion (see `axis_status`).
-                Mode::Jog { .. } => Demand::Standstill,
-                Mode::On if a.special.is_some() && group_halted => Demand::Halt,
-                Mode::On if a.special.is_some() => a.special.unwrap_or(Demand::Standstill),
-                Mode::On if a.following => Demand::Follow {
+                AxisMode::Jog { .. } => Demand::Standstill,
+                AxisMode::On if a.special.is_some() && group_halted => Demand::Halt,
+                AxisMode::On if a.special.is_some() => a.special.unwrap_or(Demand::Standstill),
+                AxisMode::On if a.following => Demand::Follow {
                     position: a.setpoint,
                     velocity: a.setpoint_velocity,
                 },
-                Mode::On => Demand::Standstill,
+                AxisMode::On => Demand::Standstill,
             };
             let input = a.input.as_ref().map(|i| i.bytes());
             let mut out = Image::default();
@@ -1819,24 +1819,28 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 a.feedback = fb;
             }
             let fb = a.feedback;
-            // Mode transitions on completion.
+            // Mode changes on completion.
             match a.mode {
-                Mode::Homing if fb.done && fb.homed => {
-                    a.mode = Mode::On;
+                AxisMode::Homing if fb.done && fb.homed => {
+                    a.mode = AxisMode::On;
                     a.setpoint = fb.position;
                 }
-                Mode::Acknowledging { enable_after } if fb.done => {
-                    a.mode = if enable_after { Mode::On } else { Mode::Off };
+                AxisMode::Acknowledging { enable_after } if fb.done => {
+                    a.mode = if enable_after {
+                        AxisMode::On
+                    } else {
+                        AxisMode::Off
+                    };
                     a.setpoint = fb.position;
                     self.emit(Event::Acknowledged {
                         cycle,
                         axis: i as AxisId,
                     });
                 }
-                Mode::Homing | Mode::QuickStopped | Mode::Off => {
+                AxisMode::Homing | AxisMode::QuickStopped | AxisMode::Off => {
                     self.axes[i].setpoint = fb.position;
                 }
-                Mode::On if a.special.is_some() => {
+                AxisMode::On if a.special.is_some() => {
                     self.axes[i].setpoint = fb.position;
                 }
                 _ => {}
@@ -1852,7 +1856,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let a = &self.axes[i];
             if a.online && fb.state == AxisState::Fault && !a.drive_fault_seen {
                 let code = fb.fault_code;
-                if a.fault == FaultReason::None && !matches!(a.mode, Mode::Acknowledging { .. }) {
+                if a.fault == FaultReason::None && !matches!(a.mode, AxisMode::Acknowledging { .. })
+                {
                     self.raise(i as AxisId, FaultReason::DriveFault(code));
                 }
                 self.axes[i].drive_fault_seen = true;
@@ -1988,7 +1993,7 @@ fn plan_solo(
             (to, l, override_headroom(share, 100, 100))
         }
     };
-    let mut motion = Group::plan(
+    let mut motion = PathMove::plan(
         [from],
         PathTarget::Absolute([target]),
         &[limits],
@@ -2374,6 +2379,6 @@ mod tests {
             Reply::Latched { .. }
         ));
         c.overrun(3, 8_000_000);
-        assert_eq!(c.axis_status(0).unwrap().mode, Mode::QuickStopped);
+        assert_eq!(c.axis_status(0).unwrap().mode, AxisMode::QuickStopped);
     }
 }

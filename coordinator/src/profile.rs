@@ -37,7 +37,7 @@
 //! # Feed override, hold, quick stop
 //!
 //! Override scales the rate of the path's time (`tau += rate` per cycle), ramped by a fixed
-//! step per cycle ([`Group::set_override_ramp`]; by default a 100 % change takes the plan's
+//! step per cycle ([`PathMove::set_override_ramp`]; by default a 100 % change takes the plan's
 //! `v_max / a_max`). Time scaling multiplies velocity by the rate, acceleration by its square and
 //! jerk by its cube: at or below 100 % the limits hold, except that while the rate ramps the
 //! `v * dr/dt` term adds up to one more `a_max` with the default ramp (so at most `2 a_max`; the
@@ -188,7 +188,7 @@ pub enum CommandError {
     Override(u16),
     /// Resume needs a group stopped by a hold or quick stop.
     #[error("resume needs a stopped group, state is {0:?}")]
-    NotStopped(GroupState),
+    NotStopped(MoveState),
 }
 
 /// Path limits in sub-units per cycle^n (integer part).
@@ -552,7 +552,7 @@ fn axis_rate(delta: i64, q: i128, cycle_ns: u32, power: u32) -> i64 {
 
 /// What a group is doing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum GroupState {
+pub enum MoveState {
     /// Following the move (possibly resumed).
     Moving,
     /// Decelerating along the path after a hold.
@@ -567,7 +567,7 @@ pub enum GroupState {
 
 /// A time-synchronised move of `N` axes along a straight line in joint space.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Group<const N: usize> {
+pub struct PathMove<const N: usize> {
     start: [i64; N],
     delta: [i64; N],
     cycle_ns: u32,
@@ -579,11 +579,11 @@ pub struct Group<const N: usize> {
     rate: i64,
     rate_target: i64,
     rate_step: i64,
-    state: GroupState,
+    state: MoveState,
     cycle: u64,
 }
 
-impl<const N: usize> Group<N> {
+impl<const N: usize> PathMove<N> {
     /// Plans a move of all axes from `start` to `target`, each within its own `limits`.
     pub fn plan(
         start: [i64; N],
@@ -672,7 +672,7 @@ impl<const N: usize> Group<N> {
             PATH_ONE as u128
         };
         let plan = plan_move(0, len, &limits)?;
-        Ok(Group {
+        Ok(PathMove {
             start,
             delta,
             cycle_ns,
@@ -687,9 +687,9 @@ impl<const N: usize> Group<N> {
             rate_step: ((TIME_ONE as u128 * limits.acceleration) / limits.velocity.max(1))
                 .clamp(1, TIME_ONE as u128) as i64,
             state: if len == 0 {
-                GroupState::Done
+                MoveState::Done
             } else {
-                GroupState::Moving
+                MoveState::Moving
             },
             cycle: 0,
         })
@@ -746,7 +746,7 @@ impl<const N: usize> Group<N> {
     }
 
     /// What the group is doing.
-    pub fn state(&self) -> GroupState {
+    pub fn state(&self) -> MoveState {
         self.state
     }
 
@@ -778,10 +778,10 @@ impl<const N: usize> Group<N> {
 
     /// Decelerates along the path to a stop with the planned deceleration and jerk.
     pub fn hold(&mut self) {
-        if self.state == GroupState::Moving && self.seg.phase_at(self.tau) < 4 {
+        if self.state == MoveState::Moving && self.seg.phase_at(self.tau) < 4 {
             self.seg = plan_stop(self.path(), &self.limits, PATH_ONE);
             self.tau = 0;
-            self.state = GroupState::Holding;
+            self.state = MoveState::Holding;
         }
     }
 
@@ -789,17 +789,17 @@ impl<const N: usize> Group<N> {
     pub fn quick_stop(&mut self) {
         if matches!(
             self.state,
-            GroupState::Moving | GroupState::Holding | GroupState::QuickStopping
+            MoveState::Moving | MoveState::Holding | MoveState::QuickStopping
         ) {
             self.seg = plan_stop(self.path(), &self.quick, PATH_ONE);
             self.tau = 0;
-            self.state = GroupState::QuickStopping;
+            self.state = MoveState::QuickStopping;
         }
     }
 
     /// Resumes a stopped group: a new move from the stop point to the target on the same line.
     pub fn resume(&mut self) -> Result<(), CommandError> {
-        if self.state != GroupState::Stopped {
+        if self.state != MoveState::Stopped {
             return Err(CommandError::NotStopped(self.state));
         }
         let s = self.seg.end;
@@ -807,7 +807,7 @@ impl<const N: usize> Group<N> {
         // A resumed move is never longer than the whole plan, so this cannot fail.
         self.seg = plan_move(s, len, &self.limits).unwrap_or(self.seg);
         self.tau = 0;
-        self.state = GroupState::Moving;
+        self.state = MoveState::Moving;
         Ok(())
     }
 
@@ -817,7 +817,7 @@ impl<const N: usize> Group<N> {
         self.samples(p)
     }
 
-    /// As [`Group::step`], but only the positions and velocities of the first `out.len()` axes
+    /// As [`PathMove::step`], but only the positions and velocities of the first `out.len()` axes
     /// (what a cycle streaming setpoints needs; the acceleration and jerk conversions are the
     /// costly part of a sample).
     pub fn step_positions(&mut self, out: &mut [(i64, i64)]) {
@@ -844,12 +844,12 @@ impl<const N: usize> Group<N> {
         let mut p = self.seg.at(self.tau);
         if self.tau >= self.seg.duration {
             self.state = match self.state {
-                GroupState::Holding | GroupState::QuickStopping => GroupState::Stopped,
-                GroupState::Moving => {
+                MoveState::Holding | MoveState::QuickStopping => MoveState::Stopped,
+                MoveState::Moving => {
                     if self.seg.end >= PATH_ONE {
-                        GroupState::Done
+                        MoveState::Done
                     } else {
-                        GroupState::Stopped
+                        MoveState::Stopped
                     }
                 }
                 s => s,
@@ -871,11 +871,11 @@ impl<const N: usize> Group<N> {
 
 /// A single-axis trapezoidal move.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Trapezoid(Group<1>);
+pub struct Trapezoid(PathMove<1>);
 
 /// A single-axis jerk-limited (S-curve) move.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct SCurve(Group<1>);
+pub struct SCurve(PathMove<1>);
 
 macro_rules! single_axis {
     ($t:ident, $shape:expr) => {
@@ -887,7 +887,7 @@ macro_rules! single_axis {
                 limits: AxisLimits,
                 cycle_ns: u32,
             ) -> Result<Self, PlanError> {
-                Group::plan(
+                PathMove::plan(
                     [start],
                     Target::Absolute([target]),
                     &[limits],
@@ -905,7 +905,7 @@ macro_rules! single_axis {
                 self.0.duration_cycles()
             }
             /// The move as a group of one (for override, hold and quick stop).
-            pub fn into_group(self) -> Group<1> {
+            pub fn into_group(self) -> PathMove<1> {
                 self.0
             }
         }
@@ -924,7 +924,7 @@ mod tests {
         let limits = [AxisLimits::new(50_000, 200_000, 4_000_000); 3];
         let start = [0, 100, -5000];
         let target = Target::Absolute([40_000, -20_000, 3]);
-        let mut a = Group::plan(start, target, &limits, Shape::SCurve, 2_000_000).unwrap();
+        let mut a = PathMove::plan(start, target, &limits, Shape::SCurve, 2_000_000).unwrap();
         let mut b = a.clone();
         let _ = a.set_override(70);
         let _ = b.set_override(70);
@@ -959,7 +959,7 @@ mod tests {
     }
 
     /// Checks every planned sample of a group against the limits and the arrival rules.
-    fn check_plan<const N: usize>(g: &Group<N>, limits: &[AxisLimits; N], shape: Shape, c: u32) {
+    fn check_plan<const N: usize>(g: &PathMove<N>, limits: &[AxisLimits; N], shape: Shape, c: u32) {
         let n = g.duration_cycles();
         let target = g.target();
         let mut prev: Option<[Sample; N]> = None;
@@ -1093,7 +1093,7 @@ mod tests {
     fn asymmetric_deceleration() {
         let l = lim(50_000, 1_000_000, 50_000_000).with_deceleration(250_000);
         for shape in [Shape::SCurve, Shape::Trapezoid] {
-            let g = Group::plan([0], Target::Relative([40_000]), &[l], shape, MS).unwrap();
+            let g = PathMove::plan([0], Target::Relative([40_000]), &[l], shape, MS).unwrap();
             check_plan(&g, &[l], shape, MS);
             let n = g.duration_cycles();
             let min_a = (0..=n).map(|k| g.sample(k)[0].acceleration).min().unwrap();
@@ -1117,7 +1117,7 @@ mod tests {
     fn group_arrives_in_one_cycle_on_a_straight_line() {
         let (start, d, l) = three_axes();
         for shape in [Shape::SCurve, Shape::Trapezoid] {
-            let g = Group::plan(start, Target::Relative(d), &l, shape, MS).unwrap();
+            let g = PathMove::plan(start, Target::Relative(d), &l, shape, MS).unwrap();
             check_plan(&g, &l, shape, MS);
             let n = g.duration_cycles();
             let target = g.target();
@@ -1125,7 +1125,7 @@ mod tests {
             assert!((0..3).all(|i| g.sample(n)[i].position == target[i]));
             // Slower than every axis alone, but not by more than the straight line needs.
             let alone: [u64; 3] = core::array::from_fn(|i| {
-                Group::plan([start[i]], Target::Relative([d[i]]), &[l[i]], shape, MS)
+                PathMove::plan([start[i]], Target::Relative([d[i]]), &[l[i]], shape, MS)
                     .unwrap()
                     .duration_cycles()
             });
@@ -1150,7 +1150,7 @@ mod tests {
     fn group_takes_the_slowest_axis_duration_when_it_binds() {
         // Same limits: the longest axis binds every limit, the group takes exactly its time.
         let l = [lim(100_000, 1_000_000, 20_000_000); 2];
-        let g = Group::plan(
+        let g = PathMove::plan(
             [0, 0],
             Target::Absolute([80_000, -30_000]),
             &l,
@@ -1168,7 +1168,7 @@ mod tests {
         assert!((-38_000..=-37_000).contains(&v), "{v}");
     }
 
-    fn run<const N: usize>(g: &mut Group<N>, cycles: u64) -> ([Sample; N], u64) {
+    fn run<const N: usize>(g: &mut PathMove<N>, cycles: u64) -> ([Sample; N], u64) {
         let mut last = [Sample::default(); N];
         for _ in 0..cycles {
             last = g.step();
@@ -1179,13 +1179,13 @@ mod tests {
     #[test]
     fn step_follows_the_plan_at_full_override() {
         let (start, d, l) = three_axes();
-        let mut g = Group::plan(start, Target::Relative(d), &l, Shape::SCurve, MS).unwrap();
+        let mut g = PathMove::plan(start, Target::Relative(d), &l, Shape::SCurve, MS).unwrap();
         let plan = g.clone();
         let n = plan.duration_cycles();
         for k in 1..=n + 2 {
             assert_eq!(g.step(), plan.sample(k), "cycle {k}");
         }
-        assert_eq!(g.state(), GroupState::Done);
+        assert_eq!(g.state(), MoveState::Done);
     }
 
     #[test]
@@ -1199,7 +1199,7 @@ mod tests {
             g.set_override(pct).unwrap();
             let mut k = 0;
             let mut peak = 0;
-            while g.state() != GroupState::Done && k < 10 * n {
+            while g.state() != MoveState::Done && k < 10 * n {
                 let s = g.step()[0];
                 peak = peak.max(s.velocity);
                 k += 1;
@@ -1228,11 +1228,16 @@ mod tests {
         let (b, _) = run(&mut g, 500);
         assert_eq!(a[0].position, b[0].position);
         assert_eq!(b[0].velocity, 0);
-        assert_eq!(g.state(), GroupState::Moving);
+        assert_eq!(g.state(), MoveState::Moving);
     }
 
     /// Steps until the state leaves `from`, checking limits and the line; returns samples seen.
-    fn stop_and_check(g: &mut Group<3>, from: GroupState, l: &[AxisLimits; 3], quick: bool) -> u64 {
+    fn stop_and_check(
+        g: &mut PathMove<3>,
+        from: MoveState,
+        l: &[AxisLimits; 3],
+        quick: bool,
+    ) -> u64 {
         let (start, d, _) = three_axes();
         let mut k = 0;
         while g.state() == from {
@@ -1268,15 +1273,15 @@ mod tests {
     #[test]
     fn hold_resume_and_quick_stop() {
         let (start, d, l) = three_axes();
-        let plan = Group::plan(start, Target::Relative(d), &l, Shape::SCurve, MS).unwrap();
+        let plan = PathMove::plan(start, Target::Relative(d), &l, Shape::SCurve, MS).unwrap();
         let n = plan.duration_cycles();
         let mut g = plan.clone();
         run(&mut g, n / 3);
         let mut q = g.clone();
         g.hold();
-        assert_eq!(g.state(), GroupState::Holding);
-        let hold_cycles = stop_and_check(&mut g, GroupState::Holding, &l, false);
-        assert_eq!(g.state(), GroupState::Stopped);
+        assert_eq!(g.state(), MoveState::Holding);
+        let hold_cycles = stop_and_check(&mut g, MoveState::Holding, &l, false);
+        assert_eq!(g.state(), MoveState::Stopped);
         let (at, _) = run(&mut g, 50);
         let (again, _) = run(&mut g, 50);
         assert_eq!(at, again, "a stopped group stays");
@@ -1284,25 +1289,22 @@ mod tests {
         assert_ne!(at[0].position, g.target()[0]);
         assert_eq!(g.hold(), ());
         g.resume().unwrap();
-        assert_eq!(
-            g.resume(),
-            Err(CommandError::NotStopped(GroupState::Moving))
-        );
-        stop_and_check(&mut g, GroupState::Moving, &l, false);
-        assert_eq!(g.state(), GroupState::Done);
+        assert_eq!(g.resume(), Err(CommandError::NotStopped(MoveState::Moving)));
+        stop_and_check(&mut g, MoveState::Moving, &l, false);
+        assert_eq!(g.state(), MoveState::Done);
         let end = g.step();
         assert!((0..3).all(|i| end[i].position == g.target()[i]));
 
         q.quick_stop();
-        let quick_cycles = stop_and_check(&mut q, GroupState::QuickStopping, &l, true);
+        let quick_cycles = stop_and_check(&mut q, MoveState::QuickStopping, &l, true);
         assert!(
             quick_cycles < hold_cycles,
             "{quick_cycles} >= {hold_cycles}"
         );
-        assert_eq!(q.state(), GroupState::Stopped);
+        assert_eq!(q.state(), MoveState::Stopped);
         q.resume().unwrap();
         run(&mut q, 10 * n);
-        assert_eq!(q.state(), GroupState::Done);
+        assert_eq!(q.state(), MoveState::Done);
         assert_eq!(q.step().map(|s| s.position), q.target());
     }
 
@@ -1314,14 +1316,14 @@ mod tests {
         let mut g = plan.clone();
         run(&mut g, n - 20);
         g.hold();
-        assert_eq!(g.state(), GroupState::Moving);
+        assert_eq!(g.state(), MoveState::Moving);
         assert_eq!(g.step(), plan.sample(n - 19));
     }
 
     #[test]
     fn trapezoid_hold_and_resume() {
         let l = [lim(10_000, 100_000, 1); 2];
-        let plan = Group::plan(
+        let plan = PathMove::plan(
             [0, 0],
             Target::Relative([20_000, 5_000]),
             &l,
@@ -1333,7 +1335,7 @@ mod tests {
         run(&mut g, 1_000);
         g.hold();
         let mut k = 0;
-        while g.state() == GroupState::Holding {
+        while g.state() == MoveState::Holding {
             let p = g.step();
             assert!(p[0].acceleration.abs() <= 100_000);
             k += 1;
@@ -1348,7 +1350,7 @@ mod tests {
     #[test]
     fn deterministic_bit_for_bit() {
         let (start, d, l) = three_axes();
-        let script = |g: &mut Group<3>| {
+        let script = |g: &mut PathMove<3>| {
             let mut out = [0i64; 4];
             for k in 0..6_000u64 {
                 match k {
@@ -1376,11 +1378,11 @@ mod tests {
             }
             out
         };
-        let g = Group::plan(start, Target::Relative(d), &l, Shape::SCurve, MS).unwrap();
+        let g = PathMove::plan(start, Target::Relative(d), &l, Shape::SCurve, MS).unwrap();
         let (mut a, mut b) = (g.clone(), g.clone());
         assert_eq!(script(&mut a), script(&mut b));
         assert_eq!(a, b);
-        assert_eq!(a.state(), GroupState::Done);
+        assert_eq!(a.state(), MoveState::Done);
     }
 
     #[test]
@@ -1405,7 +1407,7 @@ mod tests {
         ));
         // Trapezoids ignore the jerk.
         assert!(Trapezoid::plan(0, 10, lim(10, 10, 0), MS).is_ok());
-        let mut g = Group::plan(
+        let mut g = PathMove::plan(
             [5, 6],
             Target::Relative([0, 0]),
             &[lim(0, 0, 0); 2],
@@ -1413,7 +1415,7 @@ mod tests {
             MS,
         )
         .unwrap();
-        assert_eq!(g.state(), GroupState::Done);
+        assert_eq!(g.state(), MoveState::Done);
         assert_eq!(g.duration_cycles(), 0);
         assert_eq!(g.step().map(|s| s.position), [5, 6]);
     }
@@ -1447,7 +1449,7 @@ mod tests {
             scurve in any::<bool>(),
         ) {
             let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
-            let g = Group::plan([start], Target::Relative([dist]), &[l], shape, cycle);
+            let g = PathMove::plan([start], Target::Relative([dist]), &[l], shape, cycle);
             prop_assert!(g.is_ok(), "{:?}", g);
             if let Ok(g) = g {
                 prop_assume!(g.duration_cycles() < 20_000);
@@ -1462,7 +1464,7 @@ mod tests {
             scurve in any::<bool>(),
         ) {
             let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
-            let g = Group::plan([0; 3], Target::Relative(dist), &l, shape, MS);
+            let g = PathMove::plan([0; 3], Target::Relative(dist), &l, shape, MS);
             prop_assert!(g.is_ok(), "{:?}", g);
             if let Ok(g) = g {
                 prop_assume!(g.duration_cycles() < 20_000);
@@ -1479,7 +1481,7 @@ mod tests {
             scurve in any::<bool>(),
         ) {
             let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
-            let g = Group::plan([0; 2], Target::Relative(dist), &l, shape, MS);
+            let g = PathMove::plan([0; 2], Target::Relative(dist), &l, shape, MS);
             prop_assert!(g.is_ok(), "{:?}", g);
             let Ok(mut g) = g else { return Ok(()) };
             let n = g.duration_cycles();
@@ -1487,7 +1489,7 @@ mod tests {
             run(&mut g, n * at_permille / 1_000);
             if quick { g.quick_stop() } else { g.hold() }
             let mut k = 0;
-            while matches!(g.state(), GroupState::Holding | GroupState::QuickStopping) {
+            while matches!(g.state(), MoveState::Holding | MoveState::QuickStopping) {
                 let p = g.step();
                 k += 1;
                 prop_assert!(k <= n + 2, "a stop takes longer than the move");
@@ -1509,13 +1511,13 @@ mod tests {
                     }
                 }
             }
-            if g.state() == GroupState::Stopped {
+            if g.state() == MoveState::Stopped {
                 let a = g.step();
                 prop_assert_eq!(a, g.step());
                 prop_assert!(g.resume().is_ok());
             }
             run(&mut g, 2 * n + 10);
-            prop_assert_eq!(g.state(), GroupState::Done);
+            prop_assert_eq!(g.state(), MoveState::Done);
             prop_assert_eq!(g.step().map(|s| s.position), g.target());
         }
 
@@ -1530,7 +1532,7 @@ mod tests {
         ) {
             let shape = if scurve { Shape::SCurve } else { Shape::Trapezoid };
             let l = AxisLimits::new(v, a, j).with_deceleration(d);
-            if let Ok(mut g) = Group::plan([start, 0], Target::Relative([dist, 1]), &[l; 2], shape, cycle) {
+            if let Ok(mut g) = PathMove::plan([start, 0], Target::Relative([dist, 1]), &[l; 2], shape, cycle) {
                 for k in ks {
                     g.sample(k);
                     g.sample(k % 10_000);

@@ -480,7 +480,10 @@ fn cia402_tlc5xx_enable_home_follow_halt_fault_reset() {
     let sent = r.set_points - before;
     assert!(sent >= n / 4 - 1, "{sent} set-points in {n} cycles");
     assert!(worst_lag < 1_000, "lag {worst_lag}");
-    assert_eq!(r.dev.mode(), drivers::cia402::modes::Mode::ProfilePosition);
+    assert_eq!(
+        r.dev.mode(),
+        drivers::cia402::modes::OperationMode::ProfilePosition
+    );
     let last = Demand::Follow {
         position: target,
         velocity: 0,

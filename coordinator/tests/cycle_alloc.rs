@@ -89,7 +89,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         let s = run.core.cycle.axis_status(a as u16).unwrap();
         assert_eq!(
             s.mode,
-            coordinator::cycle::Mode::On,
+            coordinator::cycle::AxisMode::On,
             "axis {a}: {s:?}\n{}",
             String::from_utf8_lossy(&out)
         );

@@ -7,7 +7,7 @@ use std::time::Duration;
 use coordinator::axis::AxisState;
 use coordinator::command::{BufferMode, Command, Rejected, Reply, Target};
 use coordinator::config::{Config, EXAMPLE};
-use coordinator::cycle::Mode;
+use coordinator::cycle::AxisMode;
 use coordinator::fault::FaultReason;
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::{MachinePlan, plan};
@@ -62,7 +62,7 @@ fn ready(plan: &MachinePlan) -> VirtualRun<'_> {
             "axis {a}: {s:?}\n{text}"
         );
         assert!(s.feedback.homed, "axis {a} homed: {s:?}\n{text}");
-        assert_eq!(s.mode, Mode::On, "axis {a}");
+        assert_eq!(s.mode, AxisMode::On, "axis {a}");
     }
     run
 }
@@ -238,7 +238,7 @@ fn fault_reaction(
         for &m in &plan.groups[gi].1.axes {
             assert_eq!(
                 run.core.cycle.axis_status(m).unwrap().mode,
-                Mode::QuickStopped,
+                AxisMode::QuickStopped,
                 "member {m}"
             );
         }
@@ -279,7 +279,7 @@ fn fault_reaction(
     steps(&mut run, 300);
     let st = run.core.cycle.axis_status(a).unwrap();
     assert_eq!(st.fault, FaultReason::None, "{st:?}");
-    assert_eq!(st.mode, Mode::On, "{st:?}");
+    assert_eq!(st.mode, AxisMode::On, "{st:?}");
     latched(run.core.cycle.command(&Command::Enable(Target::All)));
 }
 
@@ -761,7 +761,7 @@ fn a_missing_drive_is_waited_for_and_booted_when_it_appears_while_the_others_run
             .axis_status(plan.axis(name).unwrap() as u16)
             .unwrap();
         assert!(
-            s.feedback.homed && s.mode == Mode::On,
+            s.feedback.homed && s.mode == AxisMode::On,
             "{name}: {s:?}\n{text}"
         );
     }
@@ -833,7 +833,7 @@ fn a_drive_that_resets_itself_is_faulted_configured_again_and_usable_after_ackno
     // Its group quick-stops with it.
     assert_eq!(
         run.core.cycle.axis_status(x).unwrap().mode,
-        Mode::QuickStopped
+        AxisMode::QuickStopped
     );
     // Configured again and back in the cycle, still faulted until acknowledged.
     for _ in 0..2000 {
@@ -855,7 +855,11 @@ fn a_drive_that_resets_itself_is_faulted_configured_again_and_usable_after_ackno
     latched(run.core.cycle.command(&Command::Acknowledge(Target::All)));
     steps(&mut run, 300);
     let st = run.core.cycle.axis_status(y).unwrap();
-    assert_eq!((st.fault, st.mode), (FaultReason::None, Mode::On), "{st:?}");
+    assert_eq!(
+        (st.fault, st.mode),
+        (FaultReason::None, AxisMode::On),
+        "{st:?}"
+    );
     latched(run.core.cycle.command(&Command::Home(Target::Axis(y))));
 }
 

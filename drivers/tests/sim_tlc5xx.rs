@@ -12,7 +12,7 @@ use drivers::canopen::master::{Master, MasterEvent, Supervision};
 use drivers::canopen::nmt::{BootUpStyle, NmtCommand, NmtState, NmtTarget};
 use drivers::canopen::sdo::{AbortedBy, DownloadMode, SdoError};
 use drivers::canopen::{AbortCode, Address, NodeId};
-use drivers::cia402::modes::Mode;
+use drivers::cia402::modes::OperationMode;
 use drivers::cia402::state::State;
 use drivers::sim::axis::{Environment, Load, SwitchZone};
 use drivers::sim::tlc5xx::{TRIGGER, Tlc5xx, TlcConfig, TlcFault};
@@ -437,7 +437,7 @@ fn pv_with_sync_8_6_quick_stop_and_resume() {
     }
     rig.send(&["000#0100", "201#0600", "201#0F00"], 3 * MS);
     assert_eq!(rig.sdo("601#2F60600003000000"), f("581#6060600000000000"));
-    assert_eq!(rig.tlc().mode(), Mode::ProfileVelocity);
+    assert_eq!(rig.tlc().mode(), OperationMode::ProfileVelocity);
     rig.send(&["401#1F0085000000"], 5 * MS);
     assert_eq!(rig.tlc().axis().status().velocity, 0, "waits for the SYNC");
     rig.send(&["080#"], 500 * MS);
@@ -543,7 +543,7 @@ fn homing_every_method_ends_referenced_at_the_right_place() {
         rig.ok(0x20F6, 0, &777i32.to_le_bytes());
         rig.enable();
         rig.ok(0x6060, 0, &[6]);
-        assert_eq!(rig.tlc().mode(), Mode::Homing);
+        assert_eq!(rig.tlc().mode(), OperationMode::Homing);
         rig.send(&["201#1F00"], 2 * MS);
         if method != 35 {
             assert_eq!(rig.sw() & 0x3400, 0, "method {method}: homing in progress");
@@ -736,7 +736,7 @@ fn fast_ptp_on_pdo4() {
     assert_eq!(rig.write(0x1803, 2, &[1]), abort(AbortCode::ReadOnly));
     rig.enable();
     rig.ok(0x6060, 0, &[0xFF]);
-    assert_eq!(rig.tlc().mode(), Mode::TlcSigMode);
+    assert_eq!(rig.tlc().mode(), OperationMode::TlcSigMode);
     // p_absPTP = 4000, v_tar16 = 600 rpm, ramp = 6000 rpm/s: starts an absolute move.
     rig.send(&["501#A00F000058027017"], 3 * MS);
     assert!(rig.tlc().axis().status().velocity > 0);
@@ -872,7 +872,7 @@ fn limit_switch_stops_and_faults_and_software_limits_refuse_targets() {
     rig.run_for(200 * MS);
     // Software limits (SW_Enabl bit 5, SW_LimP = 607Dh:02): no motion, EMCY FF22h then 0000h.
     rig.ok(0x6060, 0, &[1]);
-    assert_eq!(rig.tlc().mode(), Mode::ProfilePosition);
+    assert_eq!(rig.tlc().mode(), OperationMode::ProfilePosition);
     rig.ok(0x2054, 0, &0x20u16.to_le_bytes());
     rig.ok(0x607D, 2, &10_000i32.to_le_bytes());
     assert_eq!(rig.tlc().od().get_i32(Address::new(0x2052, 0)), Ok(10_000));

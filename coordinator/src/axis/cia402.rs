@@ -43,7 +43,7 @@
 
 use drivers::cia402::controlword::{Command, Controlword};
 use drivers::cia402::homing::HomingStatus;
-use drivers::cia402::modes::{Mode, PpEvent, PpMaster, PpMasterState, SetPointRequest};
+use drivers::cia402::modes::{OperationMode, PpEvent, PpMaster, PpMasterState, SetPointRequest};
 use drivers::cia402::state::{State, next_controlword};
 use drivers::cia402::statusword::Statusword;
 use drivers::cia402::{DeviceProfile, MTR_DCI, TLC5XX};
@@ -241,7 +241,7 @@ pub struct Cia402Axis {
     feedback: Feedback,
     cw: Controlword,
     target: i32,
-    mode: Mode,
+    mode: OperationMode,
     demand: Demand,
     step: Step,
     pp: PpMaster,
@@ -276,7 +276,7 @@ impl Cia402Axis {
             feedback: Feedback::default(),
             cw: Controlword(0),
             target: 0,
-            mode: Mode::ProfilePosition,
+            mode: OperationMode::ProfilePosition,
             demand: Demand::Disable,
             step: Step::Start,
             pp: PpMaster::new(profile.abs_rel),
@@ -502,7 +502,7 @@ impl Cia402Axis {
                 if self.csp {
                     self.csp_follow(position, velocity);
                 } else {
-                    self.mode = Mode::ProfilePosition;
+                    self.mode = OperationMode::ProfilePosition;
                     self.stream(fresh, position, velocity, Some(position));
                 }
             }
@@ -548,7 +548,7 @@ impl Cia402Axis {
 
     /// Homing: mode 6, bit 4 low then high once 6061h shows 6; done on bits 12 + 10.
     fn home(&mut self, fresh: bool) {
-        self.mode = Mode::Homing;
+        self.mode = OperationMode::Homing;
         if !self.power() {
             self.step = Step::Start;
             return;
@@ -603,7 +603,7 @@ impl Cia402Axis {
 
     /// Jog and velocity: PP set-points streamed from an integrated position.
     fn jog(&mut self, fresh: bool, velocity: i64) {
-        self.mode = Mode::ProfilePosition;
+        self.mode = OperationMode::ProfilePosition;
         let start = self.feedback.position;
         let moving = self.state() == Some(State::OperationEnabled);
         let mut nano = self.jog_nano.unwrap_or(i128::from(start) * 1_000_000_000);
@@ -672,7 +672,7 @@ impl Cia402Axis {
 
     /// Cyclic synchronous position: the setpoint every cycle, no handshake.
     fn csp_follow(&mut self, position: i64, velocity: i64) {
-        self.mode = Mode::CyclicSyncPosition;
+        self.mode = OperationMode::CyclicSyncPosition;
         self.target = clamp_i32(position);
         if !self.power() || !self.mode_active() {
             if self.state() == Some(State::OperationEnabled) {
@@ -728,7 +728,7 @@ impl Cia402Axis {
                 Demand::Home if !f.done && !f.failed => AxisState::Homing,
                 Demand::Jog { .. } | Demand::Velocity { .. } => AxisState::Moving,
                 _ if f.velocity != 0 => AxisState::Moving,
-                _ if i.mode == Mode::ProfilePosition.code() && !sw.target_reached() => {
+                _ if i.mode == OperationMode::ProfilePosition.code() && !sw.target_reached() => {
                     AxisState::Moving
                 }
                 _ => AxisState::Ready,

@@ -26,7 +26,7 @@ use crate::cycle::{
 };
 use crate::event::Event;
 use crate::fault::FaultReason;
-use crate::profile::GroupState;
+use crate::profile::MoveState;
 use crate::records::{ChainState, ChainStatus};
 use crate::runtime::boot::FailureDetail;
 use crate::runtime::capture::InlineCapture;
@@ -247,14 +247,14 @@ pub fn describe_in(r: FaultReason, unit: &str, scale: f64) -> String {
 }
 
 /// A group's move in words: "no move", "move running", "move holding", "move arrived", ...
-pub fn group_move_text(m: Option<GroupState>) -> &'static str {
+pub fn group_move_text(m: Option<MoveState>) -> &'static str {
     match m {
         None => "no move",
-        Some(GroupState::Moving) => "move running",
-        Some(GroupState::Holding) => "move holding",
-        Some(GroupState::QuickStopping) => "move quick-stopping",
-        Some(GroupState::Stopped) => "move stopped on its path",
-        Some(GroupState::Done) => "move arrived",
+        Some(MoveState::Moving) => "move running",
+        Some(MoveState::Holding) => "move holding",
+        Some(MoveState::QuickStopping) => "move quick-stopping",
+        Some(MoveState::Stopped) => "move stopped on its path",
+        Some(MoveState::Done) => "move arrived",
     }
 }
 

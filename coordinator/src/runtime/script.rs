@@ -11,7 +11,7 @@ use drivers::time::Instant;
 
 use crate::axis::AxisState;
 use crate::command::{Command, GroupId, Reply, Target};
-use crate::cycle::{Cycle, Mode};
+use crate::cycle::{AxisMode, Cycle};
 use crate::records::ChainState;
 
 /// Where the script is.
@@ -177,7 +177,7 @@ impl Script {
                 if ready || waited > PHASE_TIMEOUT {
                     if self.opts.home {
                         for a in 0..axes {
-                            if c.axis_status(a).is_some_and(|s| s.mode == Mode::On) {
+                            if c.axis_status(a).is_some_and(|s| s.mode == AxisMode::On) {
                                 self.send(Command::Home(Target::Axis(a)));
                             }
                         }
@@ -188,7 +188,7 @@ impl Script {
                 }
             }
             Phase::Homing => {
-                let done = online(c).all(|s| s.mode != Mode::Homing);
+                let done = online(c).all(|s| s.mode != AxisMode::Homing);
                 if done || waited > PHASE_TIMEOUT {
                     self.go(Phase::Running, now);
                     self.start_chains(c);

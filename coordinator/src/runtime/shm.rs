@@ -20,10 +20,10 @@ use shm_api::request::name_bytes;
 use crate::admission::{AxisActivity, GroupActivity};
 use crate::axis::AxisState;
 use crate::command::{BufferMode, Command, Rejected, Reply, Target};
-use crate::cycle::{Cycle, Mode};
+use crate::cycle::{AxisMode, Cycle};
 use crate::event::Event;
 use crate::fault::FaultReason;
-use crate::profile::GroupState as PathState;
+use crate::profile::MoveState as PathState;
 use crate::records::{ChainState, MAX_GROUP_AXES};
 use crate::runtime::plan::MachinePlan;
 
@@ -176,15 +176,15 @@ fn group_activity(a: GroupActivity) -> u8 {
     }
 }
 
-fn axis_mode(m: Mode) -> u8 {
+fn axis_mode(m: AxisMode) -> u8 {
     use wire::axis_mode as w;
     match m {
-        Mode::Off => w::OFF,
-        Mode::On => w::ON,
-        Mode::Homing => w::HOMING,
-        Mode::Jog { .. } => w::JOG,
-        Mode::QuickStopped => w::QUICK_STOPPED,
-        Mode::Acknowledging { .. } => w::ACKNOWLEDGING,
+        AxisMode::Off => w::OFF,
+        AxisMode::On => w::ON,
+        AxisMode::Homing => w::HOMING,
+        AxisMode::Jog { .. } => w::JOG,
+        AxisMode::QuickStopped => w::QUICK_STOPPED,
+        AxisMode::Acknowledging { .. } => w::ACKNOWLEDGING,
     }
 }
 

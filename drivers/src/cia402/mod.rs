@@ -24,7 +24,7 @@ pub mod statusword;
 
 use controlword::AbsRel;
 use homing::HomingMethod;
-use modes::Mode;
+use modes::OperationMode;
 use state::{FaultCoding, Flavour, QuickStopOption, State};
 use statusword::Statusword;
 
@@ -48,7 +48,7 @@ pub struct DeviceProfile {
     /// The value of statusword bit 9 "remote" while the field bus has control.
     pub remote_under_bus_control: bool,
     /// The modes of operation 6060h accepts.
-    pub modes: &'static [Mode],
+    pub modes: &'static [OperationMode],
     /// The homing methods 6098h accepts.
     pub homing_methods: &'static [HomingMethod],
 }
@@ -66,10 +66,10 @@ pub const TLC5XX: DeviceProfile = DeviceProfile {
     fault_coding: FaultCoding::Dsp402,
     remote_under_bus_control: false,
     modes: &[
-        Mode::ProfilePosition,
-        Mode::ProfileVelocity,
-        Mode::Homing,
-        Mode::TlcSigMode,
+        OperationMode::ProfilePosition,
+        OperationMode::ProfileVelocity,
+        OperationMode::Homing,
+        OperationMode::TlcSigMode,
     ],
     homing_methods: &[
         HomingMethod::NegativeLimitIndex,
@@ -97,10 +97,10 @@ pub const MTR_DCI: DeviceProfile = DeviceProfile {
     fault_coding: FaultCoding::Dsp402,
     remote_under_bus_control: true,
     modes: &[
-        Mode::ProfilePosition,
-        Mode::ProfileTorque,
-        Mode::Homing,
-        Mode::FestoDemo,
+        OperationMode::ProfilePosition,
+        OperationMode::ProfileTorque,
+        OperationMode::Homing,
+        OperationMode::FestoDemo,
     ],
     homing_methods: &[
         HomingMethod::HomeSwitchPositive,
@@ -129,7 +129,7 @@ impl DeviceProfile {
     }
 
     /// Whether 6060h accepts `mode` on this device.
-    pub fn supports_mode(&self, mode: Mode) -> bool {
+    pub fn supports_mode(&self, mode: OperationMode) -> bool {
         self.modes.contains(&mode)
     }
 

@@ -31,7 +31,7 @@ use heapless::Vec;
 
 /// A mode of operation as 6060h / 6061h code it (INTEGER8).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Mode {
+pub enum OperationMode {
     /// 1: profile position (both devices).
     ProfilePosition,
     /// 2: velocity (frequency-converter style; neither reference device).
@@ -75,53 +75,53 @@ impl ModeError {
     }
 }
 
-impl Mode {
+impl OperationMode {
     /// The 6060h / 6061h code.
     pub const fn code(self) -> i8 {
         match self {
-            Mode::ProfilePosition => 1,
-            Mode::Velocity => 2,
-            Mode::ProfileVelocity => 3,
-            Mode::ProfileTorque => 4,
-            Mode::Homing => 6,
-            Mode::InterpolatedPosition => 7,
-            Mode::CyclicSyncPosition => 8,
-            Mode::CyclicSyncVelocity => 9,
-            Mode::CyclicSyncTorque => 10,
-            Mode::TlcSigMode => -1,
-            Mode::FestoDemo => -2,
+            OperationMode::ProfilePosition => 1,
+            OperationMode::Velocity => 2,
+            OperationMode::ProfileVelocity => 3,
+            OperationMode::ProfileTorque => 4,
+            OperationMode::Homing => 6,
+            OperationMode::InterpolatedPosition => 7,
+            OperationMode::CyclicSyncPosition => 8,
+            OperationMode::CyclicSyncVelocity => 9,
+            OperationMode::CyclicSyncTorque => 10,
+            OperationMode::TlcSigMode => -1,
+            OperationMode::FestoDemo => -2,
         }
     }
     /// The mode of a 6060h / 6061h code.
-    pub const fn from_code(code: i8) -> Result<Mode, ModeError> {
+    pub const fn from_code(code: i8) -> Result<OperationMode, ModeError> {
         Ok(match code {
-            1 => Mode::ProfilePosition,
-            2 => Mode::Velocity,
-            3 => Mode::ProfileVelocity,
-            4 => Mode::ProfileTorque,
-            6 => Mode::Homing,
-            7 => Mode::InterpolatedPosition,
-            8 => Mode::CyclicSyncPosition,
-            9 => Mode::CyclicSyncVelocity,
-            10 => Mode::CyclicSyncTorque,
-            -1 => Mode::TlcSigMode,
-            -2 => Mode::FestoDemo,
+            1 => OperationMode::ProfilePosition,
+            2 => OperationMode::Velocity,
+            3 => OperationMode::ProfileVelocity,
+            4 => OperationMode::ProfileTorque,
+            6 => OperationMode::Homing,
+            7 => OperationMode::InterpolatedPosition,
+            8 => OperationMode::CyclicSyncPosition,
+            9 => OperationMode::CyclicSyncVelocity,
+            10 => OperationMode::CyclicSyncTorque,
+            -1 => OperationMode::TlcSigMode,
+            -2 => OperationMode::FestoDemo,
             other => return Err(ModeError::Unknown(other)),
         })
     }
     /// The mode's bit in 6502h "supported drive modes" (`None` for manufacturer modes).
     pub const fn supported_modes_bit(self) -> Option<u32> {
         let bit = match self {
-            Mode::ProfilePosition => 0,
-            Mode::Velocity => 1,
-            Mode::ProfileVelocity => 2,
-            Mode::ProfileTorque => 3,
-            Mode::Homing => 5,
-            Mode::InterpolatedPosition => 6,
-            Mode::CyclicSyncPosition => 7,
-            Mode::CyclicSyncVelocity => 8,
-            Mode::CyclicSyncTorque => 9,
-            Mode::TlcSigMode | Mode::FestoDemo => return None,
+            OperationMode::ProfilePosition => 0,
+            OperationMode::Velocity => 1,
+            OperationMode::ProfileVelocity => 2,
+            OperationMode::ProfileTorque => 3,
+            OperationMode::Homing => 5,
+            OperationMode::InterpolatedPosition => 6,
+            OperationMode::CyclicSyncPosition => 7,
+            OperationMode::CyclicSyncVelocity => 8,
+            OperationMode::CyclicSyncTorque => 9,
+            OperationMode::TlcSigMode | OperationMode::FestoDemo => return None,
         };
         Some(1 << bit)
     }
@@ -141,13 +141,13 @@ impl DeviceProfile {
 /// stop", TLC5xx p.9-112); 6061h shows the active mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ModeSelector {
-    active: Mode,
-    requested: Option<Mode>,
+    active: OperationMode,
+    requested: Option<OperationMode>,
 }
 
 impl ModeSelector {
     /// Power-on: `initial` active (both devices: profile position).
-    pub const fn new(initial: Mode) -> Self {
+    pub const fn new(initial: OperationMode) -> Self {
         ModeSelector {
             active: initial,
             requested: None,
@@ -155,7 +155,7 @@ impl ModeSelector {
     }
     /// A 6060h write of `code`: accepted (it takes effect at the next standstill) or refused.
     pub fn request(&mut self, code: i8, profile: &DeviceProfile) -> Result<(), ModeError> {
-        let mode = Mode::from_code(code)?;
+        let mode = OperationMode::from_code(code)?;
         if !profile.supports_mode(mode) {
             return Err(ModeError::Unsupported(code));
         }
@@ -163,7 +163,7 @@ impl ModeSelector {
         Ok(())
     }
     /// Applies a pending request if the axis is at a standstill; returns the newly active mode.
-    pub fn update(&mut self, standstill: bool) -> Option<Mode> {
+    pub fn update(&mut self, standstill: bool) -> Option<OperationMode> {
         match self.requested {
             Some(m) if standstill => {
                 self.requested = None;
@@ -175,11 +175,11 @@ impl ModeSelector {
         }
     }
     /// The active mode (6061h).
-    pub const fn active(&self) -> Mode {
+    pub const fn active(&self) -> OperationMode {
         self.active
     }
     /// The mode written but not yet active.
-    pub const fn pending(&self) -> Option<Mode> {
+    pub const fn pending(&self) -> Option<OperationMode> {
         self.requested
     }
 }
@@ -709,17 +709,17 @@ mod tests {
 
     #[test]
     fn mode_selector_waits_for_standstill_and_checks_the_device() {
-        let mut sel = ModeSelector::new(Mode::ProfilePosition);
+        let mut sel = ModeSelector::new(OperationMode::ProfilePosition);
         assert_eq!(sel.request(3, &TLC5XX), Ok(()));
         assert_eq!(sel.update(false), None);
-        assert_eq!(sel.active(), Mode::ProfilePosition);
-        assert_eq!(sel.update(true), Some(Mode::ProfileVelocity));
+        assert_eq!(sel.active(), OperationMode::ProfilePosition);
+        assert_eq!(sel.update(true), Some(OperationMode::ProfileVelocity));
         assert_eq!(sel.request(3, &MTR_DCI), Err(ModeError::Unsupported(3)));
         assert_eq!(sel.request(5, &TLC5XX), Err(ModeError::Unknown(5)));
         assert_eq!(sel.request(-1, &TLC5XX), Ok(()));
         assert_eq!(MTR_DCI.supported_drive_modes(), 0x29);
         for code in i8::MIN..=i8::MAX {
-            if let Ok(m) = Mode::from_code(code) {
+            if let Ok(m) = OperationMode::from_code(code) {
                 assert_eq!(m.code(), code);
             }
         }

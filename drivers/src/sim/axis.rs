@@ -241,7 +241,7 @@ pub struct ForceCommand {
 
 /// What the axis is doing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Mode {
+pub enum AxisMotion {
     /// Power stage off.
     Disabled,
     /// Enabled, holding the setpoint.
@@ -317,7 +317,7 @@ pub struct Status {
     /// Virtual time at the end of the step.
     pub time: Instant,
     /// What the axis is doing.
-    pub mode: Mode,
+    pub mode: AxisMotion,
     /// Actual position, inc.
     pub position: i64,
     /// Actual velocity, inc/s.
@@ -434,7 +434,7 @@ pub struct Axis {
     /// Reported = raw + origin (increments).
     origin: i64,
     enabled: bool,
-    mode: Mode,
+    mode: AxisMotion,
     hold_dec: i64,
     force: Option<ActiveForce>,
     current_override: Option<u32>,
@@ -478,7 +478,7 @@ impl Axis {
             a: 0,
             origin: 0,
             enabled: false,
-            mode: Mode::Disabled,
+            mode: AxisMotion::Disabled,
             hold_dec: scale.acceleration(cfg.max_deceleration),
             force: None,
             current_override: None,
@@ -494,7 +494,7 @@ impl Axis {
             still: WindowTimer::new(),
             status: Status {
                 time: Instant::ZERO,
-                mode: Mode::Disabled,
+                mode: AxisMotion::Disabled,
                 position: raw_position,
                 velocity: 0,
                 acceleration: 0,
@@ -571,7 +571,7 @@ impl Axis {
         if !self.enabled {
             self.enabled = true;
             self.generator = Generator::new(self.x);
-            self.mode = Mode::Idle;
+            self.mode = AxisMotion::Idle;
         }
         Ok(())
     }
@@ -581,12 +581,12 @@ impl Axis {
     pub fn disable(&mut self) {
         self.enabled = false;
         self.force = None;
-        self.mode = Mode::Disabled;
+        self.mode = AxisMotion::Disabled;
     }
 
     /// A command changed the motion: the status says so before the next step, so that a
     /// loop waiting for `generator_done` does not see the previous motion's.
-    fn commanded(&mut self, mode: Mode) {
+    fn commanded(&mut self, mode: AxisMotion) {
         self.mode = mode;
         self.status.mode = mode;
         self.status.generator_done = self.generator.done();
@@ -636,7 +636,7 @@ impl Axis {
         };
         self.hold_dec = dec;
         self.force = None;
-        self.commanded(Mode::Position);
+        self.commanded(AxisMotion::Position);
         Ok(())
     }
 
@@ -678,7 +678,7 @@ impl Axis {
         };
         self.hold_dec = dec;
         self.force = None;
-        self.commanded(Mode::Velocity);
+        self.commanded(AxisMotion::Velocity);
         Ok(())
     }
 
@@ -715,22 +715,22 @@ impl Axis {
             start: self.x >> FRAC_BITS,
             speed,
         });
-        self.commanded(Mode::Force);
+        self.commanded(AxisMotion::Force);
         Ok(())
     }
 
     /// Decelerates to standstill with the deceleration of the running command.
     pub fn hold(&mut self) {
-        self.stop_with(self.hold_dec, Mode::Hold);
+        self.stop_with(self.hold_dec, AxisMotion::Hold);
     }
 
     /// Decelerates to standstill with the quick-stop deceleration.
     pub fn quick_stop(&mut self) {
         let dec = self.scale.acceleration(self.cfg.quick_stop_deceleration);
-        self.stop_with(dec, Mode::QuickStop);
+        self.stop_with(dec, AxisMotion::QuickStop);
     }
 
-    fn stop_with(&mut self, dec: i64, mode: Mode) {
+    fn stop_with(&mut self, dec: i64, mode: AxisMotion) {
         self.force = None;
         if !self.enabled {
             return;
@@ -749,7 +749,7 @@ impl Axis {
         self.generator = Generator::new(self.x);
         self.force = None;
         if self.enabled {
-            self.mode = Mode::Idle;
+            self.mode = AxisMotion::Idle;
         }
     }
 
@@ -764,7 +764,7 @@ impl Axis {
             steps: steps as u32,
         };
         self.force = None;
-        self.commanded(Mode::Stream);
+        self.commanded(AxisMotion::Stream);
         Ok(())
     }
 
@@ -1041,7 +1041,7 @@ impl Axis {
             if towards_neg {
                 self.faults = self.faults.with(Faults::LIMIT_NEGATIVE, true);
             }
-            if (towards_pos || towards_neg) && self.mode != Mode::QuickStop {
+            if (towards_pos || towards_neg) && self.mode != AxisMotion::QuickStop {
                 self.quick_stop();
             }
         }
@@ -1195,7 +1195,14 @@ mod tests {
                 (dist - expect).abs() <= one_step,
                 "{quick}: {dist} vs {expect}"
             );
-            assert_eq!(s.mode, if quick { Mode::QuickStop } else { Mode::Hold });
+            assert_eq!(
+                s.mode,
+                if quick {
+                    AxisMotion::QuickStop
+                } else {
+                    AxisMotion::Hold
+                }
+            );
         }
     }
 
@@ -1264,7 +1271,7 @@ mod tests {
         })
         .unwrap();
         let s = run(&mut a, 40_000, |s| s.faults.contains(Faults::STROKE_LIMIT));
-        assert_eq!(s.mode, Mode::QuickStop);
+        assert_eq!(s.mode, AxisMotion::QuickStop);
         let s = run(&mut a, 40_000, settled);
         // Quick stop from 10000 inc/s at 960000 inc/s² is ~52 inc plus the lag.
         assert!((3_000..3_200).contains(&s.position), "{}", s.position);
@@ -1299,7 +1306,7 @@ mod tests {
         a.disable();
         let from = a.status().position;
         let s = run(&mut a, 10_000, |s| s.standstill);
-        assert_eq!(s.mode, Mode::Disabled);
+        assert_eq!(s.mode, AxisMotion::Disabled);
         assert_eq!(s.current_ma, 0);
         // Coasting at 200000 inc/s² from 20000 inc/s: ~1000 inc.
         assert!(
@@ -1468,7 +1475,7 @@ mod tests {
         let s = run(&mut a, 20_000, |s| {
             s.faults.contains(Faults::LIMIT_POSITIVE)
         });
-        assert_eq!(s.mode, Mode::QuickStop);
+        assert_eq!(s.mode, AxisMotion::QuickStop);
         let s = run(&mut a, 20_000, settled);
         // Seen at 5000 when the setpoint leads by the lag (200), then 833 inc of quick stop.
         assert!((6_000..6_100).contains(&s.position), "{}", s.position);

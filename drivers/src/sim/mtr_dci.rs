@@ -46,7 +46,7 @@ use crate::catalog::{
     MTR_DCI_402_RPDO1 as CIA_RPDO1, MTR_DCI_402_TPDO1 as CIA_TPDO1,
 };
 use crate::cia402::controlword::Controlword;
-use crate::cia402::modes::{Mode, ModeSelector, PpAction, PpDevice, PpObjects};
+use crate::cia402::modes::{ModeSelector, OperationMode, PpAction, PpDevice, PpObjects};
 use crate::cia402::state::{DeviceStateMachine, State};
 use crate::cia402::statusword::Statusword;
 use crate::cia402::{MTR_DCI as MTR_DCI_402, homing::HomingMethod};
@@ -398,7 +398,7 @@ impl DeviceHooks for FestoApp {
             }
             0x6060 => {
                 let code = data.first().map_or(0, |b| *b as i8);
-                let m = Mode::from_code(code).map_err(|e| e.abort_code())?;
+                let m = OperationMode::from_code(code).map_err(|e| e.abort_code())?;
                 if MTR_DCI_402.supports_mode(m) {
                     Ok(())
                 } else {
@@ -679,7 +679,8 @@ impl FestoNode {
     /// RPDO1 applied (`from_pdo`) or a CiA 402 object written by SDO.
     fn rpdo1(&mut self, now: Instant, from_pdo: bool) {
         let cia = self.dev.hooks().cia.is_some();
-        if cia && from_pdo && self.dev.od().get_i8(MODE) == Ok(Mode::ProfileTorque.code()) {
+        if cia && from_pdo && self.dev.od().get_i8(MODE) == Ok(OperationMode::ProfileTorque.code())
+        {
             // In PT mode bytes 5..8 of RPDO1 are 6071h target torque (§7.4).
             let raw = self.dev.od().get_i32(TARGET_POSITION).unwrap_or(0);
             let t = raw.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16;
@@ -862,7 +863,7 @@ impl Cia402Face {
         sm.set_self_test_done(true);
         Cia402Face {
             sm,
-            modes: ModeSelector::new(Mode::ProfilePosition),
+            modes: ModeSelector::new(OperationMode::ProfilePosition),
             pp: PpDevice::new(&MTR_DCI_402, position),
             record: 0,
             job: None,
@@ -902,7 +903,7 @@ impl Cia402Face {
         let rising = i.cw.has(Controlword::NEW_SET_POINT) && !prev.has(Controlword::NEW_SET_POINT);
         if enabled {
             match self.modes.active() {
-                Mode::ProfilePosition => {
+                OperationMode::ProfilePosition => {
                     let mut o = i.objects;
                     if i.record != 0 {
                         o.target = 0;
@@ -911,12 +912,12 @@ impl Cia402Face {
                         self.start_move(m.target, m.velocity, drive);
                     }
                 }
-                Mode::Homing if rising && !busy => {
+                OperationMode::Homing if rising && !busy => {
                     let _ = drive.write_pnu(1011, 0, i64::from(i.homing));
                     self.homing_failed = false;
                     self.job = Some((Job::Homing, Phase::Pending));
                 }
-                Mode::ProfileTorque if rising => {
+                OperationMode::ProfileTorque if rising => {
                     let job = Job::Force {
                         percent: i32::from(i.torque) / 10,
                         stroke: i.cw.has(Controlword::CHANGE_SET_IMMEDIATELY),
@@ -1062,14 +1063,14 @@ impl Cia402Face {
             | set(spos & SPOS_TEACH != 0, Statusword::MTR_TEACH_ACK)
             | set(spos & SPOS_REF != 0, Statusword::MTR_HOMING_PERFORMED);
         match self.modes.active() {
-            Mode::Homing => {
+            OperationMode::Homing => {
                 let homing = matches!(self.job, Some((Job::Homing, p)) if p != Phase::Done);
                 dynamic |= set(
                     !homing && spos & SPOS_REF != 0,
                     Statusword::HOMING_ATTAINED | Statusword::TARGET_REACHED,
                 ) | set(self.homing_failed, Statusword::HOMING_ERROR);
             }
-            Mode::ProfileTorque => {
+            OperationMode::ProfileTorque => {
                 let running = matches!(self.job, Some((Job::Force { .. }, _)));
                 dynamic |= set(running, Statusword::BIT12)
                     | set(

@@ -1545,7 +1545,7 @@ impl FhppDrive {
             self.command_job(p.job);
         } else if matches!(
             self.axis.status().mode,
-            axis::Mode::Position | axis::Mode::Velocity
+            axis::AxisMotion::Position | axis::AxisMotion::Velocity
         ) {
             // Waiting for the start delay: the previous motion is stopped first.
             self.axis.hold();

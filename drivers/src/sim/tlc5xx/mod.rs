@@ -49,7 +49,9 @@ use crate::canopen::{AbortCode, Address, NodeId};
 use crate::cia402::controlword::{AbsRel, Controlword};
 use crate::cia402::homing::{HomingCommand, HomingDevice, HomingMethod as Method};
 use crate::cia402::modes::PvSettings;
-use crate::cia402::modes::{Mode, ModeSelector, Move, PpAction, PpDevice, PpObjects, PvMonitor};
+use crate::cia402::modes::{
+    ModeSelector, Move, OperationMode, PpAction, PpDevice, PpObjects, PvMonitor,
+};
 use crate::cia402::objects::tlc::SigState;
 use crate::cia402::state::{DeviceStateMachine, FaultCoding, State};
 use crate::cia402::statusword::Statusword;
@@ -261,7 +263,7 @@ pub struct TlcHooks {
     life_factor: u8,
     heartbeat_ms: u16,
     drive: State,
-    mode: Mode,
+    mode: OperationMode,
     fault_number: Option<u16>,
     abort_move: bool,
 }
@@ -275,7 +277,7 @@ impl TlcHooks {
             life_factor: 0,
             heartbeat_ms: 0,
             drive: State::SwitchOnDisabled,
-            mode: Mode::ProfilePosition,
+            mode: OperationMode::ProfilePosition,
             fault_number: None,
             abort_move: false,
         }
@@ -301,7 +303,7 @@ impl DeviceHooks for TlcHooks {
                 self.max_profile_velocity = v as u32;
                 Ok(())
             }
-            (0x6060, 0) => match Mode::from_code(v as u8 as i8) {
+            (0x6060, 0) => match OperationMode::from_code(v as u8 as i8) {
                 Ok(m) if self.profile.supports_mode(m) => Ok(()),
                 _ => Err(AbortCode::InvalidValue),
             },
@@ -340,7 +342,9 @@ impl DeviceHooks for TlcHooks {
             (0x2090 | 0x2092 | 0x2093, 0) => {
                 if let Some(n) = self.fault_number {
                     Err(AbortCode::Other(0x0800_0000 | n as u32))
-                } else if self.drive != State::OperationEnabled || self.mode != Mode::TlcSigMode {
+                } else if self.drive != State::OperationEnabled
+                    || self.mode != OperationMode::TlcSigMode
+                {
                     Err(AbortCode::DeviceState)
                 } else {
                     Ok(())
@@ -450,7 +454,7 @@ impl Tlc5xx {
             dev,
             axis,
             fsa,
-            modes: ModeSelector::new(Mode::ProfilePosition),
+            modes: ModeSelector::new(OperationMode::ProfilePosition),
             pp: PpDevice::new(&profile, 0),
             homing_dev: HomingDevice::new(),
             homing: None,
@@ -509,7 +513,7 @@ impl Tlc5xx {
         self.fsa.state()
     }
     /// The active mode of operation (6061h).
-    pub fn mode(&self) -> Mode {
+    pub fn mode(&self) -> OperationMode {
         self.modes.active()
     }
     /// The statusword 6041h as sent.
@@ -744,13 +748,13 @@ impl Tlc5xx {
     /// Restarts the mode's command after halt or quick stop.
     fn resume(&mut self) {
         match self.modes.active() {
-            Mode::ProfilePosition => {
+            OperationMode::ProfilePosition => {
                 if let Some(m) = self.pp.active() {
                     self.run_move(m);
                 }
             }
-            Mode::ProfileVelocity => self.pv_start(),
-            Mode::TlcSigMode => {
+            OperationMode::ProfileVelocity => self.pv_start(),
+            OperationMode::TlcSigMode => {
                 if let Some(t) = self.ptp {
                     let (v, acc, dec) = self.ptp_profile(false);
                     self.ptp_move(t, v, acc, dec);
@@ -767,7 +771,7 @@ impl Tlc5xx {
             return;
         }
         match self.modes.active() {
-            Mode::ProfilePosition => {
+            OperationMode::ProfilePosition => {
                 let objects = PpObjects {
                     target: self.od_i32(0x607A, 0),
                     velocity: self.od_u32(0x6081, 0),
@@ -780,7 +784,7 @@ impl Tlc5xx {
                     self.pp_start(m);
                 }
             }
-            Mode::Homing => match self.homing_dev.handle_controlword(cw) {
+            OperationMode::Homing => match self.homing_dev.handle_controlword(cw) {
                 Some(HomingCommand::Start) => self.start_homing(),
                 Some(HomingCommand::Interrupt) => {
                     self.homing = None;
@@ -788,7 +792,7 @@ impl Tlc5xx {
                 }
                 None => {}
             },
-            Mode::ProfileVelocity | Mode::TlcSigMode => self.halt(cw.halt()),
+            OperationMode::ProfileVelocity | OperationMode::TlcSigMode => self.halt(cw.halt()),
             _ => {}
         }
     }
@@ -837,7 +841,7 @@ impl Tlc5xx {
     }
 
     fn pv_start(&mut self) {
-        if self.modes.active() != Mode::ProfileVelocity
+        if self.modes.active() != OperationMode::ProfileVelocity
             || self.fsa.state() != State::OperationEnabled
             || self.halted
         {
@@ -956,7 +960,7 @@ impl Tlc5xx {
     /// p_absPTP / p_relPTP written (R_PDO4 or SDO): a SIG PTP move (§4.1).
     fn sig_ptp(&mut self, relative: bool, fast: bool) {
         let active = self.fsa.state() == State::OperationEnabled
-            && self.modes.active() == Mode::TlcSigMode
+            && self.modes.active() == OperationMode::TlcSigMode
             && !self.faults.iter().any(|&f| self.class(f) >= 2);
         if !active {
             // A PDO start outside SIG mode is not executed (the SDO path was refused already).
@@ -1069,13 +1073,13 @@ impl Tlc5xx {
     /// A position/speed list entry: the running move continues at `v` usr.
     fn list_speed(&mut self, v: i64) {
         match self.modes.active() {
-            Mode::ProfilePosition => {
+            OperationMode::ProfilePosition => {
                 if let Some(mut m) = self.pp.active() {
                     m.velocity = v.clamp(1, u32::MAX as i64) as u32;
                     self.run_move(m);
                 }
             }
-            Mode::ProfileVelocity => {
+            OperationMode::ProfileVelocity => {
                 let _ = self.dev.od_mut().set_i32(
                     a(0x60FF, 0),
                     v.clamp(i32::MIN as i64, i32::MAX as i64) as i32,
@@ -1152,7 +1156,7 @@ impl Tlc5xx {
         self.axis.disable();
         self.fsa = DeviceStateMachine::new(self.profile);
         self.fsa.set_self_test_done(true);
-        self.modes = ModeSelector::new(Mode::ProfilePosition);
+        self.modes = ModeSelector::new(OperationMode::ProfilePosition);
         self.homing_dev = HomingDevice::new();
         self.drop_commands();
         self.faults.clear();
@@ -1202,7 +1206,7 @@ impl Tlc5xx {
             }
         }
         if core::mem::take(&mut self.dev.hooks_mut().abort_move)
-            && self.modes.active() == Mode::ProfilePosition
+            && self.modes.active() == OperationMode::ProfilePosition
             && self.pp.active().is_some()
         {
             let p = self.actual_usr();
@@ -1291,7 +1295,7 @@ impl Tlc5xx {
                 self.state_ptp = X_END | X_ADD_INFO;
             }
         }
-        if self.modes.active() == Mode::ProfileVelocity {
+        if self.modes.active() == OperationMode::ProfileVelocity {
             let target = if self.fsa.state() == State::OperationEnabled && !self.halted {
                 self.scaling().vel_to_inc(self.od_i32(0x60FF, 0) as i64)
             } else {
@@ -1315,12 +1319,12 @@ impl Tlc5xx {
         let class1 = self.faults.iter().any(|&f| self.class(f) == 1);
         let fe = self.faults.contains(&TlcFault::FollowingError);
         let mode_bits = match self.modes.active() {
-            Mode::ProfilePosition => {
+            OperationMode::ProfilePosition => {
                 self.pp.status_bits().0 | if fe { Statusword::FOLLOWING_ERROR } else { 0 }
             }
-            Mode::ProfileVelocity => self.pv_bits,
-            Mode::Homing => self.homing_dev.status().bits().0,
-            Mode::TlcSigMode if self.state_ptp & X_END != 0 => Statusword::TARGET_REACHED,
+            OperationMode::ProfileVelocity => self.pv_bits,
+            OperationMode::Homing => self.homing_dev.status().bits().0,
+            OperationMode::TlcSigMode if self.state_ptp & X_END != 0 => Statusword::TARGET_REACHED,
             _ => 0,
         };
         let dynamic = mode_bits
@@ -1338,8 +1342,8 @@ impl Tlc5xx {
         let internal = self.faults.iter().any(|f| f.internal());
         let external = self.faults.iter().any(|f| !f.internal());
         let sig = match self.modes.active() {
-            Mode::TlcSigMode => self.state_ptp,
-            Mode::Homing => self.state_home,
+            OperationMode::TlcSigMode => self.state_ptp,
+            OperationMode::Homing => self.state_home,
             _ => 0,
         };
         let drive_stat = state.drive_stat_code()
