@@ -769,6 +769,19 @@ fn top_says_stale_and_gone_at_80_columns() {
     assert_eq!(buf[(0, 0)].fg, Color::Red);
 }
 
+/// At 80 columns the axes table keeps each axis's position with its unit and its fault in
+/// full (setpoint and velocity give way).
+#[test]
+fn top_axes_fit_80_columns_with_the_fault_readable() {
+    let buf = draw_at(80, &App::new("motion"), Some(&machine(5)), Link::Live);
+    let y = row_of(&buf, "following error 120 inc").expect("axis y's fault in full");
+    assert_eq!(buf[(2, y)].fg, Color::Red);
+    assert!(
+        row_of(&buf, "12.500 mm").is_some(),
+        "x's position with its unit"
+    );
+}
+
 #[test]
 fn top_link_is_gone_before_stale_before_live() {
     use shm_api::cli::top::STALE_AFTER;

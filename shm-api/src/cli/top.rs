@@ -194,40 +194,72 @@ impl App {
             status,
         );
 
-        let header = Row::new([
-            "axis", "state", "activity", "position", "setpoint", "velocity", "unit", "homed",
-            "fault",
-        ])
+        // Narrower than 100 columns (an 80-column terminal), setpoint and velocity give way and
+        // the unit goes with the position, so that the fault stays readable.
+        let wide = axes_area.width >= 100;
+        let header = if wide {
+            Row::new(vec![
+                "axis", "state", "activity", "position", "setpoint", "velocity", "unit", "homed",
+                "fault",
+            ])
+        } else {
+            Row::new(vec![
+                "axis", "state", "activity", "position", "homed", "fault",
+            ])
+        }
         .style(Style::new().add_modifier(Modifier::BOLD));
         let rows = axes(state).iter().map(|a| {
-            let row = Row::new([
-                name_str(&a.name).to_string(),
-                format::state_name(a.state).to_string(),
-                format::activity_name(a.activity).to_string(),
-                format::micro(a.position, 3),
-                format::micro(a.setpoint, 3),
-                format::micro(a.velocity, 3),
-                name_str(&a.unit).to_string(),
-                format::homed(a).to_string(),
-                format::fault_text(a),
-            ]);
+            let unit = name_str(&a.unit).to_string();
+            let row = if wide {
+                Row::new(vec![
+                    name_str(&a.name).to_string(),
+                    format::state_name(a.state).to_string(),
+                    format::activity_name(a.activity).to_string(),
+                    format::micro(a.position, 3),
+                    format::micro(a.setpoint, 3),
+                    format::micro(a.velocity, 3),
+                    unit,
+                    format::homed(a).to_string(),
+                    format::fault_text(a),
+                ])
+            } else {
+                Row::new(vec![
+                    name_str(&a.name).to_string(),
+                    format::state_name(a.state).to_string(),
+                    format::activity_name(a.activity).to_string(),
+                    format!("{} {unit}", format::micro(a.position, 3)),
+                    format::homed(a).to_string(),
+                    format::fault_text(a),
+                ])
+            };
             if format::is_faulted(a) {
                 row.style(Style::new().fg(Color::Red))
             } else {
                 row
             }
         });
-        let widths = [
-            Constraint::Length(12),
-            Constraint::Length(9),
-            Constraint::Length(13),
-            Constraint::Length(12),
-            Constraint::Length(12),
-            Constraint::Length(12),
-            Constraint::Length(6),
-            Constraint::Length(5),
-            Constraint::Min(10),
-        ];
+        let widths: Vec<Constraint> = if wide {
+            vec![
+                Constraint::Length(12),
+                Constraint::Length(9),
+                Constraint::Length(13),
+                Constraint::Length(12),
+                Constraint::Length(12),
+                Constraint::Length(12),
+                Constraint::Length(6),
+                Constraint::Length(5),
+                Constraint::Min(10),
+            ]
+        } else {
+            vec![
+                Constraint::Length(10),
+                Constraint::Length(8),
+                Constraint::Length(13),
+                Constraint::Length(14),
+                Constraint::Length(5),
+                Constraint::Min(10),
+            ]
+        };
         let highlight = Style::new().add_modifier(Modifier::REVERSED);
         let mut axis_sel = TableState::default().with_selected(match self.selection {
             Selection::Axis(a) => Some(usize::from(a)),
@@ -242,34 +274,67 @@ impl App {
             &mut axis_sel,
         );
 
-        let header = Row::new([
-            "group", "axes", "chain", "record", "active", "RC1", "RCC", "activity", "override",
-        ])
+        // At 80 columns the running record, RC1 and RCC give way.
+        let wide = groups_area.width >= 100;
+        let header = if wide {
+            Row::new(vec![
+                "group", "axes", "chain", "record", "active", "RC1", "RCC", "activity", "override",
+            ])
+        } else {
+            Row::new(vec![
+                "group", "axes", "chain", "record", "activity", "override",
+            ])
+        }
         .style(Style::new().add_modifier(Modifier::BOLD));
         let rows = groups(state).iter().map(|g| {
-            Row::new([
-                name_str(&g.name).to_string(),
-                format::members(state, g),
-                format::chain_name(g.chain_state).to_string(),
-                record(g.record),
-                record(g.active_record),
-                flag(g.rc1),
-                flag(g.rcc),
-                format::group_activity_name(g.activity).to_string(),
-                format!("{} %", g.override_percent),
-            ])
+            let name = name_str(&g.name).to_string();
+            let activity = format::group_activity_name(g.activity).to_string();
+            let percent = format!("{} %", g.override_percent);
+            if wide {
+                Row::new(vec![
+                    name,
+                    format::members(state, g),
+                    format::chain_name(g.chain_state).to_string(),
+                    record(g.record),
+                    record(g.active_record),
+                    flag(g.rc1),
+                    flag(g.rcc),
+                    activity,
+                    percent,
+                ])
+            } else {
+                Row::new(vec![
+                    name,
+                    format::members(state, g),
+                    format::chain_name(g.chain_state).to_string(),
+                    record(g.record),
+                    activity,
+                    percent,
+                ])
+            }
         });
-        let widths = [
-            Constraint::Length(12),
-            Constraint::Length(16),
-            Constraint::Length(9),
-            Constraint::Length(7),
-            Constraint::Length(7),
-            Constraint::Length(4),
-            Constraint::Length(4),
-            Constraint::Length(15),
-            Constraint::Min(8),
-        ];
+        let widths: Vec<Constraint> = if wide {
+            vec![
+                Constraint::Length(12),
+                Constraint::Length(16),
+                Constraint::Length(9),
+                Constraint::Length(7),
+                Constraint::Length(7),
+                Constraint::Length(4),
+                Constraint::Length(4),
+                Constraint::Length(15),
+                Constraint::Min(8),
+            ]
+        } else {
+            vec![
+                Constraint::Length(10),
+                Constraint::Length(14),
+                Constraint::Length(9),
+                Constraint::Length(7),
+                Constraint::Length(13),
+                Constraint::Min(8),
+            ]
+        };
         let mut group_sel = TableState::default().with_selected(match self.selection {
             Selection::Group(g) => Some(usize::from(g)),
             _ => None,
