@@ -4,34 +4,18 @@
 //! home and jog taking an axis out of a group move, an override a single-axis move ignored, a
 //! jog past its limits, a move on a moving axis refused.
 
+mod common;
+
 use std::time::Duration;
 
 use coordinator::admission::{AxisActivity, GroupActivity, Refusal};
 use coordinator::command::{BufferMode, Command, Rejected, Reply, Target};
-use coordinator::config::{Config, EXAMPLE};
 use coordinator::records::MAX_GROUP_AXES;
-use coordinator::runtime::plan::{MachinePlan, plan};
-use coordinator::runtime::run::{RunOptions, VirtualRun};
-use coordinator::runtime::script::{Phase, ScriptOptions};
+use coordinator::runtime::plan::MachinePlan;
+use coordinator::runtime::run::VirtualRun;
+use coordinator::runtime::script::Phase;
 
-fn example() -> MachinePlan {
-    plan(&Config::parse(EXAMPLE).expect("example parses")).expect("example plans")
-}
-
-fn options(chains: bool) -> RunOptions {
-    RunOptions {
-        duration: None,
-        virtual_time: true,
-        status_every: None,
-        script: ScriptOptions {
-            demo: true,
-            chains,
-            home: true,
-        },
-        shm: None,
-        capture: None,
-    }
-}
+use common::{demo as options, example};
 
 /// Steps until `done` holds (at most `limit` of machine time); false if it never did.
 fn run_until(

@@ -2,6 +2,8 @@
 //! the virtual CAN bus, CMMO-ST over Modbus), booted over SDO, enabled, homed; group moves,
 //! chains, every fault reaction, determinism.
 
+mod common;
+
 use std::time::Duration;
 
 use coordinator::axis::AxisState;
@@ -12,28 +14,11 @@ use coordinator::fault::FaultReason;
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::{MachinePlan, plan};
 use coordinator::runtime::run::{RunOptions, VirtualRun, run_virtual};
-use coordinator::runtime::script::{Phase, ScriptOptions};
+use coordinator::runtime::script::Phase;
 use drivers::can::Bus;
 use drivers::can::fault::{FaultRule, IdMatch};
 
-fn example() -> MachinePlan {
-    plan(&Config::parse(EXAMPLE).expect("example parses")).expect("example plans")
-}
-
-fn quiet(chains: bool) -> RunOptions {
-    RunOptions {
-        duration: None,
-        virtual_time: true,
-        status_every: None,
-        script: ScriptOptions {
-            demo: true,
-            chains,
-            home: true,
-        },
-        shm: None,
-        capture: None,
-    }
-}
+use common::{demo as quiet, example};
 
 /// Runs until the script has enabled and homed every axis (chains off).
 fn ready(plan: &MachinePlan) -> VirtualRun<'_> {

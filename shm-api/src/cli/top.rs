@@ -194,72 +194,44 @@ impl App {
             status,
         );
 
-        // Narrower than 100 columns (an 80-column terminal), setpoint and velocity give way and
-        // the unit goes with the position, so that the fault stays readable.
-        let wide = axes_area.width >= 100;
-        let header = if wide {
-            Row::new(vec![
-                "axis", "state", "activity", "position", "setpoint", "velocity", "unit", "homed",
-                "fault",
-            ])
-        } else {
-            Row::new(vec![
-                "axis", "state", "activity", "position", "homed", "fault",
-            ])
-        }
-        .style(Style::new().add_modifier(Modifier::BOLD));
+        // Narrower than 100 columns (an 80-column terminal), the columns marked `false` give way
+        // so that the fault stays readable.
+        let wide = axes_area.width >= WIDE;
+        const AXIS_COLUMNS: [(&str, u16, bool); 8] = [
+            ("axis", 10, true),
+            ("state", 8, true),
+            ("activity", 13, true),
+            ("position", 14, true),
+            ("setpoint", 12, false),
+            ("velocity", 12, false),
+            ("homed", 5, true),
+            ("fault", 0, true),
+        ];
+        let keep = AXIS_COLUMNS.map(|(_, _, narrow)| wide || narrow);
+        let header = Row::new(pick(AXIS_COLUMNS.map(|(h, _, _)| h), keep))
+            .style(Style::new().add_modifier(Modifier::BOLD));
         let rows = axes(state).iter().map(|a| {
-            let unit = name_str(&a.unit).to_string();
-            let row = if wide {
-                Row::new(vec![
-                    name_str(&a.name).to_string(),
-                    format::state_name(a.state).to_string(),
-                    format::activity_name(a.activity).to_string(),
-                    format::micro(a.position, 3),
-                    format::micro(a.setpoint, 3),
-                    format::micro(a.velocity, 3),
-                    unit,
-                    format::homed(a).to_string(),
-                    format::fault_text(a),
-                ])
-            } else {
-                Row::new(vec![
+            let unit = name_str(&a.unit);
+            let row = Row::new(pick(
+                [
                     name_str(&a.name).to_string(),
                     format::state_name(a.state).to_string(),
                     format::activity_name(a.activity).to_string(),
                     format!("{} {unit}", format::micro(a.position, 3)),
+                    format::micro(a.setpoint, 3),
+                    format::micro(a.velocity, 3),
                     format::homed(a).to_string(),
                     format::fault_text(a),
-                ])
-            };
+                ],
+                keep,
+            ));
             if format::is_faulted(a) {
                 row.style(Style::new().fg(Color::Red))
             } else {
                 row
             }
         });
-        let widths: Vec<Constraint> = if wide {
-            vec![
-                Constraint::Length(12),
-                Constraint::Length(9),
-                Constraint::Length(13),
-                Constraint::Length(12),
-                Constraint::Length(12),
-                Constraint::Length(12),
-                Constraint::Length(6),
-                Constraint::Length(5),
-                Constraint::Min(10),
-            ]
-        } else {
-            vec![
-                Constraint::Length(10),
-                Constraint::Length(8),
-                Constraint::Length(13),
-                Constraint::Length(14),
-                Constraint::Length(5),
-                Constraint::Min(10),
-            ]
-        };
+        let widths = pick(AXIS_COLUMNS.map(|(_, w, _)| width(w)), keep);
         let highlight = Style::new().add_modifier(Modifier::REVERSED);
         let mut axis_sel = TableState::default().with_selected(match self.selection {
             Selection::Axis(a) => Some(usize::from(a)),
@@ -275,66 +247,38 @@ impl App {
         );
 
         // At 80 columns the running record, RC1 and RCC give way.
-        let wide = groups_area.width >= 100;
-        let header = if wide {
-            Row::new(vec![
-                "group", "axes", "chain", "record", "active", "RC1", "RCC", "activity", "override",
-            ])
-        } else {
-            Row::new(vec![
-                "group", "axes", "chain", "record", "activity", "override",
-            ])
-        }
-        .style(Style::new().add_modifier(Modifier::BOLD));
+        let wide = groups_area.width >= WIDE;
+        const GROUP_COLUMNS: [(&str, u16, bool); 9] = [
+            ("group", 12, true),
+            ("axes", 14, true),
+            ("chain", 9, true),
+            ("record", 7, true),
+            ("active", 7, false),
+            ("RC1", 4, false),
+            ("RCC", 4, false),
+            ("activity", 13, true),
+            ("override", 0, true),
+        ];
+        let keep = GROUP_COLUMNS.map(|(_, _, narrow)| wide || narrow);
+        let header = Row::new(pick(GROUP_COLUMNS.map(|(h, _, _)| h), keep))
+            .style(Style::new().add_modifier(Modifier::BOLD));
         let rows = groups(state).iter().map(|g| {
-            let name = name_str(&g.name).to_string();
-            let activity = format::group_activity_name(g.activity).to_string();
-            let percent = format!("{} %", g.override_percent);
-            if wide {
-                Row::new(vec![
-                    name,
+            Row::new(pick(
+                [
+                    name_str(&g.name).to_string(),
                     format::members(state, g),
                     format::chain_name(g.chain_state).to_string(),
                     record(g.record),
                     record(g.active_record),
                     flag(g.rc1),
                     flag(g.rcc),
-                    activity,
-                    percent,
-                ])
-            } else {
-                Row::new(vec![
-                    name,
-                    format::members(state, g),
-                    format::chain_name(g.chain_state).to_string(),
-                    record(g.record),
-                    activity,
-                    percent,
-                ])
-            }
+                    format::group_activity_name(g.activity).to_string(),
+                    format!("{} %", g.override_percent),
+                ],
+                keep,
+            ))
         });
-        let widths: Vec<Constraint> = if wide {
-            vec![
-                Constraint::Length(12),
-                Constraint::Length(16),
-                Constraint::Length(9),
-                Constraint::Length(7),
-                Constraint::Length(7),
-                Constraint::Length(4),
-                Constraint::Length(4),
-                Constraint::Length(15),
-                Constraint::Min(8),
-            ]
-        } else {
-            vec![
-                Constraint::Length(10),
-                Constraint::Length(14),
-                Constraint::Length(9),
-                Constraint::Length(7),
-                Constraint::Length(13),
-                Constraint::Min(8),
-            ]
-        };
+        let widths = pick(GROUP_COLUMNS.map(|(_, w, _)| width(w)), keep);
         let mut group_sel = TableState::default().with_selected(match self.selection {
             Selection::Group(g) => Some(usize::from(g)),
             _ => None,
@@ -347,6 +291,27 @@ impl App {
             groups_area,
             &mut group_sel,
         );
+    }
+}
+
+/// Terminals at least this wide show every column.
+const WIDE: u16 = 100;
+
+/// The cells whose `keep` is set, in order.
+fn pick<T, const N: usize>(cells: [T; N], keep: [bool; N]) -> Vec<T> {
+    cells
+        .into_iter()
+        .zip(keep)
+        .filter_map(|(c, k)| k.then_some(c))
+        .collect()
+}
+
+/// A column's width: its length, or (0) the rest of the line, at least 10.
+fn width(w: u16) -> Constraint {
+    if w == 0 {
+        Constraint::Min(10)
+    } else {
+        Constraint::Length(w)
     }
 }
 
