@@ -887,9 +887,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 Ok(())
             }
             Command::Disable(t) => {
-                let groups = self.target_groups_all(t)?;
-                for gi in groups {
-                    let gi = usize::from(gi);
+                let (g0, g1) = self.groups_of(t)?;
+                for gi in g0..g1 {
                     self.abort_chain(gi);
                     let g = &mut self.groups[gi];
                     g.motion = None;
@@ -1193,16 +1192,6 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 Ok(())
             }
         }
-    }
-
-    /// Every group a target touches (an axis: its own group), for disable.
-    fn target_groups_all(&self, t: Target) -> Result<Vec<GroupId, G>, Rejected> {
-        let (g0, g1) = self.groups_of(t)?;
-        let mut out = Vec::new();
-        for gi in g0..g1 {
-            let _ = out.push(gi as GroupId);
-        }
-        Ok(out)
     }
 
     /// Admission of a group motion command: the group table, then each member (a member on its
