@@ -349,11 +349,11 @@ fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
             };
             let addr = text
                 .to_socket_addrs()
-                .map_err(|e| format!("{key}.modbus = {text:?} (axis {}): {e}", a.name))?
+                .map_err(|e| format!("{key}.modbus = \"{text}\" (axis {}): {e}", a.name))?
                 .next()
                 .ok_or_else(|| {
                     format!(
-                        "{key}.modbus = {text:?} (axis {}): the name has no address",
+                        "{key}.modbus = \"{text}\" (axis {}): the name has no address",
                         a.name
                     )
                 })?;
@@ -367,7 +367,7 @@ fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
         // `check` accepted the file: a CANopen axis names an existing bus and a valid node.
         let bus_name = a.bus.as_deref().unwrap_or_default();
         let Some(bus) = config.buses.iter().find(|b| b.name == bus_name) else {
-            return Err(format!("{key}.bus: no bus {bus_name:?}"));
+            return Err(format!("{key}.bus: no bus \"{bus_name}\""));
         };
         match bus.kind {
             BusKind::Vbus => {}

@@ -1127,7 +1127,7 @@ pub fn report_node(plan: &MachinePlan, r: &NodeReport, out: &mut dyn Write, summ
         .get(usize::from(r.bus))
         .map_or_else(|| "?".into(), |b| b.label());
     let node = r.report.node;
-    let what = format!("node {node} ({} {:?}) on {bus}", a.setup.kind, a.name);
+    let what = format!("node {node} ({} \"{}\") on {bus}", a.setup.kind, a.name);
     match (r.status(), &r.report.result) {
         (NodeStatus::Running, _) => {
             let identity = match (r.report.device_type, r.report.vendor_id) {
