@@ -13,16 +13,11 @@
 use std::time::Duration;
 
 use coordinator::axis::Image;
-use coordinator::command::{BufferMode, Command, GroupId};
 use coordinator::config::Config;
 use coordinator::cycle::{BusFrame, CycleInput, CycleOutput};
-use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::{MachinePlan, plan};
-use coordinator::runtime::run::RunOptions;
-use coordinator::runtime::script::{Phase, ScriptOptions};
 use coordinator::runtime::stepper::Captured;
 use coordinator::runtime::synthetic;
-use coordinator::runtime::virtual_clock::VirtualRun;
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use drivers::can::Frame;
 
@@ -30,57 +25,10 @@ fn machine(n: usize) -> MachinePlan {
     plan(&Config::parse(&synthetic::config(n, 8)).expect("parses")).expect("plans")
 }
 
-/// Runs the machine until homed, starts a move in every group, runs a while, captures a step.
+/// Runs the machine until homed, starts a move in every group, runs a while, captures a step
+/// (`synthetic::capture_moving`, which `timing step` replays too).
 fn capture(plan: &MachinePlan) -> Captured<'_> {
-    let opts = RunOptions {
-        duration: None,
-        virtual_time: true,
-        status_every: None,
-        script: ScriptOptions {
-            demo: true,
-            chains: false,
-            home: true,
-        },
-        shm: None,
-        capture: None,
-    };
-    let mut run = VirtualRun::new(plan, &opts).expect("builds");
-    let mut out = Vec::new();
-    while run.lp.script.phase() != Phase::Running {
-        run.step(&mut out);
-        assert!(run.elapsed() < Duration::from_secs(300), "not homed");
-    }
-    for (g, (_, gs, _)) in plan.groups.iter().enumerate() {
-        let mut positions = [0i64; MAX_GROUP_AXES];
-        for (i, &a) in gs.axes.iter().enumerate() {
-            positions[i] = plan.axes[usize::from(a)].setup.position_max * 3 / 4;
-        }
-        let reply = run.stepper.cycle.command(&Command::MoveGroup {
-            group: g as GroupId,
-            positions,
-            velocity_percent: 100,
-            buffer: BufferMode::Aborting,
-        });
-        assert!(
-            matches!(reply, coordinator::command::Reply::Latched { .. }),
-            "group {g}: {reply:?}\n{}",
-            String::from_utf8_lossy(&out)
-        );
-    }
-    for _ in 0..20 {
-        run.step(&mut out);
-    }
-    run.lp.capture = true;
-    run.step(&mut out);
-    let c = run.lp.captured.take().expect("captured");
-    assert!(
-        (0..plan.groups.len()).all(|g| c
-            .cycle
-            .group_status(g as GroupId)
-            .is_some_and(|s| s.motion.is_some())),
-        "every group moves in the captured cycle"
-    );
-    c
+    synthetic::capture_moving(plan, true).expect("every group moves in the captured cycle")
 }
 
 fn bench(c: &mut Criterion) {
