@@ -238,6 +238,29 @@ pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
     Ok(out)
 }
 
+/// Starts the publisher process (this executable's `shm-publisher` subcommand, `exe`) and
+/// measures the five phases, `samples` each, at `period`; the publisher is stopped before this
+/// returns.
+pub fn run_with_publisher(
+    exe: &std::path::Path,
+    samples: usize,
+    period: Duration,
+) -> Result<Vec<Figures>, String> {
+    let prefix = format!("timing-{}", std::process::id());
+    // Enough periods for the five phases plus margin.
+    let count = (samples as u64 * 5 + 4000).to_string();
+    let mut publisher = std::process::Command::new(exe)
+        .args(["shm-publisher", "--prefix", &prefix, "--period-us"])
+        .arg(period.as_micros().to_string())
+        .args(["--count", &count])
+        .spawn()
+        .map_err(|e| format!("starting the publisher: {e}"))?;
+    let result = measure(&prefix, samples);
+    let _ = publisher.kill();
+    let _ = publisher.wait();
+    result
+}
+
 /// The figures as a Markdown table, with the ratios to the bare pair.
 pub fn table(f: &[Figures]) -> String {
     let mut s = String::from("| client | samples | median | p99 | max |\n|---|---|---|---|---|\n");

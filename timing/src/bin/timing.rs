@@ -1,23 +1,138 @@
-//! `timing`: latency measurement runs.
+//! `timing`: latency measurement runs, each beside its baseline, into one folder per run
+//! (`summary.json`, HDR histograms, plots, `table.txt`).
 //!
-//! `timing shm-latency [--samples N] [--period-us P] [--out DIR]` starts a publisher process
-//! (itself, `timing shm-publisher`) and measures publish-to-client latency over shared memory,
-//! printing a table and writing the raw latencies (ns, one per line) per phase to DIR.
+//! - `timing cycle [--period-us 1000] [--priority 80] [--cpu N] [--duration S] [--window-s 1]`
+//! - `timing step --axes 8,128 [--profile fhpp|cia402|both] [--grouped|--single]`
+//! - `timing all [--duration S]`: cycle, step and shm-latency into one folder
+//! - `timing report DIR`, `timing compare DIR DIR`
+//! - `timing shm-latency [--samples N] [--period-us P] [--out DIR]`: the raw latencies (ns, one
+//!   per line) per phase and a table, as before.
+//!
+//! Every measuring subcommand takes `--out DIR` (default `timing/results/run-DATE`) and
+//! `--load` (a documented background load, see `timing::load`).
 
-use std::process::{Command, ExitCode};
+use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Duration;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use timing::cycle::CycleOptions;
+use timing::session::{self, Session};
+use timing::step::{Profile, StepOptions};
 
 #[derive(Parser)]
-#[command(version, about)]
+#[command(
+    version,
+    about = "Latency measurement runs of the motion coordinator, beside their baselines"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Cmd,
 }
 
+/// Where the folder goes and what runs beside the measurement.
+#[derive(Args, Clone)]
+struct Common {
+    /// The folder to write (default: timing/results/run-DATE).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Run a background load meanwhile: one busy thread per CPU and a memory and system call
+    /// churner (docs/performance.md).
+    #[arg(long)]
+    load: bool,
+}
+
+#[derive(Args, Clone)]
+struct CycleArgs {
+    /// The cycle's period, µs.
+    #[arg(long, default_value_t = 1000)]
+    period_us: u64,
+    /// SCHED_FIFO priority, as the coordinator's cycle thread (1..99).
+    #[arg(long, default_value_t = 80)]
+    priority: i32,
+    /// Pin the thread (and cyclictest) to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Windows of each side take turns for this long, s.
+    #[arg(long, default_value_t = 1.0)]
+    window_s: f64,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ProfileArg {
+    Fhpp,
+    Cia402,
+    Both,
+}
+
+#[derive(Args, Clone)]
+struct StepArgs {
+    /// Machine sizes, axes (comma-separated, each 1..128).
+    #[arg(long, value_delimiter = ',', default_values_t = [8usize, 128])]
+    axes: Vec<usize>,
+    /// The drives' profile: FHPP drives, CiA 402 drives, or the four kinds in turn.
+    #[arg(long, value_enum, default_value = "both")]
+    profile: ProfileArg,
+    /// Axes move in groups of up to 8 (the default).
+    #[arg(long)]
+    grouped: bool,
+    /// Every axis moves on its own.
+    #[arg(long)]
+    single: bool,
+    /// SCHED_FIFO priority of the measuring thread, as the cycle thread's (1..99; 0: the
+    /// normal scheduler).
+    #[arg(long, default_value_t = 80)]
+    priority: i32,
+}
+
 #[derive(Subcommand)]
 enum Cmd {
+    /// Wake-up lateness of the cycle thread beside cyclictest, in alternating windows.
+    Cycle {
+        #[command(flatten)]
+        cycle: CycleArgs,
+        /// Length of the run, s (both sides together).
+        #[arg(long, default_value_t = 10.0)]
+        duration: f64,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// The cycle step's compute time on synthetic machines.
+    Step {
+        #[command(flatten)]
+        step: StepArgs,
+        /// Measuring time per machine, s.
+        #[arg(long, default_value_t = 3.0)]
+        duration: f64,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Cycle, step and shm-latency into one folder.
+    All {
+        /// Length of the cycle run, s; the step gets a quarter of it per machine, shm-latency
+        /// about half of it.
+        #[arg(long, default_value_t = 10.0)]
+        duration: f64,
+        #[command(flatten)]
+        cycle: CycleArgs,
+        /// Machine sizes of the step run, axes (comma-separated).
+        #[arg(long, value_delimiter = ',', default_values_t = [8usize, 128])]
+        axes: Vec<usize>,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Redraws the plots and the table of a run's folder.
+    Report {
+        /// The folder.
+        dir: PathBuf,
+    },
+    /// Two runs side by side, with the ratio of each figure (B / A).
+    Compare {
+        /// The first folder (A).
+        a: PathBuf,
+        /// The second folder (B).
+        b: PathBuf,
+    },
     /// Publish-to-client latency: the contract's client beside a bare iceoryx2 pair.
     ShmLatency {
         /// Samples per phase.
@@ -28,9 +143,10 @@ enum Cmd {
         period_us: u64,
         /// Where to write the raw latencies.
         #[arg(long, default_value = timing::RESULTS_DIR)]
-        out: std::path::PathBuf,
+        out: PathBuf,
     },
     /// (internal) The publisher process of `shm-latency`.
+    #[command(hide = true)]
     ShmPublisher {
         /// Service prefix.
         #[arg(long)]
@@ -44,60 +160,147 @@ enum Cmd {
     },
 }
 
+fn command_line() -> String {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    args.insert(0, "timing".into());
+    args.join(" ")
+}
+
+fn cycle_options(c: &CycleArgs, duration: f64) -> CycleOptions {
+    CycleOptions {
+        period_us: c.period_us,
+        priority: c.priority,
+        cpu: c.cpu,
+        duration_s: duration,
+        window_s: c.window_s,
+    }
+}
+
+fn own_exe() -> Result<PathBuf, String> {
+    std::env::current_exe().map_err(|e| format!("cannot find this program's path: {e}"))
+}
+
+fn finish(s: Session, out: Option<PathBuf>) -> Result<(), String> {
+    let dir = out.unwrap_or_else(session::default_dir);
+    print!("{}", s.finish(&dir)?);
+    Ok(())
+}
+
 fn main() -> ExitCode {
-    match Cli::parse().command {
+    let result = match Cli::parse().command {
+        Cmd::Cycle {
+            cycle,
+            duration,
+            common,
+        } => (|| {
+            let o = cycle_options(&cycle, duration);
+            o.check()?;
+            let mut s = Session::start(command_line(), common.load);
+            s.add(timing::cycle::run(&o)?);
+            finish(s, common.out)
+        })(),
+        Cmd::Step {
+            step,
+            duration,
+            common,
+        } => (|| {
+            let o = StepOptions {
+                axes: step.axes,
+                profiles: match step.profile {
+                    ProfileArg::Fhpp => vec![Profile::Fhpp],
+                    ProfileArg::Cia402 => vec![Profile::Cia402],
+                    ProfileArg::Both => vec![Profile::Both],
+                },
+                grouped: match (step.grouped, step.single) {
+                    (true, true) => vec![true, false],
+                    (false, true) => vec![false],
+                    _ => vec![true],
+                },
+                seconds_per_series: duration,
+                priority: (step.priority != 0).then_some(step.priority),
+            };
+            o.check()?;
+            let mut s = Session::start(command_line(), common.load);
+            s.add(timing::step::run(&o)?);
+            finish(s, common.out)
+        })(),
+        Cmd::All {
+            duration,
+            cycle,
+            axes,
+            common,
+        } => (|| {
+            let o = cycle_options(&cycle, duration);
+            o.check()?;
+            let step = StepOptions {
+                axes,
+                profiles: vec![Profile::Both],
+                grouped: vec![true],
+                seconds_per_series: duration / 4.0,
+                priority: Some(cycle.priority),
+            };
+            step.check()?;
+            let exe = own_exe()?;
+            let mut s = Session::start(command_line(), common.load);
+            s.add(timing::cycle::run(&o)?);
+            s.add(timing::step::run(&step)?);
+            // Five phases of a tenth of the run each (at least 100 samples).
+            let samples = ((duration * 1e6 / 10.0 / cycle.period_us as f64) as usize).max(100);
+            s.add(session::shm_run(&exe, samples, cycle.period_us.max(100))?);
+            finish(s, common.out)
+        })(),
+        Cmd::Report { dir } => session::redraw(&dir).map(|t| print!("{t}")),
+        Cmd::Compare { a, b } => (|| {
+            let sa = timing::report::files::read_summary(&a).map_err(|e| e.to_string())?;
+            let sb = timing::report::files::read_summary(&b).map_err(|e| e.to_string())?;
+            print!(
+                "{}",
+                timing::report::table::compare(
+                    &sa,
+                    &sb,
+                    &a.display().to_string(),
+                    &b.display().to_string()
+                )
+            );
+            Ok(())
+        })(),
         Cmd::ShmPublisher {
             prefix,
             period_us,
             count,
-        } => match timing::shm_latency::publish(&prefix, Duration::from_micros(period_us), count) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e}");
-                ExitCode::FAILURE
-            }
-        },
+        } => timing::shm_latency::publish(&prefix, Duration::from_micros(period_us), count),
         Cmd::ShmLatency {
             samples,
             period_us,
             out,
-        } => {
-            let prefix = format!("timing-{}", std::process::id());
-            // Enough periods for the four phases plus margin.
-            let count = (samples as u64 * 5 + 4000).to_string();
-            let exe = std::env::current_exe().expect("own path");
-            let mut publisher = match Command::new(exe)
-                .args(["shm-publisher", "--prefix", &prefix, "--period-us"])
-                .arg(period_us.to_string())
-                .args(["--count", &count])
-                .spawn()
-            {
-                Ok(p) => p,
-                Err(e) => {
-                    eprintln!("error: starting the publisher: {e}");
-                    return ExitCode::FAILURE;
-                }
-            };
-            eprintln!("measuring {samples} samples per phase at {period_us} µs...");
-            let result = timing::shm_latency::measure(&prefix, samples);
-            let _ = publisher.kill();
-            let _ = publisher.wait();
-            match result {
-                Ok(f) => {
-                    print!("{}", timing::shm_latency::table(&f));
-                    let _ = std::fs::create_dir_all(&out);
-                    for x in &f {
-                        let file = x.name.replace([' ', ',', '(', ')'], "-").replace("--", "-");
-                        let body: String = x.raw.iter().map(|v| format!("{v}\n")).collect();
-                        let _ = std::fs::write(out.join(format!("shm-latency-{file}.txt")), body);
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::FAILURE
-                }
+        } => (|| {
+            if samples == 0 || !(100..=100_000).contains(&period_us) {
+                return Err(format!(
+                    "--samples {samples} --period-us {period_us}: need at least 1 sample and a period of 100 to 100000 µs"
+                ));
             }
+            eprintln!("measuring {samples} samples per phase at {period_us} µs...");
+            let f = timing::shm_latency::run_with_publisher(
+                &own_exe()?,
+                samples,
+                Duration::from_micros(period_us),
+            )?;
+            print!("{}", timing::shm_latency::table(&f));
+            std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
+            for x in &f {
+                let file = x.name.replace([' ', ',', '(', ')'], "-").replace("--", "-");
+                let body: String = x.raw.iter().map(|v| format!("{v}\n")).collect();
+                let path = out.join(format!("shm-latency-{file}.txt"));
+                std::fs::write(&path, body).map_err(|e| format!("{}: {e}", path.display()))?;
+            }
+            Ok(())
+        })(),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
         }
     }
 }

@@ -1,0 +1,171 @@
+//! One invocation of a measuring subcommand: the machine read at the start, the optional
+//! background load, the runs in order, and at the end the folder (`summary.json`, histograms,
+//! plots, `table.txt`) and the table for the terminal.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use crate::load::{self, Load};
+use crate::machine::Machine;
+use crate::report::Report;
+use crate::report::summary::{FORMAT, Run, Summary};
+use crate::report::table;
+use crate::shm_latency;
+use crate::stats::Series;
+
+/// The table's file name in a run's folder.
+pub const TABLE: &str = "table.txt";
+
+/// A measuring session.
+#[derive(Debug)]
+pub struct Session {
+    report: Report,
+    load: Option<Load>,
+}
+
+impl Session {
+    /// Starts: reads the machine, starts the load where asked.
+    pub fn start(command: String, with_load: bool) -> Session {
+        let started_unix_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        let machine = Machine::read();
+        let load = with_load.then(Load::start);
+        Session {
+            report: Report {
+                summary: Summary {
+                    format: FORMAT,
+                    command,
+                    started_unix_s,
+                    machine,
+                    load: with_load.then(|| load::DESCRIPTION.to_string()),
+                    runs: Vec::new(),
+                },
+                series: Vec::new(),
+            },
+            load,
+        }
+    }
+
+    /// Adds a run's result.
+    pub fn add(&mut self, (run, series): (Run, Vec<Series>)) {
+        self.report.push(run, series);
+    }
+
+    /// Stops the load, writes the folder and returns the table (with where the files went).
+    pub fn finish(mut self, dir: &Path) -> Result<String, String> {
+        drop(self.load.take());
+        self.report.summary.machine.finish();
+        let plots = self.report.write(dir)?;
+        let text = table::summary(&self.report.summary);
+        let path = dir.join(TABLE);
+        std::fs::write(&path, &text).map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(format!(
+            "{text}\nwritten to {}: summary.json, {TABLE}, {} series (.hdr, .hgrm, .timeline.csv), {} plots\n",
+            dir.display(),
+            self.report.series.iter().map(Vec::len).sum::<usize>(),
+            plots.len()
+        ))
+    }
+}
+
+/// Redraws a folder's plots and table (`timing report DIR`); returns the table.
+pub fn redraw(dir: &Path) -> Result<String, String> {
+    let report = Report::read(dir)?;
+    let plots = report.plot(dir)?;
+    let text = table::summary(&report.summary);
+    let path = dir.join(TABLE);
+    std::fs::write(&path, &text).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(format!(
+        "{text}\nredrawn in {}: {TABLE} and {} plots\n",
+        dir.display(),
+        plots.len()
+    ))
+}
+
+/// `timing/results/run-YYYY-MM-DD-HHMMSS` (UTC), under the current directory.
+pub fn default_dir() -> PathBuf {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    PathBuf::from(crate::RESULTS_DIR).join(format!("run-{}", utc_stamp(secs)))
+}
+
+/// `YYYY-MM-DD-HHMMSS` of a Unix time, UTC (civil-from-days, proleptic Gregorian).
+pub fn utc_stamp(secs: u64) -> String {
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}-{:02}{:02}{:02}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+/// The shared-memory latency run (`shm-latency`'s five phases, `samples` each) as a run of
+/// the report: one series per phase, the ratios of the contract's client to the bare iceoryx2
+/// pair. Sample times on the timeline are the sample's index times the period.
+pub fn shm_run(exe: &Path, samples: usize, period_us: u64) -> Result<(Run, Vec<Series>), String> {
+    if samples == 0 || samples > 10_000_000 {
+        return Err(format!("--samples {samples}: must be 1 to 10000000"));
+    }
+    if !(100..=100_000).contains(&period_us) {
+        return Err(format!("--period-us {period_us}: must be 100 to 100000 µs"));
+    }
+    let mut progress = crate::progress::Progress::new("shm-latency", 1, "run");
+    let figures = shm_latency::run_with_publisher(exe, samples, Duration::from_micros(period_us));
+    progress.set(1);
+    progress.finish();
+    let figures = figures?;
+    let mut run = Run::new(
+        "shm-latency",
+        &format!("publish-to-client latency over shared memory, period {period_us} µs"),
+    );
+    run.set("samples_per_phase", samples as u64);
+    run.set("period_us", period_us);
+    let mut series = Vec::new();
+    let mut t = 0u64;
+    for f in &figures {
+        let mut s = Series::new(f.name);
+        for &v in &f.raw {
+            s.record(t, v);
+            t += period_us * 1000;
+        }
+        run.add(&s, Some(samples as u64));
+        series.push(s);
+    }
+    run.baselines.insert("bare iceoryx2".into(), "ran".into());
+    run.add_ratios(
+        "shm-api client, busy-poll",
+        "bare iceoryx2, busy-poll",
+        &["p50", "p99"],
+    );
+    run.add_ratios(
+        "shm-api client, event-driven (relay)",
+        "bare iceoryx2, event-driven (listener)",
+        &["p50", "p99"],
+    );
+    Ok((run, series))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stamps_are_utc_dates() {
+        assert_eq!(utc_stamp(0), "1970-01-01-000000");
+        assert_eq!(utc_stamp(951_782_400 + 3661), "2000-02-29-010101");
+        assert_eq!(utc_stamp(1_700_000_000), "2023-11-14-221320");
+    }
+}

@@ -1,0 +1,266 @@
+//! `timing step`: the cycle step's compute time, measured as `coordinator/benches/cycle.rs`
+//! measures it: a synthetic machine ([`synthetic::Spec`]) runs in virtual time until every axis
+//! moves, one step's state and inputs are captured ([`synthetic::capture_moving`]), and the
+//! step is timed again and again on copies of that state (the copy is made outside the timed
+//! span), so every sample does one whole cycle's work.
+//!
+//! Each sample is one step between two `CLOCK_MONOTONIC` readings (about 20 ns of the reading
+//! itself is in every sample; criterion times batches instead). The measuring thread is set up
+//! as the coordinator's cycle thread ([`enter_realtime`] at the given priority), since that is
+//! where the step runs: on the normal scheduler, every other process on a shared machine
+//! preempts it and the tail measures them. A refused priority is reported and the run goes on.
+
+use coordinator::axis::Image;
+use coordinator::config::Config;
+use coordinator::cycle::{BusFrame, CycleInput, CycleOutput};
+use coordinator::runtime::plan::plan;
+use coordinator::runtime::realtime_thread::{RealtimeSettings, enter_realtime, leave_realtime};
+use coordinator::runtime::stepper::TX_CAPACITY;
+use coordinator::runtime::synthetic::{self, Kinds, Spec};
+use drivers::can::Frame;
+use drivers::time::monotonic_now;
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use crate::machine::Granted;
+use crate::progress::Progress;
+use crate::report::summary::Run;
+use crate::stats::Series;
+
+/// Which drives the machine has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Profile {
+    /// FHPP drives only (MTR-DCI, EMCA, CMMO-ST).
+    Fhpp,
+    /// CiA 402 drives only (TLC5xx, MTR-DCI in CiA 402).
+    Cia402,
+    /// The four kinds in turn, as the criterion bench has them.
+    Both,
+}
+
+impl Profile {
+    fn kinds(self) -> Kinds {
+        match self {
+            Profile::Fhpp => Kinds::Fhpp,
+            Profile::Cia402 => Kinds::Cia402,
+            Profile::Both => Kinds::Mixed,
+        }
+    }
+
+    /// Its name in series names and settings.
+    pub fn name(self) -> &'static str {
+        match self {
+            Profile::Fhpp => "FHPP",
+            Profile::Cia402 => "CiA 402",
+            Profile::Both => "FHPP and CiA 402",
+        }
+    }
+}
+
+/// What `timing step` measures; checked by [`StepOptions::check`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepOptions {
+    /// Machine sizes, axes (each 1..=128).
+    pub axes: Vec<usize>,
+    /// The drives.
+    pub profiles: Vec<Profile>,
+    /// Groups of 8 moving together (true) or every axis moving alone (false); both when both
+    /// are listed.
+    pub grouped: Vec<bool>,
+    /// Measuring time per series, s.
+    pub seconds_per_series: f64,
+    /// SCHED_FIFO priority of the measuring thread (1..=99); none: the normal scheduler.
+    pub priority: Option<i32>,
+}
+
+impl StepOptions {
+    /// Refuses values that cannot be measured with, naming the limit.
+    pub fn check(&self) -> Result<(), String> {
+        if self.axes.is_empty() {
+            return Err("--axes: name at least one machine size".into());
+        }
+        if let Some(n) = self.axes.iter().find(|&&n| !(1..=128).contains(&n)) {
+            return Err(format!("--axes {n}: a machine has 1 to 128 axes"));
+        }
+        if let Some(p) = self.priority.filter(|p| !(1..=99).contains(p)) {
+            return Err(format!("--priority {p}: SCHED_FIFO priorities are 1 to 99"));
+        }
+        crate::cycle::check_seconds("--duration", self.seconds_per_series, 0.01, 86_400.0)
+    }
+
+    fn series(&self) -> Vec<(usize, Profile, bool)> {
+        let mut v = Vec::new();
+        for &p in &self.profiles {
+            for &g in &self.grouped {
+                for &n in &self.axes {
+                    v.push((n, p, g));
+                }
+            }
+        }
+        v
+    }
+}
+
+/// A series' name: `8 axes, FHPP and CiA 402, grouped`.
+pub fn series_name(axes: usize, p: Profile, grouped: bool) -> String {
+    format!(
+        "{axes} axes, {}, {}",
+        p.name(),
+        if grouped { "grouped" } else { "single" }
+    )
+}
+
+/// Times the captured step `count` times (calibrated to the time asked for) on a thread set up
+/// as the cycle thread; `done` counts samples for the progress display.
+fn measure(
+    cap: &coordinator::runtime::stepper::Captured<'_>,
+    name: &str,
+    o: &StepOptions,
+    done: &AtomicU64,
+    planned: &AtomicU64,
+) -> (Series, u64, Granted) {
+    let report = enter_realtime(&RealtimeSettings {
+        priority: o.priority,
+        cpu: None,
+        lock_memory: true,
+    });
+    let granted = Granted::from_report(o.priority, &report);
+    let mut frames = vec![BusFrame::new(0, Frame::std8(0, [0; 8])); TX_CAPACITY];
+    let mut modbus = vec![Image::default(); cap.modbus.len()];
+    let input = CycleInput {
+        now: cap.now,
+        frames: &cap.frames,
+        modbus: &cap.modbus,
+    };
+    let mut time_one = || {
+        // The copy is outside the timed span, as in criterion's iter_batched_ref.
+        let mut cycle = cap.cycle.clone();
+        let mut out = CycleOutput {
+            frames: &mut frames,
+            len: 0,
+            overflow: 0,
+            modbus: &mut modbus,
+        };
+        let t0 = monotonic_now();
+        cycle.step(&input, &mut out);
+        let t1 = monotonic_now();
+        std::hint::black_box(out.len);
+        (t0, t1.saturating_duration_since(t0).as_nanos() as u64)
+    };
+    // Calibrate: how many samples fill the time asked for (copies included).
+    let c0 = monotonic_now();
+    for _ in 0..200 {
+        time_one();
+    }
+    let per = (monotonic_now().saturating_duration_since(c0).as_nanos() as f64 / 200.0).max(1.0);
+    let count = ((o.seconds_per_series * 1e9 / per) as u64).clamp(1000, 50_000_000);
+    planned.store(count, Ordering::Relaxed);
+    let mut s = Series::new(name);
+    let start = monotonic_now();
+    for i in 0..count {
+        let (t0, ns) = time_one();
+        s.record(t0.saturating_duration_since(start).as_nanos() as u64, ns);
+        done.store(i + 1, Ordering::Relaxed);
+    }
+    leave_realtime();
+    (s, count, granted)
+}
+
+/// Runs `timing step`; returns the run's summary part and one series per machine.
+pub fn run(o: &StepOptions) -> Result<(Run, Vec<Series>), String> {
+    o.check()?;
+    let list = o.series();
+    let mut run = Run::new(
+        "step",
+        "the cycle step's compute time, one whole cycle per sample",
+    );
+    run.set("seconds_per_series", o.seconds_per_series);
+    run.set(
+        "machines",
+        "coordinator::runtime::synthetic, every axis homed and moving; groups of up to 8",
+    );
+    let mut out = Vec::new();
+    let mut progress = Progress::new("step", list.len() as u64 * 100, "%");
+    for (k, &(n, p, grouped)) in list.iter().enumerate() {
+        let name = series_name(n, p, grouped);
+        let spec = Spec {
+            axes: n,
+            kinds: p.kinds(),
+            group_size: grouped.then_some(8),
+        };
+        let cfg = Config::parse(&synthetic::config_of(&spec))
+            .map_err(|e| format!("{name}: the synthetic machine does not parse: {e}"))?;
+        let plan = plan(&cfg).map_err(|e| format!("{name}: {e}"))?;
+        let cap = synthetic::capture_moving(&plan, grouped).map_err(|e| format!("{name}: {e}"))?;
+        let done = AtomicU64::new(0);
+        let planned = AtomicU64::new(u64::MAX);
+        let measured = std::thread::scope(|scope| {
+            let worker = scope.spawn(|| measure(&cap, &name, o, &done, &planned));
+            while !worker.is_finished() {
+                std::thread::sleep(Duration::from_millis(100));
+                let n = planned.load(Ordering::Relaxed).max(1);
+                let i = done.load(Ordering::Relaxed);
+                if n != u64::MAX {
+                    progress.set(k as u64 * 100 + i * 100 / n);
+                }
+            }
+            worker.join()
+        });
+        let (s, count, granted) =
+            measured.map_err(|_| format!("{name}: the measuring thread failed"))?;
+        if run.realtime.is_none() {
+            run.notes.extend(granted.warnings.iter().cloned());
+            run.realtime = Some(granted);
+        }
+        progress.set((k as u64 + 1) * 100);
+        run.add(&s, Some(count));
+        run.set(
+            &format!("cycle_us ({name})"),
+            plan.period.as_micros() as u64,
+        );
+        out.push(s);
+    }
+    progress.finish();
+    run.set("axes", o.axes.clone());
+    run.set(
+        "profiles",
+        o.profiles.iter().map(|p| p.name()).collect::<Vec<_>>(),
+    );
+    let both = o.profiles.contains(&Profile::Both) && o.grouped.contains(&true);
+    if both && o.axes.contains(&8) {
+        run.goal_us(
+            "cycle step, 8 axes: median at most 1.5 µs",
+            &series_name(8, Profile::Both, true),
+            "p50",
+            1.5,
+        );
+    }
+    if both && o.axes.contains(&128) {
+        run.goal_us(
+            "cycle step, 128 axes: p99 at most 15 µs",
+            &series_name(128, Profile::Both, true),
+            "p99",
+            15.0,
+        );
+    }
+    Ok((run, out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_out_of_range_are_refused() {
+        let o = StepOptions {
+            axes: vec![8, 129],
+            profiles: vec![Profile::Both],
+            grouped: vec![true],
+            seconds_per_series: 1.0,
+        };
+        assert!(o.check().unwrap_err().contains("--axes 129"));
+        let o = StepOptions { axes: vec![], ..o };
+        assert!(o.check().is_err());
+    }
+}

@@ -1,0 +1,291 @@
+//! `timing all --duration 2` as a user runs it, into a folder: the folder's `summary.json` has
+//! the structure the docs describe, every sample count matches the run and the histogram files,
+//! every ratio and goal is the quotient of figures in the same file; `timing report DIR`
+//! redraws the plots and the table; `timing compare DIR DIR` reads both.
+//!
+//! Without cyclictest the run must say `absent` and report ours alone; with
+//! `MOTION_REQUIRE_ALL=1` (`.ci/run`, which installs rt-tests) a missing cyclictest fails.
+//! Nothing here asserts a time: only structure and arithmetic.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use serde_json::Value;
+
+struct Ran {
+    dir: PathBuf,
+    out: Output,
+}
+
+impl Ran {
+    /// Everything the run printed, for failure messages.
+    fn text(&self) -> String {
+        format!(
+            "--- stdout\n{}\n--- stderr\n{}",
+            String::from_utf8_lossy(&self.out.stdout),
+            String::from_utf8_lossy(&self.out.stderr)
+        )
+    }
+}
+
+fn cyclictest_installed() -> bool {
+    timing::cyclictest::find().is_some()
+}
+
+/// One short `timing all`, shared by the tests of this file.
+fn ran() -> &'static Ran {
+    static RAN: OnceLock<Ran> = OnceLock::new();
+    RAN.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("timing-all");
+        let _ = std::fs::remove_dir_all(&dir);
+        let out = Command::new(env!("CARGO_BIN_EXE_timing"))
+            .args(["all", "--duration", "2", "--axes", "8", "--out"])
+            .arg(&dir)
+            .output()
+            .expect("timing runs");
+        Ran { dir, out }
+    })
+}
+
+fn summary(r: &Ran) -> Value {
+    let text = std::fs::read_to_string(r.dir.join("summary.json"))
+        .unwrap_or_else(|e| panic!("summary.json: {e}\n{}", r.text()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("summary.json: {e}\n{}", r.text()))
+}
+
+const FIGURES: [&str; 8] = [
+    "min", "p50", "p90", "p99", "p99_9", "p99_99", "max", "samples",
+];
+
+fn figure(run: &Value, series: &str, f: &str) -> u64 {
+    run["series"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == series)
+        .unwrap_or_else(|| panic!("no series {series:?}"))["figures"][f]
+        .as_u64()
+        .unwrap()
+}
+
+/// Samples in a series' `.hdr` file and in its timeline.
+fn samples_in_files(dir: &Path, file: &str) -> (u64, u64) {
+    let bytes = std::fs::read(dir.join(format!("{file}.hdr"))).unwrap();
+    let h: hdrhistogram::Histogram<u64> = hdrhistogram::serialization::Deserializer::new()
+        .deserialize(&mut bytes.as_slice())
+        .unwrap();
+    let csv = std::fs::read_to_string(dir.join(format!("{file}.timeline.csv"))).unwrap();
+    let timeline: u64 = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse::<u64>().unwrap())
+        .sum();
+    (h.len(), timeline)
+}
+
+#[test]
+fn all_writes_a_consistent_summary() {
+    let r = ran();
+    assert!(r.out.status.success(), "timing all failed\n{}", r.text());
+    let s = summary(r);
+    let ctx = r.text();
+    assert_eq!(s["format"], 1, "{ctx}");
+    assert!(s["command"].as_str().unwrap().starts_with("timing all"));
+    for key in ["cpu", "kernel", "kernel_version", "preemption"] {
+        assert!(
+            s["machine"][key].as_str().is_some_and(|v| !v.is_empty()),
+            "machine.{key}"
+        );
+    }
+    for key in ["load_before", "load_after"] {
+        assert_eq!(
+            s["machine"][key].as_array().map(Vec::len),
+            Some(3),
+            "machine.{key}"
+        );
+    }
+    assert!(s["load"].is_null());
+    let runs = s["runs"].as_array().unwrap();
+    let names: Vec<&str> = runs.iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["cycle", "step", "shm-latency"], "{ctx}");
+
+    for run in runs {
+        let name = run["name"].as_str().unwrap();
+        let series = run["series"].as_array().unwrap();
+        assert!(!series.is_empty(), "{name}");
+        for x in series {
+            let f = &x["figures"];
+            let v: Vec<u64> = FIGURES.iter().map(|k| f[k].as_u64().unwrap()).collect();
+            // min <= p50 <= ... <= max.
+            assert!(v[..7].windows(2).all(|w| w[0] <= w[1]), "{name}: {f}");
+            let samples = v[7];
+            assert!(samples > 0, "{name}: {x}");
+            assert_eq!(Some(samples), x["planned_samples"].as_u64(), "{name}: {x}");
+            let (hdr, timeline) = samples_in_files(&r.dir, x["file"].as_str().unwrap());
+            assert_eq!((hdr, timeline), (samples, samples), "{name}: {x}");
+        }
+        // Every ratio is the quotient of two figures of this file.
+        for q in run["ratios"].as_array().unwrap() {
+            let a = figure(
+                run,
+                q["numerator"]["series"].as_str().unwrap(),
+                q["numerator"]["figure"].as_str().unwrap(),
+            );
+            let b = figure(
+                run,
+                q["denominator"]["series"].as_str().unwrap(),
+                q["denominator"]["figure"].as_str().unwrap(),
+            );
+            let v = q["value"].as_f64().expect("a ratio of non-zero figures");
+            assert!((v - a as f64 / b as f64).abs() <= 1e-12 * v.abs(), "{q}");
+        }
+        for g in run["goals"].as_array().unwrap() {
+            let (m, l) = (
+                g["measured"].as_f64().unwrap(),
+                g["limit"].as_f64().unwrap(),
+            );
+            assert_eq!(g["met"].as_bool(), Some(m <= l), "{g}");
+        }
+    }
+
+    // The cycle run: its windows and the baseline.
+    let cycle = &runs[0];
+    let st = &cycle["settings"];
+    let loops = st["loops_per_window"].as_u64().unwrap();
+    assert_eq!(
+        figure(cycle, "ours", "samples"),
+        st["windows_ours"].as_u64().unwrap() * loops
+    );
+    let granted = &cycle["realtime"];
+    assert_eq!(granted["priority_requested"], 80);
+    assert_eq!(granted["timer_slack_ns"], 1, "{granted}");
+    if granted["priority"].is_null() {
+        // Refused: the reader is told why, and how to grant it.
+        assert!(
+            cycle["notes"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|n| n.as_str().unwrap().contains("SCHED_FIFO")),
+            "{cycle}"
+        );
+    }
+    let state = cycle["baselines"]["cyclictest"].as_str().unwrap();
+    if cyclictest_installed() {
+        assert_eq!(state, "ran", "{ctx}");
+        assert_eq!(
+            figure(cycle, "cyclictest", "samples"),
+            st["windows_cyclictest"].as_u64().unwrap() * loops
+        );
+        let p99 = cycle["ratios"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|q| q["numerator"]["figure"] == "p99")
+            .expect("the p99 ratio");
+        assert_eq!(p99["numerator"]["series"], "ours");
+        assert_eq!(p99["denominator"]["series"], "cyclictest");
+        assert_eq!(cycle["goals"].as_array().unwrap().len(), 1);
+        let table = String::from_utf8_lossy(&r.out.stdout);
+        assert!(table.contains("ours / cyclictest"), "{ctx}");
+    } else {
+        assert!(
+            std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
+            "cyclictest (rt-tests) is not installed and MOTION_REQUIRE_ALL=1"
+        );
+        eprintln!(
+            "SKIPPED the cyclictest comparison: cyclictest is not installed; checked the absent path"
+        );
+        assert_eq!(state, "absent", "{ctx}");
+        assert_eq!(cycle["series"].as_array().unwrap().len(), 1);
+        assert!(cycle["ratios"].as_array().unwrap().is_empty());
+        assert!(
+            String::from_utf8_lossy(&r.out.stderr).contains("cyclictest is not installed")
+                || String::from_utf8_lossy(&r.out.stdout).contains("cyclictest is not installed"),
+            "{ctx}"
+        );
+    }
+
+    // The table went to the terminal and into the folder, with every column.
+    let table = std::fs::read_to_string(r.dir.join("table.txt")).unwrap();
+    for head in [
+        "samples", "min", "p50", "p90", "p99", "p99.9", "p99.99", "max",
+    ] {
+        assert!(table.contains(head), "{table}");
+    }
+    assert!(
+        String::from_utf8_lossy(&r.out.stdout).contains(&table),
+        "{ctx}"
+    );
+    for run in names {
+        for kind in ["histogram", "percentiles", "over-time"] {
+            let png = std::fs::read(r.dir.join(format!("{run}-{kind}.png"))).unwrap();
+            assert!(png.starts_with(b"\x89PNG"), "{run}-{kind}.png");
+        }
+    }
+}
+
+#[test]
+fn report_redraws_the_folder_and_compare_reads_two() {
+    let r = ran();
+    assert!(r.out.status.success(), "timing all failed\n{}", r.text());
+    // A copy, so that the other test reads the original.
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("timing-report");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    for e in std::fs::read_dir(&r.dir).unwrap() {
+        let p = e.unwrap().path();
+        let keep = !p.extension().is_some_and(|x| x == "png") && !p.ends_with("table.txt");
+        if keep {
+            std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
+        }
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_timing"))
+        .arg("report")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for run in ["cycle", "step", "shm-latency"] {
+        for kind in ["histogram", "percentiles", "over-time"] {
+            let png = std::fs::read(dir.join(format!("{run}-{kind}.png")))
+                .unwrap_or_else(|e| panic!("{run}-{kind}.png: {e}\n{text}"));
+            assert!(png.starts_with(b"\x89PNG"));
+        }
+    }
+    // The same figures as the run printed: the table is drawn from the same file.
+    let original = std::fs::read_to_string(r.dir.join("table.txt")).unwrap();
+    let redrawn = std::fs::read_to_string(dir.join("table.txt")).unwrap();
+    assert_eq!(original, redrawn);
+
+    let out = Command::new(env!("CARGO_BIN_EXE_timing"))
+        .arg("compare")
+        .arg(&r.dir)
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("1.00x") && !text.contains("only in"),
+        "{text}"
+    );
+
+    // A folder without a summary is an error in words, not a panic.
+    let out = Command::new(env!("CARGO_BIN_EXE_timing"))
+        .args(["report", "/nonexistent/timing"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.starts_with("error: /nonexistent/timing/summary.json:"),
+        "{err}"
+    );
+}
