@@ -258,8 +258,21 @@ mod tests {
             profiles: vec![Profile::Both],
             grouped: vec![true],
             seconds_per_series: 1.0,
+            priority: Some(80),
         };
         assert!(o.check().unwrap_err().contains("--axes 129"));
+        let p = StepOptions {
+            axes: vec![8],
+            priority: Some(100),
+            ..o.clone()
+        };
+        assert!(p.check().unwrap_err().contains("--priority 100"));
+        let d = StepOptions {
+            axes: vec![8],
+            seconds_per_series: f64::INFINITY,
+            ..o.clone()
+        };
+        assert!(d.check().unwrap_err().contains("--duration"));
         let o = StepOptions { axes: vec![], ..o };
         assert!(o.check().is_err());
     }

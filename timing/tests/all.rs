@@ -236,7 +236,7 @@ fn report_redraws_the_folder_and_compare_reads_two() {
     std::fs::create_dir_all(&dir).unwrap();
     for e in std::fs::read_dir(&r.dir).unwrap() {
         let p = e.unwrap().path();
-        let keep = !p.extension().is_some_and(|x| x == "png") && !p.ends_with("table.txt");
+        let keep = p.extension().is_none_or(|x| x != "png") && !p.ends_with("table.txt");
         if keep {
             std::fs::copy(&p, dir.join(p.file_name().unwrap())).unwrap();
         }

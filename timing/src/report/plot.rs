@@ -57,7 +57,7 @@ fn us_label(v: &f64) -> String {
 fn latency_range(series: &[Series]) -> (f64, f64) {
     let lo = series
         .iter()
-        .filter(|s| s.histogram().len() > 0)
+        .filter(|s| !s.histogram().is_empty())
         .map(|s| s.histogram().min())
         .min()
         .unwrap_or(1000);
@@ -277,7 +277,7 @@ fn over_time(path: &Path, title: &str, series: &[Series]) -> PlotResult {
 pub fn draw(dir: &Path, run: &str, title: &str, series: &[Series]) -> Result<Vec<PathBuf>, String> {
     register_font();
     let mut out = Vec::new();
-    if series.iter().all(|s| s.histogram().len() == 0) {
+    if series.iter().all(|s| s.histogram().is_empty()) {
         return Ok(out);
     }
     for (kind, f) in [
