@@ -239,7 +239,7 @@ pub fn run(o: &CycleOptions) -> Result<(Run, Vec<Series>), String> {
     let mut ct_failed = false;
     let sides = if exe.is_some() { 2 } else { 1 };
     let total = windows * sides * loops;
-    let mut progress = Progress::new("cycle", total, "periods");
+    let mut progress = Progress::new("cycle", total);
     let mut base = 0u64;
     for _ in 0..windows {
         // Ours.

@@ -11,11 +11,11 @@ use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-/// A progress display for one part of a run, counted in whole units (seconds, windows, axes).
+/// A progress display for one part of a run, counted in units of the caller's choosing
+/// (periods, samples) and shown in percent.
 #[derive(Debug)]
 pub struct Progress {
     label: String,
-    unit: &'static str,
     total: u64,
     bar: Option<ProgressBar>,
     /// The last tenth a plain line was printed for.
@@ -23,27 +23,25 @@ pub struct Progress {
 }
 
 impl Progress {
-    /// A display for `label`, `total` units of `unit` (`s`, `windows`...).
-    pub fn new(label: &str, total: u64, unit: &'static str) -> Progress {
+    /// A display for `label`, `total` units.
+    pub fn new(label: &str, total: u64) -> Progress {
         let bar = std::io::stderr().is_terminal().then(|| {
             let b = ProgressBar::new(total);
             // A fixed template: creating the style cannot fail.
             if let Ok(style) = ProgressStyle::with_template(
-                "{prefix:>12} [{bar:40}] {pos}/{len} {msg} ({elapsed})",
+                "{prefix:>12} [{bar:40}] {percent:>3} % ({elapsed}, {eta} left)",
             ) {
                 b.set_style(style.progress_chars("=> "));
             }
             b.set_prefix(label.to_string());
-            b.set_message(unit);
             b.enable_steady_tick(Duration::from_millis(200));
             b
         });
         if bar.is_none() {
-            eprintln!("{label}: 0 of {total} {unit}");
+            eprintln!("{label}: 0 %");
         }
         Progress {
             label: label.to_string(),
-            unit,
             total: total.max(1),
             bar,
             tenth: 0,
@@ -59,14 +57,7 @@ impl Progress {
                 let tenth = done * 10 / self.total;
                 if tenth > self.tenth {
                     self.tenth = tenth;
-                    eprintln!(
-                        "{}: {} of {} {} ({} %)",
-                        self.label,
-                        done,
-                        self.total,
-                        self.unit,
-                        tenth * 10
-                    );
+                    eprintln!("{}: {} %", self.label, tenth * 10);
                 }
             }
         }

@@ -122,7 +122,7 @@ pub fn shm_run(exe: &Path, samples: usize, period_us: u64) -> Result<(Run, Vec<S
     if !(100..=100_000).contains(&period_us) {
         return Err(format!("--period-us {period_us}: must be 100 to 100000 µs"));
     }
-    let mut progress = crate::progress::Progress::new("shm-latency", 1, "run");
+    let mut progress = crate::progress::Progress::new("shm-latency", 1);
     let figures = shm_latency::run_with_publisher(exe, samples, Duration::from_micros(period_us));
     progress.set(1);
     progress.finish();

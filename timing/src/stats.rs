@@ -22,7 +22,7 @@ pub const HIGHEST_NS: u64 = 60_000_000_000;
 
 /// Buckets a timeline keeps at most; past that, neighbours merge and the bucket width doubles,
 /// so a run of any length stays a few thousand rows.
-pub const MAX_BUCKETS: usize = 2048;
+pub const MAX_BUCKETS: usize = 1024;
 
 /// The table's figures of one series, ns (samples: a count).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -18,7 +18,7 @@ use std::time::Duration;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use timing::cycle::CycleOptions;
 use timing::session::{self, Session};
-use timing::step::{Profile, StepOptions};
+use timing::step::{Cache, Profile, StepOptions};
 
 #[derive(Parser)]
 #[command(
@@ -65,6 +65,21 @@ enum ProfileArg {
     Both,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum CacheArg {
+    Cold,
+    Hot,
+    Both,
+}
+
+fn caches(c: CacheArg) -> Vec<Cache> {
+    match c {
+        CacheArg::Cold => vec![Cache::Cold],
+        CacheArg::Hot => vec![Cache::Hot],
+        CacheArg::Both => vec![Cache::Cold, Cache::Hot],
+    }
+}
+
 #[derive(Args, Clone)]
 struct StepArgs {
     /// Machine sizes, axes (comma-separated, each 1..128).
@@ -79,6 +94,10 @@ struct StepArgs {
     /// Every axis moves on its own.
     #[arg(long)]
     single: bool,
+    /// Where the step finds its state: cold (copies made ahead, out of the caches, as the
+    /// criterion bench and the cycle thread after its sleep), hot (copied just before), both.
+    #[arg(long, value_enum, default_value = "both")]
+    cache: CacheArg,
     /// SCHED_FIFO priority of the measuring thread, as the cycle thread's (1..99; 0: the
     /// normal scheduler).
     #[arg(long, default_value_t = 80)]
@@ -101,7 +120,7 @@ enum Cmd {
     Step {
         #[command(flatten)]
         step: StepArgs,
-        /// Measuring time per machine, s.
+        /// Measuring time per series, s.
         #[arg(long, default_value_t = 3.0)]
         duration: f64,
         #[command(flatten)]
@@ -109,8 +128,8 @@ enum Cmd {
     },
     /// Cycle, step and shm-latency into one folder.
     All {
-        /// Length of the cycle run, s; the step gets a quarter of it per machine, shm-latency
-        /// about half of it.
+        /// Length of the cycle run, s; the step gets an eighth of it per series (two machines,
+        /// cold and hot), shm-latency half of it.
         #[arg(long, default_value_t = 10.0)]
         duration: f64,
         #[command(flatten)]
@@ -216,6 +235,7 @@ fn main() -> ExitCode {
                     (false, true) => vec![false],
                     _ => vec![true],
                 },
+                caches: caches(step.cache),
                 seconds_per_series: duration,
                 priority: (step.priority != 0).then_some(step.priority),
             };
@@ -236,7 +256,8 @@ fn main() -> ExitCode {
                 axes,
                 profiles: vec![Profile::Both],
                 grouped: vec![true],
-                seconds_per_series: duration / 4.0,
+                caches: vec![Cache::Cold, Cache::Hot],
+                seconds_per_series: duration / 8.0,
                 priority: Some(cycle.priority),
             };
             step.check()?;
@@ -245,7 +266,8 @@ fn main() -> ExitCode {
             s.add(timing::cycle::run(&o)?);
             s.add(timing::step::run(&step)?);
             // Five phases of a tenth of the run each (at least 100 samples).
-            let samples = ((duration * 1e6 / 10.0 / cycle.period_us as f64) as usize).max(100);
+            let samples =
+                ((duration * 1e6 / 10.0 / cycle.period_us as f64) as usize).clamp(100, 1_000_000);
             s.add(session::shm_run(&exe, samples, cycle.period_us.max(100))?);
             finish(s, common.out)
         })(),

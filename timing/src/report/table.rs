@@ -28,6 +28,11 @@ pub fn ratio(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.2}x"))
 }
 
+/// A figure's name as the table heads it (`p99_9` is `p99.9`).
+fn figure_head(f: &str) -> String {
+    f.replace('_', ".")
+}
+
 const HEADS: [&str; 8] = [
     "samples", "min", "p50", "p90", "p99", "p99.9", "p99.99", "max",
 ];
@@ -66,13 +71,22 @@ pub fn run(r: &Run) -> String {
         }
         s.push('\n');
     }
-    if !r.ratios.is_empty() {
+    // One line per pair of series: "ratio A / B: p50 1.05x, p99 1.10x".
+    let mut pairs: Vec<(&str, &str)> = Vec::new();
+    for q in &r.ratios {
+        let pair = (q.numerator.series.as_str(), q.denominator.series.as_str());
+        if !pairs.contains(&pair) {
+            pairs.push(pair);
+        }
+    }
+    for (a, b) in pairs {
         let parts: Vec<String> = r
             .ratios
             .iter()
-            .map(|x| format!("{} {}", x.name, ratio(x.value)))
+            .filter(|q| q.numerator.series == a && q.denominator.series == b)
+            .map(|q| format!("{} {}", figure_head(&q.numerator.figure), ratio(q.value)))
             .collect();
-        let _ = writeln!(s, "ratios: {}", parts.join("; "));
+        let _ = writeln!(s, "ratio {a} / {b}: {}", parts.join(", "));
     }
     for g in &r.goals {
         let (m, l) = if g.unit == "x" {
