@@ -231,7 +231,10 @@ pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
             .timed_wait(|_| {}, t)
             .map_err(|e| format!("{e:?}"))?;
         while let Ok(Some(s)) = bare.receive() {
-            raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
+            // One wake-up can bring several samples: exactly `samples` are kept.
+            if raw.len() < samples {
+                raw.push(monotonic_now().as_nanos().saturating_sub(s.publish_time_ns));
+            }
         }
     }
     out.push(figures("bare iceoryx2, event-driven (listener)", raw));
