@@ -303,9 +303,13 @@ pub fn run(o: &CycleOptions) -> Result<(Run, Vec<Series>), String> {
     drop(ours.requests);
     let _ = ours.thread.join();
     if skipped > 0 {
-        run.notes.push(format!(
-            "{skipped} deadlines were skipped: our thread came back more than a period late"
-        ));
+        run.notes.push(if skipped == 1 {
+            "1 deadline was skipped: our thread came back more than a period late".to_string()
+        } else {
+            format!(
+                "{skipped} deadlines were skipped: our thread came back more than a period late"
+            )
+        });
     }
     run.set("period_us", o.period_us);
     run.set("priority_requested", o.priority);

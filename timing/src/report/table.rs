@@ -127,16 +127,14 @@ pub fn summary(sum: &Summary) -> String {
 /// of A, of B and B / A.
 pub fn compare(a: &Summary, b: &Summary, a_name: &str, b_name: &str) -> String {
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "A: {a_name}\n   {}",
-        a.machine.describe().replace('\n', "\n   ")
-    );
-    let _ = writeln!(
-        s,
-        "B: {b_name}\n   {}",
-        b.machine.describe().replace('\n', "\n   ")
-    );
+    for (tag, name, sum) in [("A", a_name, a), ("B", b_name, b)] {
+        let _ = writeln!(
+            s,
+            "{tag}: {name}\n   {}\n   background load: {}",
+            sum.machine.describe().replace('\n', "\n   "),
+            sum.load.as_deref().unwrap_or("none")
+        );
+    }
     let mut matched = 0;
     for ra in &a.runs {
         let Some(rb) = b.runs.iter().find(|r| r.name == ra.name) else {
