@@ -267,6 +267,8 @@ pub fn run(o: &StepOptions) -> Result<(Run, Vec<Series>), String> {
             &format!("cycle_us ({machine})"),
             plan.period.as_micros() as u64,
         );
+        // What one copy of the state weighs: a cold step reads its part of this from memory.
+        run.set("state_bytes", std::mem::size_of_val(&*cap.cycle) as u64);
         for &cache in &o.caches {
             let name = series_name(n, p, grouped, cache);
             let done = AtomicU64::new(0);
