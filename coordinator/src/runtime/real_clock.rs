@@ -40,7 +40,7 @@ use crate::runtime::plan::MachinePlan;
 use crate::runtime::realtime_thread::{self, RealtimeSettings};
 use crate::runtime::run::{
     BusFigures, FrameHash, RunError, RunOptions, Snapshot, Summary, capture_lines, finish_summary,
-    note_event, out_is_tty, print_status, report_node, say, status_lines,
+    machine_line, note_event, out_is_tty, print_status, report_node, say, status_lines,
 };
 use crate::runtime::script::Script;
 use crate::runtime::services::{self, CycleEnds, ServiceEvent};
@@ -264,16 +264,7 @@ pub fn run_real(
         lock_memory: true,
     });
     let t0 = monotonic_now();
-    say(
-        out,
-        &format!(
-            "machine: {} axes, {} groups, {} bus(es), cycle {} us, real time",
-            plan.axes.len(),
-            plan.groups.len(),
-            plan.buses.len(),
-            plan.period.as_micros()
-        ),
-    );
+    say(out, &machine_line(plan, "real time"));
 
     // The buses, as configured. A SocketCAN interface that cannot be opened stops the run here,
     // naming the interface and the reason.

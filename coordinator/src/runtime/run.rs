@@ -375,6 +375,18 @@ pub fn status_lines(plan: &MachinePlan, snap: &Snapshot) -> String {
     s
 }
 
+/// The run's first line: what the machine is and which clock runs it.
+pub fn machine_line(plan: &MachinePlan, clock: &str) -> String {
+    let n = |k: usize, one: &str, many: &str| format!("{k} {}", if k == 1 { one } else { many });
+    format!(
+        "machine: {}, {}, {}, cycle {} µs, {clock}",
+        n(plan.axes.len(), "axis", "axes"),
+        n(plan.groups.len(), "group", "groups"),
+        n(plan.buses.len(), "bus", "buses"),
+        plan.period.as_micros()
+    )
+}
+
 /// Runs `cfg`'s machine: its buses opened as configured (simulated, `vbus:NAME`, SocketCAN),
 /// its Modbus drives dialled (or simulated where the file says so), in real time; or, with
 /// every drive simulated, in virtual time.

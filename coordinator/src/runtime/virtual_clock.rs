@@ -18,7 +18,7 @@ use crate::runtime::nodes::{NodeReport, Nodes};
 use crate::runtime::plan::MachinePlan;
 use crate::runtime::run::{
     BusFigures, FrameHash, RunError, RunOptions, Snapshot, Summary, capture_lines, finish_summary,
-    note_event, out_is_tty, print_status, report_node, say, status_lines,
+    machine_line, note_event, out_is_tty, print_status, report_node, say, status_lines,
 };
 use crate::runtime::script::{Phase, Script};
 use crate::runtime::shm::{ServiceSide, StateSide, StaticInfo};
@@ -476,16 +476,7 @@ pub fn run_virtual(
 ) -> Result<Summary, RunError> {
     let wall0 = std::time::Instant::now();
     let mut run = VirtualRun::new(plan, opts)?;
-    say(
-        out,
-        &format!(
-            "machine: {} axes, {} groups, {} bus(es), cycle {} us, virtual time",
-            plan.axes.len(),
-            plan.groups.len(),
-            plan.buses.len(),
-            plan.period.as_micros()
-        ),
-    );
+    say(out, &machine_line(plan, "virtual time"));
     loop {
         let over = opts.duration.is_some_and(|d| run.elapsed() >= d);
         if over && !run.lp.ending() {
