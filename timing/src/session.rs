@@ -69,15 +69,23 @@ impl Session {
     }
 }
 
-/// Redraws a folder's plots and table (`timing report DIR`); returns the table.
+/// Redraws a folder's plots, percentile texts and table (`timing report DIR`); returns the
+/// table.
 pub fn redraw(dir: &Path) -> Result<String, String> {
     let report = Report::read(dir)?;
+    // The percentile text is derived from the histogram too: rewritten with the plots.
+    for (run, series) in report.summary.runs.iter().zip(&report.series) {
+        for (meta, s) in run.series.iter().zip(series) {
+            crate::report::files::write_hgrm(dir, &meta.file, s.histogram())
+                .map_err(|e| e.to_string())?;
+        }
+    }
     let plots = report.plot(dir)?;
     let text = table::summary(&report.summary);
     let path = dir.join(TABLE);
     std::fs::write(&path, &text).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(format!(
-        "{text}\nredrawn in {}: {TABLE} and {} plots\n",
+        "{text}\nredrawn in {}: {TABLE}, the .hgrm files and {} plots\n",
         dir.display(),
         plots.len()
     ))

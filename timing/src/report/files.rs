@@ -79,9 +79,20 @@ pub fn hgrm(h: &Histogram<u64>) -> String {
         out,
         "#[Buckets = {:12}, SubBuckets     = {:12}]",
         h.buckets(),
-        h.distinct_values()
+        sub_buckets(h.sigfig())
     );
     out
+}
+
+/// HdrHistogram's sub-bucket count for `sigfig` significant digits: the power of two at or
+/// above 2 × 10^sigfig (2048 for 3 digits).
+fn sub_buckets(sigfig: u8) -> u64 {
+    (2 * 10u64.pow(u32::from(sigfig))).next_power_of_two()
+}
+
+/// Writes `FILE.hgrm`, the percentile text of a histogram.
+pub fn write_hgrm(dir: &Path, file: &str, h: &Histogram<u64>) -> Result<(), FileError> {
+    write(&dir.join(format!("{file}.hgrm")), hgrm(h).as_bytes())
 }
 
 /// Writes a series' files (`FILE.hdr`, `FILE.hgrm`, `FILE.timeline.csv`) into `dir`.
@@ -92,10 +103,7 @@ pub fn write_series(dir: &Path, file: &str, s: &Series) -> Result<(), FileError>
         .serialize(s.histogram(), &mut bytes)
         .map_err(|e| err(&path, format!("cannot encode the histogram: {e:?}")))?;
     write(&path, &bytes)?;
-    write(
-        &dir.join(format!("{file}.hgrm")),
-        hgrm(s.histogram()).as_bytes(),
-    )?;
+    write_hgrm(dir, file, s.histogram())?;
     let mut csv = String::from("start_s,count,min_ns,mean_ns,max_ns,sum_ns\n");
     for b in s.timeline() {
         let _ = writeln!(
@@ -187,6 +195,7 @@ mod tests {
         assert_eq!(r.timeline(), s.timeline());
         let text = std::fs::read_to_string(dir.join("cycle-ours.hgrm")).unwrap();
         assert!(text.contains("Total count    =         5000"), "{text}");
+        assert!(text.contains("SubBuckets     =         2048"), "{text}");
         let last_total: u64 = text
             .lines()
             .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
