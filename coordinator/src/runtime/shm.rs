@@ -1,8 +1,8 @@
 //! The coordinator's side of the shared-memory contract (`shm-api`): the machine state written
 //! in place into a loaned sample after every cycle, client commands translated to the cycle's
 //! commands and their answers back, the cycle's events as event records. The conversions are
-//! integer (user units in millionths, `shm_api::contract::MICRO`), done with per-axis scale
-//! factors computed once at start-up.
+//! integer (user units in millionths, `shm_api::contract::MICRO`), done by each axis's exact
+//! [`Scale`] (rounded to nearest, ties away from zero).
 
 use shm_api::contract::{
     self as wire, AxisState as WireAxis, CommandReply, CommandRequest, EventRecord,
@@ -26,8 +26,10 @@ use crate::fault::FaultReason;
 use crate::profile::MoveState as PathState;
 use crate::records::{ChainState, MAX_GROUP_AXES};
 use crate::runtime::plan::MachinePlan;
+use crate::units::{MICROS_PER_UNIT, Scale};
 
-const Q: u32 = 32;
+// The scale's µunits are the contract's.
+const _: () = assert!(MICROS_PER_UNIT == wire::MICRO);
 
 /// What does not change during a run: names, units, scale factors, group members.
 #[derive(Debug, Clone)]
@@ -42,10 +44,7 @@ pub struct StaticInfo {
 struct AxisInfo {
     name: [u8; wire::NAME_LEN],
     unit: [u8; wire::UNIT_LEN],
-    /// µunits per increment, Q32.
-    micro_per_inc: i128,
-    /// increments per µunit, Q32.
-    inc_per_micro: i128,
+    scale: Scale,
     fhpp: bool,
     group: Option<u16>,
 }
@@ -60,7 +59,6 @@ struct GroupInfo {
 impl StaticInfo {
     /// The fixed part of the state of `plan`.
     pub fn new(plan: &MachinePlan, virtual_time: bool) -> StaticInfo {
-        let q = f64::from(1u32 << 16) * f64::from(1u32 << 16);
         let axes = plan
             .axes
             .iter()
@@ -68,8 +66,7 @@ impl StaticInfo {
             .map(|(i, a)| AxisInfo {
                 name: name_bytes(&a.name),
                 unit: name_bytes(&a.unit),
-                micro_per_inc: (1e6 / a.scale * q).round() as i128,
-                inc_per_micro: (a.scale / 1e6 * q).round() as i128,
+                scale: a.scale,
                 fhpp: a.setup.profile == crate::axis::Profile::Fhpp,
                 group: plan
                     .groups
@@ -101,16 +98,18 @@ impl StaticInfo {
         }
     }
 
-    /// Increments → µunits of an axis.
+    /// Increments (per second) → µunits (per second) of an axis ([`Scale::inc_to_micro`]);
+    /// 0 for an axis that does not exist.
     pub fn to_micro(&self, axis: usize, inc: i64) -> i64 {
-        let m = self.axes.get(axis).map_or(0, |a| a.micro_per_inc);
-        ((i128::from(inc) * m) >> Q) as i64
+        self.axes.get(axis).map_or(0, |a| a.scale.inc_to_micro(inc))
     }
 
-    /// µunits → increments of an axis (rounded to nearest).
+    /// µunits → increments of an axis ([`Scale::micro_to_inc`]); 0 for an axis that does not
+    /// exist.
     pub fn to_inc(&self, axis: usize, micro: i64) -> i64 {
-        let m = self.axes.get(axis).map_or(0, |a| a.inc_per_micro);
-        ((i128::from(micro) * m + (1 << (Q - 1))) >> Q) as i64
+        self.axes
+            .get(axis)
+            .map_or(0, |a| a.scale.micro_to_inc(micro))
     }
 }
 
