@@ -18,9 +18,11 @@ use coordinator::config::Config;
 use coordinator::cycle::{BusFrame, CycleInput, CycleOutput};
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::{MachinePlan, plan};
-use coordinator::runtime::run::{Captured, RunOptions, VirtualRun};
+use coordinator::runtime::run::RunOptions;
 use coordinator::runtime::script::{Phase, ScriptOptions};
+use coordinator::runtime::stepper::Captured;
 use coordinator::runtime::synthetic;
+use coordinator::runtime::virtual_clock::VirtualRun;
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use drivers::can::Frame;
 
@@ -53,7 +55,7 @@ fn capture(plan: &MachinePlan) -> Captured<'_> {
         for (i, &a) in gs.axes.iter().enumerate() {
             positions[i] = plan.axes[usize::from(a)].setup.position_max * 3 / 4;
         }
-        let reply = run.core.cycle.command(&Command::MoveGroup {
+        let reply = run.stepper.cycle.command(&Command::MoveGroup {
             group: g as GroupId,
             positions,
             velocity_percent: 100,

@@ -10,10 +10,11 @@ use std::time::Duration;
 
 use coordinator::config::{Config, EXAMPLE};
 use coordinator::runtime::plan::{MachinePlan, plan};
-use coordinator::runtime::run::{RunOptions, VirtualRun};
+use coordinator::runtime::run::RunOptions;
 use coordinator::runtime::script::{Phase, ScriptOptions};
 use coordinator::runtime::shm::{StateSide, StaticInfo};
 use coordinator::runtime::synthetic;
+use coordinator::runtime::virtual_clock::VirtualRun;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use iceoryx2::prelude::*;
 use shm_api::contract::MachineState;
@@ -62,7 +63,7 @@ fn bench(c: &mut Criterion) {
             .unwrap();
         let _client = service.subscriber_builder().create().unwrap();
         g.bench_function(BenchmarkId::new("coordinator state", name), |b| {
-            b.iter(|| side.publish(&run.core.cycle, 1))
+            b.iter(|| side.publish(&run.stepper.cycle, 1))
         });
     }
     // The bare pair: a raw iceoryx2 publisher of the same payload.

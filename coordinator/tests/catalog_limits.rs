@@ -10,8 +10,9 @@ use std::fmt::Write as _;
 use coordinator::config::{Config, MAX_AXES, MAX_BUSES, MAX_GROUPS, MAX_HEARTBEAT_MS};
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::plan;
-use coordinator::runtime::run::{RunOptions, VirtualRun};
+use coordinator::runtime::run::RunOptions;
 use coordinator::runtime::script::ScriptOptions;
+use coordinator::runtime::virtual_clock::VirtualRun;
 use drivers::catalog::{self, DEVICES, Device, Link, Profile};
 
 /// The cycle of every machine here, µs.

@@ -12,8 +12,8 @@ use coordinator::admission::{AxisActivity, GroupActivity, Refusal};
 use coordinator::command::{BufferMode, Command, Rejected, Reply, Target};
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::MachinePlan;
-use coordinator::runtime::run::VirtualRun;
 use coordinator::runtime::script::Phase;
+use coordinator::runtime::virtual_clock::VirtualRun;
 
 use common::{demo as options, example};
 
@@ -67,7 +67,7 @@ fn refused(r: Reply, why: Refusal) {
 }
 
 fn axis(run: &VirtualRun<'_>, a: usize) -> coordinator::cycle::AxisStatus {
-    run.core.cycle.axis_status(a as u16).unwrap()
+    run.stepper.cycle.axis_status(a as u16).unwrap()
 }
 
 fn group_targets(plan: &MachinePlan, units: &[(usize, f64)]) -> [i64; MAX_GROUP_AXES] {
@@ -95,7 +95,7 @@ fn stop_all_is_sticky_and_ends_the_demonstration() {
             != 0)),
         "the demonstration moves something"
     );
-    latched(run.core.cycle.command(&Command::Stop(Target::All)));
+    latched(run.stepper.cycle.command(&Command::Stop(Target::All)));
     // The ramps end within a second; from then on nothing moves, for good.
     steps(&mut run, 500);
     let still: Vec<i64> = (0..n).map(|a| axis(&run, a).setpoint).collect();
@@ -110,7 +110,7 @@ fn stop_all_is_sticky_and_ends_the_demonstration() {
     assert_eq!(run.lp.script.phase(), Phase::Stopped);
     // A new motion command moves again: the stop was sticky, not a lock.
     let y = plan.axis("y").unwrap();
-    latched(run.core.cycle.command(&Command::MoveAxis {
+    latched(run.stepper.cycle.command(&Command::MoveAxis {
         axis: y as u16,
         position: inc(&plan, y, 50.0),
         velocity_percent: 50,
@@ -127,7 +127,7 @@ fn a_hold_is_kept_across_the_chains_steps_until_resume() {
     let mut run = ready(&plan, false);
     let g = plan.group("gantry").unwrap() as u16;
     let x = plan.axis("x").unwrap();
-    latched(run.core.cycle.command(&Command::StartChain {
+    latched(run.stepper.cycle.command(&Command::StartChain {
         group: g,
         record: 10,
     }));
@@ -136,7 +136,7 @@ fn a_hold_is_kept_across_the_chains_steps_until_resume() {
     assert!(run_until(&mut run, Duration::from_secs(10), |r| {
         axis(r, x).setpoint > inc(&plan, x, 140.0)
     }));
-    latched(run.core.cycle.command(&Command::Hold(Target::Group(g))));
+    latched(run.stepper.cycle.command(&Command::Hold(Target::Group(g))));
     steps(&mut run, 500);
     let held = axis(&run, x).setpoint;
     assert!(
@@ -144,7 +144,7 @@ fn a_hold_is_kept_across_the_chains_steps_until_resume() {
         "held inside the window: {held}"
     );
     assert_eq!(
-        run.core.cycle.group_status(g).unwrap().activity,
+        run.stepper.cycle.group_status(g).unwrap().activity,
         GroupActivity::Held
     );
     for _ in 0..4 {
@@ -153,7 +153,11 @@ fn a_hold_is_kept_across_the_chains_steps_until_resume() {
         assert_eq!(s.setpoint, held, "the next record started during the hold");
         assert_eq!(s.setpoint_velocity, 0);
     }
-    latched(run.core.cycle.command(&Command::Resume(Target::Group(g))));
+    latched(
+        run.stepper
+            .cycle
+            .command(&Command::Resume(Target::Group(g))),
+    );
     assert!(
         run_until(&mut run, Duration::from_secs(5), |r| axis(r, x).setpoint
             != held),
@@ -167,14 +171,18 @@ fn acknowledge_without_a_fault_changes_nothing() {
     let mut run = ready(&plan, false);
     let g = plan.group("gantry").unwrap() as u16;
     let (x, y) = (plan.axis("x").unwrap(), plan.axis("y").unwrap());
-    latched(run.core.cycle.command(&Command::MoveGroup {
+    latched(run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions: group_targets(&plan, &[(x, 350.0), (y, 200.0)]),
         velocity_percent: 50,
         buffer: BufferMode::Aborting,
     }));
     steps(&mut run, 200);
-    latched(run.core.cycle.command(&Command::Acknowledge(Target::All)));
+    latched(
+        run.stepper
+            .cycle
+            .command(&Command::Acknowledge(Target::All)),
+    );
     steps(&mut run, 20);
     let s = axis(&run, x);
     assert_ne!(s.setpoint_velocity, 0, "the move goes on: {s:?}");
@@ -190,14 +198,14 @@ fn home_jog_and_a_single_move_are_refused_in_a_group_move() {
     let mut run = ready(&plan, false);
     let g = plan.group("gantry").unwrap() as u16;
     let (x, y) = (plan.axis("x").unwrap(), plan.axis("y").unwrap());
-    latched(run.core.cycle.command(&Command::MoveGroup {
+    latched(run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions: group_targets(&plan, &[(x, 300.0), (y, 200.0)]),
         velocity_percent: 30,
         buffer: BufferMode::Aborting,
     }));
     steps(&mut run, 50);
-    let c = &mut run.core.cycle;
+    let c = &mut run.stepper.cycle;
     refused(
         c.command(&Command::Home(Target::Axis(y as u16))),
         Refusal::InGroupMove,
@@ -245,7 +253,7 @@ fn the_override_slows_a_single_axis_move() {
     let mut run = ready(&plan, false);
     let z = plan.axis("z").unwrap();
     let to = inc(&plan, z, 110.0);
-    latched(run.core.cycle.command(&Command::MoveAxis {
+    latched(run.stepper.cycle.command(&Command::MoveAxis {
         axis: z as u16,
         position: to,
         velocity_percent: 100,
@@ -254,7 +262,7 @@ fn the_override_slows_a_single_axis_move() {
     // Cruise at the full velocity limit, then half of it once overridden.
     steps(&mut run, 600);
     let full = axis(&run, z).setpoint_velocity;
-    latched(run.core.cycle.command(&Command::SetOverride {
+    latched(run.stepper.cycle.command(&Command::SetOverride {
         target: Target::Axis(z as u16),
         percent: 50,
     }));
@@ -275,11 +283,11 @@ fn a_jog_keeps_the_velocity_limit_and_stops_exactly_at_the_software_limit() {
     let a = plan.axis("gripper").unwrap();
     let setup = plan.axes[a].setup;
     // Even at the full jog speed with a 200 % override.
-    latched(run.core.cycle.command(&Command::SetOverride {
+    latched(run.stepper.cycle.command(&Command::SetOverride {
         target: Target::Axis(a as u16),
         percent: 200,
     }));
-    latched(run.core.cycle.command(&Command::Jog {
+    latched(run.stepper.cycle.command(&Command::Jog {
         axis: a as u16,
         permille: 1000,
     }));
@@ -301,14 +309,14 @@ fn a_jog_keeps_the_velocity_limit_and_stops_exactly_at_the_software_limit() {
         s.feedback.position
     );
     // Back, released half-way: it ramps down, and the setpoint is where the axis is.
-    latched(run.core.cycle.command(&Command::Jog {
+    latched(run.stepper.cycle.command(&Command::Jog {
         axis: a as u16,
         permille: -500,
     }));
     assert!(run_until(&mut run, Duration::from_secs(20), |r| axis(r, a)
         .setpoint
         < max / 2));
-    latched(run.core.cycle.command(&Command::Jog {
+    latched(run.stepper.cycle.command(&Command::Jog {
         axis: a as u16,
         permille: 0,
     }));
@@ -342,9 +350,9 @@ fn a_move_on_a_moving_axis_aborts_or_waits_as_asked() {
         inc(&plan, zi, 60.0),
     );
     // Aborting: the new target is taken on the way, the first one is never reached.
-    latched(run.core.cycle.command(&mv(far, BufferMode::Aborting)));
+    latched(run.stepper.cycle.command(&mv(far, BufferMode::Aborting)));
     steps(&mut run, 300);
-    latched(run.core.cycle.command(&mv(near, BufferMode::Aborting)));
+    latched(run.stepper.cycle.command(&mv(near, BufferMode::Aborting)));
     let mut highest = 0;
     assert!(run_until(&mut run, Duration::from_secs(30), |r| {
         highest = highest.max(axis(r, zi).setpoint);
@@ -355,9 +363,9 @@ fn a_move_on_a_moving_axis_aborts_or_waits_as_asked() {
         "the aborted target was not reached: {highest}"
     );
     // Buffered: the first arrives, then the second starts.
-    latched(run.core.cycle.command(&mv(far, BufferMode::Aborting)));
+    latched(run.stepper.cycle.command(&mv(far, BufferMode::Aborting)));
     steps(&mut run, 100);
-    latched(run.core.cycle.command(&mv(mid, BufferMode::Buffered)));
+    latched(run.stepper.cycle.command(&mv(mid, BufferMode::Buffered)));
     let mut reached_far = false;
     assert!(run_until(&mut run, Duration::from_secs(30), |r| {
         reached_far |= axis(r, zi).setpoint == far;
@@ -390,7 +398,7 @@ fn a_configured_machine_starts_nothing_on_its_own() {
         assert_eq!(s.setpoint_velocity, 0);
     }
     // The operator enables one axis; it stands still.
-    latched(run.core.cycle.command(&Command::Enable(Target::Axis(0))));
+    latched(run.stepper.cycle.command(&Command::Enable(Target::Axis(0))));
     steps(&mut run, 500);
     assert_eq!(axis(&run, 0).activity, AxisActivity::Standstill);
 }

@@ -11,9 +11,10 @@ use coordinator::command::{BufferMode, Command, GroupId, Reply};
 use coordinator::config::Config;
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::plan;
-use coordinator::runtime::run::{RunOptions, VirtualRun};
+use coordinator::runtime::run::RunOptions;
 use coordinator::runtime::script::{Phase, ScriptOptions};
 use coordinator::runtime::synthetic;
+use coordinator::runtime::virtual_clock::VirtualRun;
 
 struct Counting;
 
@@ -86,7 +87,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         );
     }
     for a in 0..plan.axes.len() {
-        let s = run.core.cycle.axis_status(a as u16).unwrap();
+        let s = run.stepper.cycle.axis_status(a as u16).unwrap();
         assert_eq!(
             s.mode,
             coordinator::cycle::AxisMode::On,
@@ -107,7 +108,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
                 };
             }
             probe(true);
-            let reply = run.core.cycle.command(&Command::MoveGroup {
+            let reply = run.stepper.cycle.command(&Command::MoveGroup {
                 group: g as GroupId,
                 positions,
                 velocity_percent: 100,
@@ -124,7 +125,7 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
         // Until every group's move has arrived (at most 60 s of machine time).
         let t = run.elapsed();
         while (0..plan.groups.len()).any(|g| {
-            run.core
+            run.stepper
                 .cycle
                 .group_status(g as GroupId)
                 .is_some_and(|s| s.motion.is_some())

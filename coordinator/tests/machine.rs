@@ -13,8 +13,9 @@ use coordinator::cycle::AxisMode;
 use coordinator::fault::FaultReason;
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::{MachinePlan, plan};
-use coordinator::runtime::run::{RunOptions, VirtualRun, run_virtual};
+use coordinator::runtime::run::RunOptions;
 use coordinator::runtime::script::Phase;
+use coordinator::runtime::virtual_clock::{VirtualRun, run_virtual};
 use drivers::can::Bus;
 use drivers::can::fault::{FaultRule, IdMatch};
 
@@ -40,7 +41,7 @@ fn ready(plan: &MachinePlan) -> VirtualRun<'_> {
     assert!(run.io.summary.boot_failures.is_empty(), "{text}");
     assert!(run.io.summary.faults.is_empty(), "{text}");
     for a in 0..plan.axes.len() {
-        let s = run.core.cycle.axis_status(a as u16).unwrap();
+        let s = run.stepper.cycle.axis_status(a as u16).unwrap();
         assert_eq!(
             s.feedback.state,
             AxisState::Ready,
@@ -87,7 +88,7 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
     let mut positions = [0i64; MAX_GROUP_AXES];
     positions[0] = tx;
     positions[1] = ty;
-    let at = latched(run.core.cycle.command(&Command::MoveGroup {
+    let at = latched(run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions,
         velocity_percent: 100,
@@ -97,10 +98,10 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
     let mut arrived = [None, None];
     let mut out = Vec::new();
     for _ in 0..5000 {
-        let c = run.core.cycle.cycle();
+        let c = run.stepper.cycle.cycle();
         run.step(&mut out);
         for (i, (axis, target)) in [(x, tx), (y, ty)].into_iter().enumerate() {
-            let s = run.core.cycle.axis_status(axis as u16).unwrap();
+            let s = run.stepper.cycle.axis_status(axis as u16).unwrap();
             if started[i].is_none() && s.setpoint_velocity != 0 {
                 started[i] = Some(c);
             }
@@ -111,7 +112,7 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
             }
         }
         if arrived.iter().all(Option::is_some)
-            && run.core.cycle.group_status(g).unwrap().motion.is_none()
+            && run.stepper.cycle.group_status(g).unwrap().motion.is_none()
         {
             break;
         }
@@ -127,7 +128,7 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
     // The drives got there too, and report motion complete.
     steps(&mut run, 50);
     for (axis, target) in [(x, tx), (y, ty)] {
-        let s = run.core.cycle.axis_status(axis as u16).unwrap();
+        let s = run.stepper.cycle.axis_status(axis as u16).unwrap();
         assert!(s.feedback.motion_complete, "{s:?}");
         assert!(
             (s.feedback.position - target).abs() <= 2,
@@ -147,11 +148,11 @@ fn a_bad_group_move_is_refused_whole_and_nothing_moves() {
     let mut run = ready(&plan);
     let g = plan.group("gantry").unwrap() as u16;
     let x = plan.axis("x").unwrap() as u16;
-    let before = run.core.cycle.axis_status(x).unwrap().setpoint;
+    let before = run.stepper.cycle.axis_status(x).unwrap().setpoint;
     let mut positions = [0i64; MAX_GROUP_AXES];
     positions[0] = plan.axes[x as usize].scale.to_inc(100.0).unwrap();
     positions[1] = 10_000_000; // y far beyond its 250 mm
-    let r = run.core.cycle.command(&Command::MoveGroup {
+    let r = run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions,
         velocity_percent: 50,
@@ -168,9 +169,9 @@ fn a_bad_group_move_is_refused_whole_and_nothing_moves() {
         "{r:?}"
     );
     steps(&mut run, 20);
-    assert_eq!(run.core.cycle.axis_status(x).unwrap().setpoint, before);
+    assert_eq!(run.stepper.cycle.axis_status(x).unwrap().setpoint, before);
     assert!(matches!(
-        run.core.cycle.command(&Command::MoveGroup {
+        run.stepper.cycle.command(&Command::MoveGroup {
             group: 9,
             positions,
             velocity_percent: 50,
@@ -201,7 +202,7 @@ fn fault_reaction(
         .scale
         .to_inc(200.0)
         .unwrap();
-    latched(run.core.cycle.command(&Command::MoveGroup {
+    latched(run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions,
         velocity_percent: 50,
@@ -213,12 +214,12 @@ fn fault_reaction(
     let mut out = Vec::new();
     for _ in 0..2000 {
         run.step(&mut out);
-        if run.core.cycle.axis_status(a).unwrap().fault != FaultReason::None {
+        if run.stepper.cycle.axis_status(a).unwrap().fault != FaultReason::None {
             break;
         }
     }
     let text = String::from_utf8_lossy(&out).to_string();
-    let st = run.core.cycle.axis_status(a).unwrap();
+    let st = run.stepper.cycle.axis_status(a).unwrap();
     assert!(expect(st.fault), "{axis}: {:?}\n{text}", st.fault);
     // Same cycle: the whole group is quick-stopped and its move dropped.
     if let Some(gi) = plan
@@ -228,13 +229,13 @@ fn fault_reaction(
     {
         for &m in &plan.groups[gi].1.axes {
             assert_eq!(
-                run.core.cycle.axis_status(m).unwrap().mode,
+                run.stepper.cycle.axis_status(m).unwrap().mode,
                 AxisMode::QuickStopped,
                 "member {m}"
             );
         }
         assert!(
-            run.core
+            run.stepper
                 .cycle
                 .group_status(gi as u16)
                 .unwrap()
@@ -242,7 +243,7 @@ fn fault_reaction(
                 .is_none()
         );
         assert!(matches!(
-            run.core.cycle.command(&Command::MoveGroup {
+            run.stepper.cycle.command(&Command::MoveGroup {
                 group: gi as u16,
                 positions,
                 velocity_percent: 50,
@@ -257,21 +258,25 @@ fn fault_reaction(
     // A drive the cycle lost is waited for and configured again when it answers; it comes back
     // into the cycle still faulted, for the operator to acknowledge.
     for _ in 0..3000 {
-        if run.core.cycle.axis_status(a).unwrap().online {
+        if run.stepper.cycle.axis_status(a).unwrap().online {
             break;
         }
         run.step(&mut out);
     }
     let text = String::from_utf8_lossy(&out).to_string();
-    let st = run.core.cycle.axis_status(a).unwrap();
+    let st = run.stepper.cycle.axis_status(a).unwrap();
     assert!(st.online && expect(st.fault), "{st:?}\n{text}");
     steps(&mut run, 20);
-    latched(run.core.cycle.command(&Command::Acknowledge(Target::All)));
+    latched(
+        run.stepper
+            .cycle
+            .command(&Command::Acknowledge(Target::All)),
+    );
     steps(&mut run, 300);
-    let st = run.core.cycle.axis_status(a).unwrap();
+    let st = run.stepper.cycle.axis_status(a).unwrap();
     assert_eq!(st.fault, FaultReason::None, "{st:?}");
     assert_eq!(st.mode, AxisMode::On, "{st:?}");
-    latched(run.core.cycle.command(&Command::Enable(Target::All)));
+    latched(run.stepper.cycle.command(&Command::Enable(Target::All)));
 }
 
 #[test]
@@ -440,7 +445,7 @@ fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
     let gantry = plan.group("gantry").unwrap() as u16;
     let lift = plan.group("lift").unwrap() as u16;
     let x = plan.axis("x").unwrap();
-    latched(run.core.cycle.command(&Command::StartChain {
+    latched(run.stepper.cycle.command(&Command::StartChain {
         group: gantry,
         record: 10,
     }));
@@ -451,10 +456,10 @@ fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
     let mut stepped_at = None;
     for _ in 0..5000 {
         run.step_with_events(&mut out, &mut events);
-        let st = run.core.cycle.group_status(gantry).unwrap();
+        let st = run.stepper.cycle.group_status(gantry).unwrap();
         if st.chain.record == Some(11) {
             let pos = run
-                .core
+                .stepper
                 .cycle
                 .axis_status(x as u16)
                 .unwrap()
@@ -480,10 +485,10 @@ fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
     );
     assert!(
         reached12.is_none()
-            || run.core.cycle.group_status(gantry).unwrap().chain.record == Some(12)
+            || run.stepper.cycle.group_status(gantry).unwrap().chain.record == Some(12)
     );
     assert!(
-        run.core
+        run.stepper
             .cycle
             .group_status(gantry)
             .unwrap()
@@ -492,7 +497,7 @@ fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
             .is_some(),
         "still waiting for the lift"
     );
-    latched(run.core.cycle.command(&Command::StartChain {
+    latched(run.stepper.cycle.command(&Command::StartChain {
         group: lift,
         record: 0,
     }));
@@ -514,7 +519,7 @@ fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
         gantry_done > lift_done,
         "the gantry went on only after the lift reached record 1"
     );
-    let st = run.core.cycle.group_status(gantry).unwrap();
+    let st = run.stepper.cycle.group_status(gantry).unwrap();
     assert!(st.chain.rcc && st.chain.rc1, "{st:?}");
     assert!(
         run.io.summary.faults.is_empty(),
@@ -529,7 +534,7 @@ fn an_input_edge_takes_the_alternative_branch() {
     let plan = example();
     let mut run = ready(&plan);
     let gantry = plan.group("gantry").unwrap() as u16;
-    latched(run.core.cycle.command(&Command::StartChain {
+    latched(run.stepper.cycle.command(&Command::StartChain {
         group: gantry,
         record: 10,
     }));
@@ -539,19 +544,19 @@ fn an_input_edge_takes_the_alternative_branch() {
     // the primary (12, at MC).
     for _ in 0..5000 {
         run.step_with_events(&mut out, &mut events);
-        if run.core.cycle.group_status(gantry).unwrap().chain.record == Some(11) {
+        if run.stepper.cycle.group_status(gantry).unwrap().chain.record == Some(11) {
             break;
         }
     }
     steps(&mut run, 40);
-    latched(run.core.cycle.command(&Command::SetInput {
+    latched(run.stepper.cycle.command(&Command::SetInput {
         bit: 0,
         value: true,
     }));
     let mut seen = Vec::new();
     for _ in 0..20_000 {
         run.step_with_events(&mut out, &mut events);
-        let r = run.core.cycle.group_status(gantry).unwrap().chain.record;
+        let r = run.stepper.cycle.group_status(gantry).unwrap().chain.record;
         if seen.last() != Some(&r) {
             seen.push(r);
         }
@@ -575,14 +580,14 @@ fn stop_aborts_the_chain_and_the_axes_stand() {
     let plan = example();
     let mut run = ready(&plan);
     let gantry = plan.group("gantry").unwrap() as u16;
-    latched(run.core.cycle.command(&Command::StartChain {
+    latched(run.stepper.cycle.command(&Command::StartChain {
         group: gantry,
         record: 10,
     }));
     steps(&mut run, 100);
     let mut events = Vec::new();
     latched(
-        run.core
+        run.stepper
             .cycle
             .command(&Command::Stop(Target::Group(gantry))),
     );
@@ -595,17 +600,17 @@ fn stop_aborts_the_chain_and_the_axes_stand() {
     assert!(aborted.is_some(), "{events:?}");
     // The move decelerates on its path and is dropped; the setpoints then stay put.
     steps(&mut run, 1000);
-    let st = run.core.cycle.group_status(gantry).unwrap();
+    let st = run.stepper.cycle.group_status(gantry).unwrap();
     assert!(
         st.motion.is_none() && st.chain.active.is_none() && !st.chain.rcc,
         "{st:?}"
     );
     let x = plan.axis("x").unwrap() as u16;
-    let before = run.core.cycle.axis_status(x).unwrap().setpoint;
+    let before = run.stepper.cycle.axis_status(x).unwrap().setpoint;
     steps(&mut run, 100);
-    assert_eq!(run.core.cycle.axis_status(x).unwrap().setpoint, before);
+    assert_eq!(run.stepper.cycle.axis_status(x).unwrap().setpoint, before);
     // Restart from any record: 13 directly.
-    latched(run.core.cycle.command(&Command::StartChain {
+    latched(run.stepper.cycle.command(&Command::StartChain {
         group: gantry,
         record: 13,
     }));
@@ -630,36 +635,40 @@ fn hold_and_resume_continue_the_move_to_its_target() {
         .scale
         .to_inc(200.0)
         .unwrap();
-    latched(run.core.cycle.command(&Command::MoveGroup {
+    latched(run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions,
         velocity_percent: 100,
         buffer: BufferMode::Aborting,
     }));
     steps(&mut run, 300);
-    latched(run.core.cycle.command(&Command::Hold(Target::Group(g))));
+    latched(run.stepper.cycle.command(&Command::Hold(Target::Group(g))));
     steps(&mut run, 400);
-    let held = run.core.cycle.axis_status(x as u16).unwrap();
+    let held = run.stepper.cycle.axis_status(x as u16).unwrap();
     assert_eq!(held.setpoint_velocity, 0, "stopped on the path: {held:?}");
     assert!(held.setpoint < positions[0]);
     steps(&mut run, 100);
     assert_eq!(
-        run.core.cycle.axis_status(x as u16).unwrap().setpoint,
+        run.stepper.cycle.axis_status(x as u16).unwrap().setpoint,
         held.setpoint
     );
-    latched(run.core.cycle.command(&Command::SetOverride {
+    latched(run.stepper.cycle.command(&Command::SetOverride {
         target: Target::Group(g),
         percent: 150,
     }));
-    latched(run.core.cycle.command(&Command::Resume(Target::Group(g))));
+    latched(
+        run.stepper
+            .cycle
+            .command(&Command::Resume(Target::Group(g))),
+    );
     let mut out = Vec::new();
     for _ in 0..10_000 {
         run.step(&mut out);
-        if run.core.cycle.group_status(g).unwrap().motion.is_none() {
+        if run.stepper.cycle.group_status(g).unwrap().motion.is_none() {
             break;
         }
     }
-    let s = run.core.cycle.axis_status(x as u16).unwrap();
+    let s = run.stepper.cycle.axis_status(x as u16).unwrap();
     assert_eq!(s.setpoint, positions[0]);
     assert!(
         run.io.summary.faults.is_empty(),
@@ -667,7 +676,7 @@ fn hold_and_resume_continue_the_move_to_its_target() {
         run.io.summary.faults
     );
     assert!(matches!(
-        run.core.cycle.command(&Command::SetOverride {
+        run.stepper.cycle.command(&Command::SetOverride {
             target: Target::Group(g),
             percent: 201
         }),
@@ -745,12 +754,12 @@ fn a_missing_drive_is_waited_for_and_booted_when_it_appears_while_the_others_run
     assert!(run.io.summary.boot_failures.is_empty(), "{text}");
     assert_eq!(run.io.summary.waiting.len(), 1, "{text}");
     let z = plan.axis("z").unwrap() as u16;
-    let st = run.core.cycle.axis_status(z).unwrap();
+    let st = run.stepper.cycle.axis_status(z).unwrap();
     assert!(!st.online && st.fault == FaultReason::None, "{st:?}");
     // The others run: enabled and homed; the gantry moves.
     for name in ["x", "y", "gripper"] {
         let s = run
-            .core
+            .stepper
             .cycle
             .axis_status(plan.axis(name).unwrap() as u16)
             .unwrap();
@@ -761,13 +770,13 @@ fn a_missing_drive_is_waited_for_and_booted_when_it_appears_while_the_others_run
     }
     // The lift cannot move; the gantry can.
     assert!(matches!(
-        run.core.cycle.command(&Command::StartChain {
+        run.stepper.cycle.command(&Command::StartChain {
             group: plan.group("lift").unwrap() as u16,
             record: 0
         }),
         Reply::Rejected(_)
     ));
-    latched(run.core.cycle.command(&Command::StartChain {
+    latched(run.stepper.cycle.command(&Command::StartChain {
         group: plan.group("gantry").unwrap() as u16,
         record: 13,
     }));
@@ -775,27 +784,27 @@ fn a_missing_drive_is_waited_for_and_booted_when_it_appears_while_the_others_run
     // axis can be enabled and homed.
     run.io.buses[0].set_disconnected(port, false);
     for _ in 0..2000 {
-        if run.core.cycle.axis_status(z).unwrap().online {
+        if run.stepper.cycle.axis_status(z).unwrap().online {
             break;
         }
         run.step(&mut out);
     }
     let text = String::from_utf8_lossy(&out).to_string();
-    assert!(run.core.cycle.axis_status(z).unwrap().online, "{text}");
+    assert!(run.stepper.cycle.axis_status(z).unwrap().online, "{text}");
     assert!(
         text.contains("drive ready: node 3 (TLC5xx \"z\") on can0 (simulated)"),
         "{text}"
     );
-    latched(run.core.cycle.command(&Command::Enable(Target::Axis(z))));
+    latched(run.stepper.cycle.command(&Command::Enable(Target::Axis(z))));
     steps(&mut run, 200);
-    latched(run.core.cycle.command(&Command::Home(Target::Axis(z))));
+    latched(run.stepper.cycle.command(&Command::Home(Target::Axis(z))));
     for _ in 0..3000 {
         run.step(&mut out);
-        if run.core.cycle.axis_status(z).unwrap().feedback.homed {
+        if run.stepper.cycle.axis_status(z).unwrap().feedback.homed {
             break;
         }
     }
-    let st = run.core.cycle.axis_status(z).unwrap();
+    let st = run.stepper.cycle.axis_status(z).unwrap();
     assert!(
         st.feedback.homed && st.fault == FaultReason::None,
         "{st:?}\n{}",
@@ -818,21 +827,21 @@ fn a_drive_that_resets_itself_is_faulted_configured_again_and_usable_after_ackno
     let mut out = Vec::new();
     for _ in 0..50 {
         run.step(&mut out);
-        if run.core.cycle.axis_status(y).unwrap().fault != FaultReason::None {
+        if run.stepper.cycle.axis_status(y).unwrap().fault != FaultReason::None {
             break;
         }
     }
-    let st = run.core.cycle.axis_status(y).unwrap();
+    let st = run.stepper.cycle.axis_status(y).unwrap();
     assert_eq!(st.fault, FaultReason::DriveReset, "{st:?}");
     // Its group quick-stops with it.
     assert_eq!(
-        run.core.cycle.axis_status(x).unwrap().mode,
+        run.stepper.cycle.axis_status(x).unwrap().mode,
         AxisMode::QuickStopped
     );
     // Configured again and back in the cycle, still faulted until acknowledged.
     for _ in 0..2000 {
         run.step(&mut out);
-        if run.core.cycle.axis_status(y).unwrap().online {
+        if run.stepper.cycle.axis_status(y).unwrap().online {
             break;
         }
     }
@@ -843,18 +852,22 @@ fn a_drive_that_resets_itself_is_faulted_configured_again_and_usable_after_ackno
         1,
         "{text}"
     );
-    let st = run.core.cycle.axis_status(y).unwrap();
+    let st = run.stepper.cycle.axis_status(y).unwrap();
     assert!(st.online && st.fault == FaultReason::DriveReset, "{st:?}");
     steps(&mut run, 20);
-    latched(run.core.cycle.command(&Command::Acknowledge(Target::All)));
+    latched(
+        run.stepper
+            .cycle
+            .command(&Command::Acknowledge(Target::All)),
+    );
     steps(&mut run, 300);
-    let st = run.core.cycle.axis_status(y).unwrap();
+    let st = run.stepper.cycle.axis_status(y).unwrap();
     assert_eq!(
         (st.fault, st.mode),
         (FaultReason::None, AxisMode::On),
         "{st:?}"
     );
-    latched(run.core.cycle.command(&Command::Home(Target::Axis(y))));
+    latched(run.stepper.cycle.command(&Command::Home(Target::Axis(y))));
 }
 
 #[test]
@@ -878,7 +891,7 @@ fn the_parameter_channel_reads_and_writes_drive_parameters() {
         // The channel takes one task at a time and needs a "no task"/"no reply" exchange
         // between two: Busy until then.
         let mut tries = 0;
-        while run.core.cycle.command(&cmd) == Reply::Rejected(Rejected::Busy) {
+        while run.stepper.cycle.command(&cmd) == Reply::Rejected(Rejected::Busy) {
             tries += 1;
             assert!(tries < 20, "still busy");
             steps(run, 1);
@@ -945,13 +958,13 @@ fn the_parameter_channel_reads_and_writes_drive_parameters() {
     assert!(r.is_err(), "{r:?}");
     // One task at a time; no channel on the TLC5xx.
     steps(&mut run, 5);
-    latched(run.core.cycle.command(&Command::ReadParameter {
+    latched(run.stepper.cycle.command(&Command::ReadParameter {
         axis: x,
         pnu: 502,
         sub: 0,
     }));
     assert_eq!(
-        run.core.cycle.command(&Command::ReadParameter {
+        run.stepper.cycle.command(&Command::ReadParameter {
             axis: x,
             pnu: 502,
             sub: 0
@@ -960,7 +973,7 @@ fn the_parameter_channel_reads_and_writes_drive_parameters() {
     );
     let z = plan.axis("z").unwrap() as u16;
     assert!(matches!(
-        run.core.cycle.command(&Command::ReadParameter {
+        run.stepper.cycle.command(&Command::ReadParameter {
             axis: z,
             pnu: 1,
             sub: 0

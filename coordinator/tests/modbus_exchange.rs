@@ -17,7 +17,7 @@ use coordinator::drivers::sim::cmmo_st::{
 use coordinator::drivers::sim::fhpp_drive::FhppDrive;
 use coordinator::drivers::time::{Instant, monotonic_now};
 use coordinator::runtime::modbus::{self, Link, ModbusCycleSide, ModbusInput, ModbusSettings};
-use coordinator::runtime::rt::Ticker;
+use coordinator::runtime::ticker::Ticker;
 
 /// The simulated CMMO-ST, with two faults the test switches: a stall (the exchange does not
 /// return, so the server answers nothing) and a delay before each answer.

@@ -12,11 +12,10 @@ use coordinator::event::Event;
 use coordinator::fault::FaultReason;
 use coordinator::records::{ChainState, ChainStatus};
 use coordinator::runtime::plan::{MachinePlan, plan};
-use coordinator::runtime::run::{
-    RunOptions, VirtualRun, chain_text, describe, describe_in, group_move_text,
-};
+use coordinator::runtime::run::{RunOptions, chain_text, describe, describe_in, group_move_text};
 use coordinator::runtime::script::{Phase, ScriptOptions};
 use coordinator::runtime::services::ServiceEvent;
+use coordinator::runtime::virtual_clock::VirtualRun;
 
 fn coordinator() -> Command {
     Command::new(env!("CARGO_BIN_EXE_coordinator"))
@@ -175,7 +174,7 @@ fn an_operators_stop_of_a_running_chain_is_said_plainly() {
     for _ in 0..200 {
         run.step(&mut out);
     }
-    let reply = run.core.cycle.command(&Cmd::Stop(Target::All));
+    let reply = run.stepper.cycle.command(&Cmd::Stop(Target::All));
     assert!(
         matches!(reply, coordinator::command::Reply::Latched { .. }),
         "{reply:?}"

@@ -8,8 +8,9 @@ use std::time::Duration;
 
 use coordinator::config::{Config, EXAMPLE};
 use coordinator::runtime::plan::plan;
-use coordinator::runtime::run::{RunOptions, VirtualRun};
+use coordinator::runtime::run::RunOptions;
 use coordinator::runtime::script::ScriptOptions;
+use coordinator::runtime::virtual_clock::VirtualRun;
 use shm_api::client::{Client, Rejected};
 use shm_api::contract::CommandRequest;
 use shm_api::request::Target;
@@ -75,6 +76,9 @@ fn a_virtual_time_run_answers_client_commands() {
         run.step(&mut out);
     }
     for a in 0..plan.axes.len() as u16 {
-        assert!(run.core.cycle.axis_status(a).unwrap().enabled, "axis {a}");
+        assert!(
+            run.stepper.cycle.axis_status(a).unwrap().enabled,
+            "axis {a}"
+        );
     }
 }

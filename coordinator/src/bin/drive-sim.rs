@@ -630,7 +630,7 @@ const LONG_PAUSE: Duration = Duration::from_millis(5);
 
 /// Starts every drive of `plan` and runs them until the stop flag, or `duration`.
 fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Result<(), String> {
-    let stop = coordinator::runtime::rt::stop_flag();
+    let stop = coordinator::runtime::signals::stop_flag();
     let start = monotonic_now();
     // The bus endpoints on the normal scheduler: opening one takes milliseconds of CPU (debug
     // build), which at SCHED_FIFO would keep drives of other processes off the CPU.
@@ -642,11 +642,13 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     // processes: run just below the coordinator's cycle thread (SCHED_FIFO 80), as the
     // in-process simulators do. Where real-time scheduling is refused, say so: a loaded machine
     // can then starve the drives into late TPDOs.
-    let rt = coordinator::runtime::rt::enter_realtime(&coordinator::runtime::rt::RtSettings {
-        priority: Some(70),
-        cpu: None,
-        lock_memory: false,
-    });
+    let rt = coordinator::runtime::realtime_thread::enter_realtime(
+        &coordinator::runtime::realtime_thread::RealtimeSettings {
+            priority: Some(70),
+            cpu: None,
+            lock_memory: false,
+        },
+    );
     for w in &rt.warnings {
         eprintln!("drive-sim: warning: {w}");
     }
@@ -660,7 +662,7 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
         match start_modbus(m) {
             Ok(s) => servers.push(s),
             Err(e) => {
-                coordinator::runtime::rt::leave_realtime();
+                coordinator::runtime::realtime_thread::leave_realtime();
                 return Err(e);
             }
         }
@@ -725,7 +727,7 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     }
     // Closing the bus endpoints is no drive work: not at SCHED_FIFO, where it would keep other
     // processes' drives (same priority, no time slicing) off this CPU for milliseconds.
-    coordinator::runtime::rt::leave_realtime();
+    coordinator::runtime::realtime_thread::leave_realtime();
     let ran = monotonic_now() - start;
     if !stations.is_empty() {
         let errors: u64 = stations.iter().map(|s| s.station.errors()).sum();

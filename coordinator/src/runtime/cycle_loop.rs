@@ -6,7 +6,7 @@
 //! then a bounded number of SDO/NMT frames), hand out the Modbus outputs, publish the state and
 //! the events. Where those come from and go to is a [`CycleIo`]: [`crate::runtime::run`]'s
 //! virtual clock (the simulated drives advanced in lockstep, the boot inline) or
-//! [`crate::runtime::realtime`]'s real clock (absolute deadlines, the bus ports, the services'
+//! [`crate::runtime::real_clock`]'s real clock (absolute deadlines, the bus ports, the services'
 //! queues, the Modbus exchange threads). Nothing here allocates after [`CycleLoop::new`].
 
 use std::time::Duration;
@@ -20,9 +20,10 @@ use crate::cycle::{BusFrame, ModbusInput, Transport};
 use crate::event::Event;
 use crate::runtime::nodes::{self, NodeReport};
 use crate::runtime::plan::MachinePlan;
-use crate::runtime::run::{CycleCore, RunError, Snapshot};
+use crate::runtime::run::{RunError, Snapshot};
 use crate::runtime::script::{Phase, Script};
 use crate::runtime::shm::StateSide;
+use crate::runtime::stepper::Stepper;
 
 /// When a cycle starts, as the clock saw it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,7 +100,7 @@ pub struct CycleLoop<'p> {
     /// step (benchmarks replay it) and clears the flag.
     pub capture: bool,
     /// The copy [`CycleLoop::capture`] asked for.
-    pub captured: Option<crate::runtime::run::Captured<'p>>,
+    pub captured: Option<crate::runtime::stepper::Captured<'p>>,
     /// Per bus: SDO/NMT frames it may carry per cycle (its budget's slots), and what is left of
     /// them in this cycle.
     sdo_slots: Vec<(u16, u16)>,
@@ -153,7 +154,7 @@ impl<'p> CycleLoop<'p> {
             ending: false,
             skipped: 0,
             overruns: (0, 0),
-            stop: crate::runtime::rt::stop_flag(),
+            stop: crate::runtime::signals::stop_flag(),
             late: Histogram::new_with_bounds(1, 10_000_000_000, 3)
                 .map_err(|e| RunError::Config(e.to_string()))?,
             capture: false,
@@ -202,8 +203,12 @@ impl<'p> CycleLoop<'p> {
     }
 
     /// One cycle; returns its time, or `None` once the script has finished (the run is over).
-    pub fn iterate<I: CycleIo>(&mut self, core: &mut CycleCore<'p>, io: &mut I) -> Option<Instant> {
-        let wake = io.wait(&mut |f| core.receive(f));
+    pub fn iterate<I: CycleIo>(
+        &mut self,
+        stepper: &mut Stepper<'p>,
+        io: &mut I,
+    ) -> Option<Instant> {
+        let wake = io.wait(&mut |f| stepper.receive(f));
         let now = wake.now;
         self.skipped += wake.skipped;
         let _ = self.late.record(wake.late_ns.max(1));
@@ -214,10 +219,10 @@ impl<'p> CycleLoop<'p> {
             let away = wake.late_ns + wake.skipped.saturating_mul(period);
             self.overruns.0 += 1;
             self.overruns.1 = self.overruns.1.max(away);
-            core.cycle.overrun(wake.skipped, away);
+            stepper.cycle.overrun(wake.skipped, away);
         }
         while let Some(r) = io.node_report() {
-            nodes::apply(&mut core.cycle, &r, now);
+            nodes::apply(&mut stepper.cycle, &r, now);
             if let Some(seen) = self.reported.get_mut(usize::from(r.axis))
                 && !*seen
             {
@@ -226,15 +231,15 @@ impl<'p> CycleLoop<'p> {
             }
         }
         for (slot, axis, seen) in &mut self.modbus_slots {
-            let last = core.modbus_output(*slot);
+            let last = stepper.modbus_output(*slot);
             let m = io.modbus_input(self.k, *slot, &last, now);
             // A Modbus drive needs no boot: it joins the cycle with its first answer, and from
             // then on a lost link faults it.
             if m.fresh && !*seen {
                 *seen = true;
-                core.cycle.set_online(*axis, true, now);
+                stepper.cycle.set_online(*axis, true, now);
             }
-            core.modbus_input(*slot, m);
+            stepper.modbus_input(*slot, m);
         }
         if let Some(p) = self.probe {
             p(true);
@@ -243,7 +248,7 @@ impl<'p> CycleLoop<'p> {
         // safe stop (the script's, after `shut_down`) all reach the cycle through
         // `Cycle::command`, its admission table and its replies, in this order each cycle.
         while let Some(req) = io.request() {
-            let reply = core.cycle.command(&req.command);
+            let reply = stepper.cycle.command(&req.command);
             io.answer(Answer {
                 tag: req.tag,
                 reply,
@@ -254,15 +259,15 @@ impl<'p> CycleLoop<'p> {
             self.shut_down();
         }
         let booted = self.booted();
-        self.script.poll(&core.cycle, booted, now);
+        self.script.poll(&stepper.cycle, booted, now);
         while let Some(c) = self.script.next_command() {
-            let reply = core.cycle.command(&c);
+            let reply = stepper.cycle.command(&c);
             self.script.answered(reply);
         }
         if std::mem::take(&mut self.capture) {
-            self.captured = Some(core.capture(now));
+            self.captured = Some(stepper.capture(now));
         }
-        let frames = core.iterate(now);
+        let frames = stepper.iterate(now);
         if let Some(p) = self.probe {
             p(false);
         }
@@ -293,22 +298,22 @@ impl<'p> CycleLoop<'p> {
                 None => {}
             }
         }
-        core.tx_refused += refused;
+        stepper.tx_refused += refused;
         for &(slot, _, _) in &self.modbus_slots {
-            io.modbus_output(self.k, slot, &core.modbus_output(slot));
+            io.modbus_output(self.k, slot, &stepper.modbus_output(slot));
         }
         if let Some(st) = &mut self.state {
             let late_us = (wake.late_ns / 1000).min(u64::from(u32::MAX)) as u32;
-            st.counters = core.counters(self.skipped, late_us);
-            st.publish(&core.cycle, now.as_nanos());
+            st.counters = stepper.counters(self.skipped, late_us);
+            st.publish(&stepper.cycle, now.as_nanos());
         }
-        while let Some(e) = core.cycle.poll_event() {
+        while let Some(e) = stepper.cycle.poll_event() {
             io.event(e);
         }
         if let Some(t) = self.next_status
             && now >= t
         {
-            io.status(Snapshot::take(&core.cycle, now - self.start));
+            io.status(Snapshot::take(&stepper.cycle, now - self.start));
             self.next_status = self.status_every.map(|d| t + d);
         }
         self.k += 1;

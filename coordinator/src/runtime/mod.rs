@@ -3,11 +3,15 @@
 //! - [`plan`]: configuration → cycle setups, record tables, boot plans;
 //! - [`sim`]: the simulated drives behind a plan;
 //! - [`script`]: the built-in demonstration client;
-//! - [`cycle_loop`]: the one cycle iteration, behind the I/O seam both clocks implement:
-//! - [`run`]: `coordinator run`, and the virtual clock (simulated drives in lockstep);
-//! - [`realtime`]: the real clock (the cycle thread, the buses as configured, the services);
+//! - [`stepper`]: one step of the cycle with its frame buffers and counters;
+//! - [`cycle_loop`]: the one cycle iteration, behind the I/O seam both clocks implement;
+//! - [`run`]: `coordinator run`: the choice of clock, the summary and the operator's lines;
+//! - [`virtual_clock`]: simulated drives in lockstep with the cycle, deterministic;
+//! - [`real_clock`]: the cycle thread, the buses as configured, the services;
 //! - [`nodes`]: the drives' boot and lifecycle on every bus, sans-I/O;
-//! - [`rt`]: absolute-deadline wake-ups, SCHED_FIFO, mlockall, Ctrl-C;
+//! - [`ticker`]: absolute-deadline wake-ups; [`realtime_thread`]: SCHED_FIFO, mlockall, CPU
+//!   pinning; [`signals`]: the stop flag every stop signal sets;
+//! - [`triple_buffer`]: the wait-free latest-value hand-over between threads;
 //! - [`modbus`]: the CMMO-ST exchange off the cycle thread;
 //! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy;
 //! - [`shm`]: the machine state, commands and events over shared memory (`shm-api`);
@@ -19,11 +23,16 @@ pub mod cycle_loop;
 pub mod modbus;
 pub mod nodes;
 pub mod plan;
-pub mod realtime;
-pub mod rt;
+pub mod real_clock;
+pub mod realtime_thread;
 pub mod run;
 pub mod script;
 pub mod services;
 pub mod shm;
+pub mod signals;
 pub mod sim;
+pub mod stepper;
 pub mod synthetic;
+pub mod ticker;
+pub mod triple_buffer;
+pub mod virtual_clock;

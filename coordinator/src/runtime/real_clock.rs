@@ -37,16 +37,18 @@ use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
 use crate::runtime::modbus::{self as mb, Link, ModbusCycleSide, ModbusSettings};
 use crate::runtime::nodes::{NodeReport, Nodes};
 use crate::runtime::plan::MachinePlan;
-use crate::runtime::rt::{self, RtSettings, Ticker};
+use crate::runtime::realtime_thread::{self, RealtimeSettings};
 use crate::runtime::run::{
-    BusFigures, CycleCore, FrameHash, RX_CAPACITY, RunError, RunOptions, Snapshot, Summary,
-    TX_CAPACITY, capture_lines, finish_summary, note_event, out_is_tty, print_status, report_node,
-    say, status_lines,
+    BusFigures, FrameHash, RunError, RunOptions, Snapshot, Summary, capture_lines, finish_summary,
+    machine_line, note_event, out_is_tty, print_status, report_node, say, status_lines,
 };
 use crate::runtime::script::Script;
 use crate::runtime::services::{self, CycleEnds, ServiceEvent};
 use crate::runtime::shm::{StateSide, StaticInfo};
+use crate::runtime::signals;
 use crate::runtime::sim::{SimBus, spawn_cmmo_server};
+use crate::runtime::stepper::{RX_CAPACITY, Stepper, TX_CAPACITY};
+use crate::runtime::ticker::{self, Ticker};
 
 /// Snapshots in flight from the cycle thread to the printer.
 const SNAPSHOTS: usize = 4;
@@ -96,10 +98,10 @@ impl RealIo {
         // it belongs to this cycle. Two periods without SYNC count as missed.
         let mut deadline = self.last_sync + self.period * 2;
         let mut skipped = 0;
-        let stop = rt::stop_flag();
+        let stop = signals::stop_flag();
         loop {
             let Some(port) = self.ports.first_mut() else {
-                rt::sleep_until(deadline);
+                ticker::sleep_until(deadline);
                 return Wake {
                     now: monotonic_now(),
                     late_ns: 0,
@@ -192,7 +194,8 @@ impl CycleIo for RealIo {
         // The loop asked for the end before this cycle's step if the duration is over or a
         // stop signal came: from this event's cycle on, an aborted chain is the end's stop.
         if !self.ending
-            && (self.end.is_some_and(|t| self.now >= t) || rt::stop_flag().load(Ordering::Relaxed))
+            && (self.end.is_some_and(|t| self.now >= t)
+                || signals::stop_flag().load(Ordering::Relaxed))
         {
             self.ending = true;
             self.end_cycle.store(e.cycle(), Ordering::Release);
@@ -255,22 +258,13 @@ pub fn run_real(
     // process (about 100 ms for a debug build), and a thread that maps memory meanwhile waits
     // for the process's memory-map lock. Done on the cycle thread, it held the threads already
     // running (Modbus exchange, capture) for that long.
-    let memory = rt::enter_realtime(&RtSettings {
+    let memory = realtime_thread::enter_realtime(&RealtimeSettings {
         priority: None,
         cpu: None,
         lock_memory: true,
     });
     let t0 = monotonic_now();
-    say(
-        out,
-        &format!(
-            "machine: {} axes, {} groups, {} bus(es), cycle {} us, real time",
-            plan.axes.len(),
-            plan.groups.len(),
-            plan.buses.len(),
-            plan.period.as_micros()
-        ),
-    );
+    say(out, &machine_line(plan, "real time"));
 
     // The buses, as configured. A SocketCAN interface that cannot be opened stops the run here,
     // naming the interface and the reason.
@@ -482,7 +476,7 @@ pub fn run_real(
                 // build, which at 80 kept a CPU from every other thread, and on the normal
                 // scheduler a loaded host stretched it to seconds, past the boot-up timeout of
                 // the drives whose reset was waiting for the first cycle.
-                let _ = rt::enter_realtime(&RtSettings {
+                let _ = realtime_thread::enter_realtime(&RealtimeSettings {
                     priority: Some(SETUP_PRIORITY),
                     lock_memory: false,
                     cpu: None,
@@ -503,9 +497,9 @@ pub fn run_real(
                 };
                 // The cycle's priority from here. Memory is locked already (above); with
                 // MCL_FUTURE this thread's stack was locked and populated when it was created.
-                let mut report = rt::enter_realtime(&RtSettings {
+                let mut report = realtime_thread::enter_realtime(&RealtimeSettings {
                     lock_memory: false,
-                    ..RtSettings::default()
+                    ..RealtimeSettings::default()
                 });
                 report.memory_locked = memory.memory_locked;
                 report
@@ -533,7 +527,7 @@ pub fn run_real(
                     )
                     .ok();
                 }
-                let mut core = CycleCore::new(plan)?;
+                let mut stepper = Stepper::new(plan)?;
                 let mut lp = CycleLoop::new(
                     plan,
                     Script::new(opts.script, start),
@@ -556,19 +550,19 @@ pub fn run_real(
                     ending: false,
                     end_cycle: end_cycle_io,
                 };
-                while lp.iterate(&mut core, &mut io).is_some() {}
+                while lp.iterate(&mut stepper, &mut io).is_some() {}
                 // The rest (summary, closing the ports and services) is no cycle work.
-                rt::leave_realtime();
+                realtime_thread::leave_realtime();
                 let k = lp.cycles();
                 let mut summary = Summary {
                     cycles: k,
                     machine_time: period * (k as u32),
-                    frames_sent: core.frames_sent,
-                    step_ns: core.step_figures(),
-                    frames_lost: (core.tx_refused, core.rx_dropped),
+                    frames_sent: stepper.frames_sent,
+                    step_ns: stepper.step_figures(),
+                    frames_lost: (stepper.tx_refused, stepper.rx_dropped),
                     ..Summary::default()
                 };
-                finish_summary(plan, &core.cycle, &lp.script, &mut summary);
+                finish_summary(plan, &stepper.cycle, &lp.script, &mut summary);
                 relay_stop.store(true, Ordering::Relaxed);
                 if let Some(r) = relay {
                     let _ = r.join();
@@ -678,7 +672,7 @@ fn step_simulated(mut sims: Vec<(VirtualBus, SimBus)>, stop: &AtomicBool) {
     // The simulated drives stand for hardware that never waits for this machine's other
     // processes: they run just below the cycle thread (the cycle thread's own report warns
     // where real-time scheduling is refused).
-    let _ = rt::enter_realtime(&RtSettings {
+    let _ = realtime_thread::enter_realtime(&RealtimeSettings {
         priority: Some(70),
         cpu: None,
         lock_memory: false,

@@ -1,0 +1,491 @@
+//! The virtual clock: the simulated drives of every bus advanced in lockstep with the cycle
+//! (discrete-event, one thread, as fast as the machine allows), deterministic.
+
+use std::io::Write;
+use std::time::Duration;
+
+use drivers::can::bit_timing::frame_duration;
+use drivers::can::{Bus, ClockMode, Frame, VirtualBus, VirtualBusConfig, VirtualPort};
+use drivers::time::Instant;
+
+use crate::axis::Image;
+use crate::command::{Answer, Request};
+use crate::cycle::{BusFrame, ModbusInput, Transport};
+use crate::event::Event;
+use crate::runtime::capture::InlineCapture;
+use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
+use crate::runtime::nodes::{NodeReport, Nodes};
+use crate::runtime::plan::MachinePlan;
+use crate::runtime::run::{
+    BusFigures, FrameHash, RunError, RunOptions, Snapshot, Summary, capture_lines, finish_summary,
+    machine_line, note_event, out_is_tty, print_status, report_node, say, status_lines,
+};
+use crate::runtime::script::{Phase, Script};
+use crate::runtime::shm::{ServiceSide, StateSide, StaticInfo};
+use crate::runtime::sim::{InMemoryCmmo, SimBus, SimDrive};
+use crate::runtime::stepper::{RX_CAPACITY, Stepper, TX_CAPACITY};
+
+/// Virtual time: cycles without a Modbus answer before the exchange counts as timed out.
+pub const MODBUS_TIMEOUT_CYCLES: u32 = 5;
+
+/// The virtual clock's side of the cycle iteration: the simulated drives of every bus
+/// advanced in lockstep with the cycle (discrete-event), the drives' boot run inline, the
+/// CMMO-STs' Modbus ADUs handed to their sessions in memory, client commands answered between
+/// cycles. Deterministic: the same plan and the same commands give the same frames, bit for
+/// bit.
+pub struct VirtualIo<'p> {
+    plan: &'p MachinePlan,
+    /// The buses, one per configured bus (for fault injection in tests).
+    pub buses: Vec<VirtualBus>,
+    ports: Vec<VirtualPort>,
+    monitors: Vec<VirtualPort>,
+    /// The simulated CANopen drives, one set per bus.
+    pub sims: Vec<SimBus>,
+    /// The simulated CMMO-STs, by Modbus slot.
+    pub cmmo: Vec<(usize, InMemoryCmmo)>,
+    modbus_missed: Vec<u32>,
+    nodes: Nodes,
+    t0: Instant,
+    k: u64,
+    commands: Option<ServiceSide>,
+    pending: Vec<(u64, shm_api::PendingCommand)>,
+    next_tag: u64,
+    /// What the run has to say (events, reports, status), printed after each step.
+    text: Vec<u8>,
+    /// What happened so far.
+    pub summary: Summary,
+    hash: FrameHash,
+    busy: Vec<Duration>,
+    frames: Vec<u64>,
+    status_lines_printed: usize,
+    tty: bool,
+    /// Every event of the cycle, as well, while set (tests).
+    watch: Option<Vec<Event>>,
+    /// `--capture DIR`: the buses' frames as they pass the monitors.
+    capture: Option<InlineCapture>,
+    capture_dir: Option<std::path::PathBuf>,
+    /// SYNC-consumer mode: the SYNC being taken, frames after it, frames for the next cycle.
+    held: Option<Frame>,
+    later: Vec<Frame>,
+    pending_rx: Vec<Frame>,
+    /// SYNC-consumer mode: SYNCs received.
+    pub synced: u64,
+    /// SYNC-consumer mode: periods that passed without a SYNC.
+    pub missed_syncs: u64,
+    /// The orderly end has begun (set before each step from the loop).
+    ending: bool,
+}
+
+impl std::fmt::Debug for VirtualIo<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualIo")
+            .field("cycle", &self.k)
+            .finish_non_exhaustive()
+    }
+}
+
+impl VirtualIo<'_> {
+    /// The simulated drive of an axis, on whichever bus it is.
+    pub fn drive_mut(&mut self, axis: &str) -> Option<&mut SimDrive> {
+        self.sims.iter_mut().find_map(|s| s.drive_mut(axis))
+    }
+
+    /// The bus of a simulated drive's axis.
+    pub fn bus_of(&self, axis: &str) -> Option<&VirtualBus> {
+        let i = self.plan.axis(axis)?;
+        match self.plan.axes[i].setup.transport {
+            Transport::Can { bus, .. } => self.buses.get(usize::from(bus)),
+            Transport::Modbus { .. } => None,
+        }
+    }
+
+    fn drain_monitors(&mut self) {
+        for (b, m) in self.monitors.iter_mut().enumerate() {
+            let bitrate = self.plan.buses[b].bitrate;
+            while let Ok(Some(f)) = m.try_recv() {
+                if let Some(c) = &mut self.capture {
+                    c.write(b, &f);
+                }
+                self.hash.add(&f);
+                self.frames[b] += 1;
+                self.summary.syncs_on_bus += u64::from(f.cob_id() == Some(0x080));
+                self.busy[b] += frame_duration(&f, bitrate);
+            }
+        }
+    }
+
+    fn take(&mut self, bus: usize, f: Frame, rx: &mut dyn FnMut(BusFrame)) {
+        let bf = BusFrame::new(bus as u8, f);
+        self.nodes.handle_frame(&bf, f.timestamp());
+        rx(bf);
+    }
+
+    /// SYNC-consumer mode (one bus): runs the bus until the external producer's next SYNC has
+    /// arrived, takes every frame up to it, and returns its time (the cycle's `now`). Frames
+    /// after it wait for the next cycle, as they would on a real bus.
+    fn until_sync(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Instant {
+        for f in std::mem::take(&mut self.pending_rx) {
+            self.take(0, f, rx);
+        }
+        let due = self.t0 + self.plan.period * (self.k as u32 + 1);
+        // SYNC has the highest priority after NMT, but may wait for a frame on the wire.
+        let mut until = due + Duration::from_micros(500);
+        loop {
+            self.sims[0].run_until(&self.buses[0], until);
+            self.drain_monitors();
+            while let Ok(Some(f)) = self.ports[0].try_recv() {
+                if self.held.is_some() {
+                    self.later.push(f);
+                    continue;
+                }
+                if f.cob_id() == Some(0x080) {
+                    self.nodes.handle_frame(&BusFrame::new(0, f), f.timestamp());
+                    self.held = Some(f);
+                    self.synced += 1;
+                } else {
+                    self.take(0, f, rx);
+                }
+            }
+            if let Some(sync) = self.held.take() {
+                // What arrived after the SYNC belongs to the next cycle.
+                self.pending_rx = std::mem::take(&mut self.later);
+                return sync.timestamp();
+            }
+            // No SYNC: the producer is gone. Keep waiting, a period at a time (the cycle
+            // does not run without SYNC; the drives' own supervision notices).
+            self.missed_syncs += 1;
+            until += self.plan.period;
+        }
+    }
+}
+
+impl CycleIo for VirtualIo<'_> {
+    fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
+        let now = if self.plan.cycle.sync_producer {
+            let now = self.t0 + self.plan.period * (self.k as u32);
+            for (sims, bus) in self.sims.iter_mut().zip(&self.buses) {
+                sims.run_until(bus, now);
+            }
+            self.drain_monitors();
+            for b in 0..self.ports.len() {
+                while let Ok(Some(f)) = self.ports[b].try_recv() {
+                    self.take(b, f, rx);
+                }
+            }
+            now
+        } else {
+            self.until_sync(rx)
+        };
+        self.nodes.handle_timeout(now);
+        self.k += 1;
+        Wake {
+            now,
+            late_ns: 0,
+            skipped: 0,
+        }
+    }
+
+    fn node_report(&mut self) -> Option<NodeReport> {
+        let r = self.nodes.poll_report()?;
+        report_node(self.plan, &r, &mut self.text, &mut self.summary);
+        Some(r)
+    }
+
+    fn modbus_input(&mut self, _k: u64, slot: usize, last: &Image, now: Instant) -> ModbusInput {
+        let Some(i) = self.cmmo.iter().position(|(s, _)| *s == slot) else {
+            return ModbusInput::default();
+        };
+        let answer = self.cmmo[i].1.exchange(&last.data, now);
+        let missed = &mut self.modbus_missed[i];
+        *missed = if answer.is_some() {
+            0
+        } else {
+            missed.saturating_add(1)
+        };
+        ModbusInput {
+            image: answer
+                .and_then(|a| Image::from_slice(&a))
+                .unwrap_or_default(),
+            fresh: answer.is_some(),
+            late_cycles: 0,
+            lost: *missed >= MODBUS_TIMEOUT_CYCLES,
+        }
+    }
+
+    fn modbus_output(&mut self, _k: u64, _slot: usize, _output: &Image) {
+        // The next cycle's exchange carries it (see `modbus_input`).
+    }
+
+    fn request(&mut self) -> Option<Request> {
+        let side = self.commands.as_mut()?;
+        loop {
+            let (p, c) = side.receive()?;
+            // A request that does not translate was answered by `receive`.
+            let Ok(command) = c else { continue };
+            let tag = self.next_tag;
+            self.next_tag += 1;
+            self.pending.push((tag, p));
+            return Some(Request { tag, command });
+        }
+    }
+
+    fn answer(&mut self, answer: Answer) {
+        if let Some(i) = self.pending.iter().position(|(t, _)| *t == answer.tag) {
+            let (_, p) = self.pending.swap_remove(i);
+            let tag = p.request().tag;
+            let _ = p.reply(&crate::runtime::shm::to_reply(tag, answer.reply));
+        }
+    }
+
+    fn send(&mut self, f: &BusFrame) -> bool {
+        self.ports
+            .get_mut(usize::from(f.bus))
+            .is_some_and(|p| p.send(&f.frame).is_ok())
+    }
+
+    fn service_frame(&mut self, now: Instant) -> Option<BusFrame> {
+        self.nodes.poll_transmit(now)
+    }
+
+    fn event(&mut self, e: Event) {
+        // The loop asks for the end before the step (the duration, or Ctrl-C seen in this
+        // iteration): what the step aborts then is the end's own stop.
+        let ending = self.ending
+            || crate::runtime::signals::stop_flag().load(std::sync::atomic::Ordering::Relaxed);
+        note_event(self.plan, &e, ending, &mut self.summary, &mut self.text);
+        self.nodes.event(&e);
+        if let Some(svc) = &mut self.commands {
+            svc.event(&e);
+        }
+        if let Some(w) = &mut self.watch {
+            w.push(e);
+        }
+    }
+
+    fn status(&mut self, snapshot: Snapshot) {
+        let text = status_lines(self.plan, &snapshot);
+        self.status_lines_printed =
+            print_status(&mut self.text, &text, self.tty, self.status_lines_printed);
+    }
+}
+
+/// `coordinator run --virtual-time`: the cycle iteration on the virtual clock, one thread, as
+/// fast as the machine allows.
+pub struct VirtualRun<'p> {
+    /// The cycle and its buffers.
+    pub stepper: Stepper<'p>,
+    /// The iteration's state (the script, the schedule).
+    pub lp: CycleLoop<'p>,
+    /// The simulated machine around it.
+    pub io: VirtualIo<'p>,
+}
+
+impl std::fmt::Debug for VirtualRun<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VirtualRun")
+            .field("cycle", &self.lp.cycles())
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'p> VirtualRun<'p> {
+    /// Builds the buses, the simulated drives and the cycle; nothing has run yet. Every drive
+    /// of `plan` must be simulated (see [`crate::runtime::run::run`]).
+    pub fn new(plan: &'p MachinePlan, opts: &RunOptions) -> Result<VirtualRun<'p>, RunError> {
+        let mut buses = Vec::new();
+        for b in &plan.buses {
+            buses.push(
+                VirtualBus::new(VirtualBusConfig {
+                    bitrate: b.bitrate,
+                    clock: ClockMode::Virtual,
+                    rx_capacity: RX_CAPACITY,
+                    tx_capacity: TX_CAPACITY,
+                    ..VirtualBusConfig::default()
+                })
+                .map_err(|e| RunError::Io(format!("bus {}: {e}", b.name)))?,
+            );
+        }
+        let t0 = buses.first().map_or(Instant::ZERO, |b| b.now());
+        let ports = buses.iter().map(|b| b.attach("coordinator")).collect();
+        let monitors = buses.iter().map(|b| b.attach_monitor("monitor")).collect();
+        let mut sims = Vec::new();
+        for (i, b) in buses.iter().enumerate() {
+            sims.push(SimBus::build(b, plan, i, t0).map_err(RunError::Io)?);
+        }
+        let mut cmmo = Vec::new();
+        for a in &plan.axes {
+            if let Transport::Modbus { slot } = a.setup.transport {
+                cmmo.push((
+                    usize::from(slot),
+                    InMemoryCmmo::new(t0).map_err(RunError::Io)?,
+                ));
+            }
+        }
+        let stepper = Stepper::new(plan)?;
+        let (state, commands) = match &opts.shm {
+            Some(prefix) => {
+                let _ = shm_api::publisher::cleanup_dead_nodes();
+                let info = StaticInfo::new(plan, true);
+                (
+                    Some(StateSide::create(prefix, info.clone()).map_err(RunError::Io)?),
+                    Some(ServiceSide::create(prefix, info).map_err(RunError::Io)?),
+                )
+            }
+            None => (None, None),
+        };
+        let lp = CycleLoop::new(
+            plan,
+            Script::new(opts.script, t0),
+            state,
+            t0,
+            None,
+            opts.status_every,
+        )?;
+        let n = plan.buses.len();
+        let capture = match &opts.capture {
+            Some(dir) => {
+                let names: Vec<String> = plan.buses.iter().map(|b| b.name.clone()).collect();
+                Some(InlineCapture::create(dir, &names).map_err(RunError::Io)?)
+            }
+            None => None,
+        };
+        Ok(VirtualRun {
+            stepper,
+            lp,
+            io: VirtualIo {
+                plan,
+                buses,
+                ports,
+                monitors,
+                sims,
+                modbus_missed: vec![0; cmmo.len()],
+                cmmo,
+                nodes: Nodes::new(plan, t0),
+                t0,
+                k: 0,
+                commands,
+                pending: Vec::new(),
+                next_tag: 1,
+                text: Vec::new(),
+                summary: Summary::default(),
+                hash: FrameHash::default(),
+                busy: vec![Duration::ZERO; n],
+                frames: vec![0; n],
+                status_lines_printed: 0,
+                tty: out_is_tty(),
+                watch: None,
+                capture,
+                capture_dir: opts.capture.clone(),
+                held: None,
+                later: Vec::with_capacity(RX_CAPACITY),
+                pending_rx: Vec::with_capacity(RX_CAPACITY),
+                synced: 0,
+                missed_syncs: 0,
+                ending: false,
+            },
+        })
+    }
+
+    /// The time of the next cycle's SYNC (producer mode: the coordinator's schedule; consumer
+    /// mode: when the external producer is due to send it).
+    pub fn now(&self) -> Instant {
+        let k = self.io.k + u64::from(!self.io.plan.cycle.sync_producer);
+        self.io.t0 + self.io.plan.period * (k as u32)
+    }
+
+    /// Machine time since the start.
+    pub fn elapsed(&self) -> Duration {
+        self.now() - self.io.t0
+    }
+
+    /// Cycles run.
+    pub fn cycles(&self) -> u64 {
+        self.lp.cycles()
+    }
+
+    /// Whether every drive has had its first report.
+    pub fn booted(&self) -> bool {
+        self.lp.booted()
+    }
+
+    /// Asks the script for the orderly end (stop, disable).
+    pub fn shut_down(&mut self) {
+        self.lp.shut_down();
+    }
+
+    /// Runs one cycle: the drives up to this SYNC, receive, boot, Modbus, commands, script,
+    /// step, send. Events, reports and status are printed to `out`.
+    pub fn step(&mut self, out: &mut dyn Write) {
+        self.io.ending = self.lp.ending();
+        self.lp.iterate(&mut self.stepper, &mut self.io);
+        if !self.io.text.is_empty() {
+            let _ = out.write_all(&self.io.text);
+            let _ = out.flush();
+            self.io.text.clear();
+        }
+    }
+
+    /// As [`VirtualRun::step`], and appends the cycle's events of this step to `events`.
+    pub fn step_with_events(&mut self, out: &mut dyn Write, events: &mut Vec<Event>) {
+        self.io.watch = Some(std::mem::take(events));
+        self.step(out);
+        *events = self.io.watch.take().unwrap_or_default();
+    }
+
+    /// Ends the run: lets the buses settle and fills the summary.
+    pub fn finish(mut self, wall: Duration) -> Summary {
+        let last = self.now();
+        let plan = self.io.plan;
+        for (sims, bus) in self.io.sims.iter_mut().zip(&self.io.buses) {
+            sims.run_until(bus, last + plan.period);
+        }
+        self.io.drain_monitors();
+        let mut summary = std::mem::take(&mut self.io.summary);
+        summary.cycles = self.lp.cycles();
+        summary.machine_time = last - self.io.t0;
+        summary.wall = wall;
+        summary.frames_sent = self.stepper.frames_sent;
+        summary.buses = plan
+            .buses
+            .iter()
+            .enumerate()
+            .map(|(b, p)| BusFigures {
+                label: p.label(),
+                frames: self.io.frames[b],
+                load_percent: 100.0 * self.io.busy[b].as_secs_f64()
+                    / summary.machine_time.as_secs_f64().max(1e-9),
+            })
+            .collect();
+        summary.frames_on_bus = self.io.frames.iter().sum();
+        summary.step_ns = self.stepper.step_figures();
+        summary.frames_lost = (self.stepper.tx_refused, self.stepper.rx_dropped);
+        summary.frame_hash = self.io.hash.value();
+        finish_summary(plan, &self.stepper.cycle, &self.lp.script, &mut summary);
+        if let (Some(c), Some(dir)) = (self.io.capture.take(), &self.io.capture_dir) {
+            summary.captures = capture_lines(dir, c.finish());
+        }
+        summary
+    }
+}
+
+/// Virtual time: runs the script to its end (duration or Ctrl-C, then stop and disable).
+pub fn run_virtual(
+    plan: &MachinePlan,
+    opts: &RunOptions,
+    out: &mut dyn Write,
+) -> Result<Summary, RunError> {
+    let wall0 = std::time::Instant::now();
+    let mut run = VirtualRun::new(plan, opts)?;
+    say(out, &machine_line(plan, "virtual time"));
+    loop {
+        let over = opts.duration.is_some_and(|d| run.elapsed() >= d);
+        if over && !run.lp.ending() {
+            run.shut_down();
+        }
+        run.step(out);
+        if run.lp.script.phase() == Phase::Done {
+            break;
+        }
+    }
+    Ok(run.finish(wall0.elapsed()))
+}
