@@ -385,6 +385,16 @@ fn ratio(x: i64, num: u64, den: u64) -> i64 {
     let p = i128::from(x) * i128::from(num);
     let q = if den == 1 {
         p
+    } else if let (Ok(p), Ok(d)) = (i64::try_from(p), i64::try_from(den)) {
+        // The common case, once per axis and value in every published state: a 64-bit
+        // division is one instruction where the 128-bit one is a call.
+        let (q, r) = (p / d, (p % d).unsigned_abs());
+        (q + if r >= d.unsigned_abs() - r {
+            p.signum()
+        } else {
+            0
+        })
+        .into()
     } else {
         div_round(p, i128::from(den))
     };
@@ -606,6 +616,20 @@ mod tests {
             prop_assert_eq!(i128::from(inc), i128::from(units) * i128::from(num));
             prop_assert_eq!(s.inc_to_micro(inc), units * MICROS_PER_UNIT);
             prop_assert_eq!(s.to_units(inc), units as f64);
+        }
+
+        #[test]
+        fn the_64_bit_division_is_the_128_bit_one(
+            x in any::<i64>(),
+            num in 1u64..=u64::MAX,
+            den in prop_oneof![2u64..1000, 2u64..=u64::MAX],
+        ) {
+            let exact = div_round(i128::from(x) * i128::from(num), i128::from(den));
+            let exact = exact.clamp(i64::MIN.into(), i64::MAX.into()) as i64;
+            prop_assert_eq!(ratio(x, num, den), exact);
+            let small = (x % 1_000_000, num % 1_000_000 + 1);
+            let exact = div_round(i128::from(small.0) * i128::from(small.1), i128::from(den));
+            prop_assert_eq!(i128::from(ratio(small.0, small.1, den)), exact);
         }
 
         #[test]
