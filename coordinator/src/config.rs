@@ -30,14 +30,14 @@ use crate::records::{
 use crate::units::{Decimal, Scale, ScaleError};
 
 /// Forces are configured in % and travel in ‰: exactly ten ‰ per %.
-const PERMILLE_PER_PERCENT: Scale = Scale::integer(10);
+pub const PERMILLE_PER_PERCENT: Scale = Scale::integer(10);
 
 /// The commented example `coordinator config-example` prints: four axes, one of each device
 /// kind, on the virtual bus and Modbus TCP, a group and a few records.
 pub const EXAMPLE: &str = include_str!("../examples/machine.toml");
 
 /// The example machine with its drives in other processes (`coordinator config-example --vbus`):
-/// the bus of kind `vbus` and the CMMO-ST dialled on loopback, where `drive-sim --config` serves
+/// its buses of kind `vbus` and the CMMO-ST dialled on loopback, where `drive-sim --config` serves
 /// them. Derived from [`EXAMPLE`], so the two never drift apart.
 pub fn example_vbus() -> String {
     EXAMPLE
@@ -47,7 +47,8 @@ pub fn example_vbus() -> String {
              # processes. Start them with `drive-sim --config FILE`, then `coordinator run --config FILE`.",
             1,
         )
-        .replacen("kind = \"simulated\"       #", "kind = \"vbus\"            #", 1)
+        // Every bus of the machine (can0, can1).
+        .replace("kind = \"simulated\"       #", "kind = \"vbus\"            #")
         .replacen("simulated = true", "modbus = \"127.0.0.1:1502\"", 1)
 }
 
@@ -2128,8 +2129,9 @@ mod tests {
         let c = Config::parse(&example_vbus()).unwrap();
         assert!(c.check().is_ok(), "{}", c.check());
         let e = Config::parse(EXAMPLE).unwrap();
-        assert_eq!(c.buses[0].kind, BusKind::Vbus);
-        assert_eq!(e.buses[0].kind, BusKind::Simulated);
+        assert_eq!(c.buses.len(), e.buses.len());
+        assert!(c.buses.iter().all(|b| b.kind == BusKind::Vbus));
+        assert!(e.buses.iter().all(|b| b.kind == BusKind::Simulated));
         let g = c.axes.iter().find(|a| a.name == "gripper").unwrap();
         assert_eq!(
             (g.simulated, g.modbus.as_deref()),
@@ -2144,14 +2146,21 @@ mod tests {
         let c = Config::parse(EXAMPLE).unwrap();
         let r = c.check();
         assert!(r.is_ok(), "{r}");
-        assert_eq!(r.loads.len(), 1);
+        assert_eq!(r.loads.len(), 2);
+        // can0: SYNC 55 + 2 * (135 + 125) PDO bits (the MTR-DCI, and the TLC5xx's PDO1 of 7
+        // bytes) + guarding 55 + 65 + heartbeat 65 + EMCY 135 + SDO 270.
         let l = &r.loads[0];
-        // SYNC 55 + 2 * (135 + 135 + 125) PDO bits (the TLC5xx's PDO1 carries 7 bytes) +
-        // guarding 2 * (55 + 65) + heartbeat 65 + EMCY 135 + SDO 270.
-        assert_eq!(l.bits(), 55 + 2 * 395 + 240 + 65 + 135 + 270);
+        assert_eq!(l.bits(), 55 + 2 * 260 + 120 + 65 + 135 + 270);
         assert_eq!(
             (l.frames(), l.micros(), l.load()),
-            (15, 1555, Permille(778))
+            (11, 1165, Permille(583))
+        );
+        // can1: the EMCA with its parameter channel, PDO1 and PDO2 each way.
+        let l = &r.loads[1];
+        assert_eq!(l.bits(), 55 + 4 * 135 + 120 + 135 + 270);
+        assert_eq!(
+            (l.frames(), l.micros(), l.load()),
+            (10, 1120, Permille(560))
         );
         assert!(r.to_string().ends_with("OK\n"));
         assert_eq!(c.axes[3].profile(), Profile::Fhpp);
@@ -2187,8 +2196,12 @@ mod tests {
             assert_eq!(DeviceKind::deserialize(de), Ok(d));
         }
         assert!(axis_pdos(DeviceKind::CmmoSt, Profile::Fhpp, false).is_empty());
-        // FPC on two axes of the example no longer fits 80 %.
-        let e = errors(&edited(&[("fpc = false", "fpc = true")]));
+        // The EMCA with its parameter channel beside the other two drives on can0 does not fit
+        // 80 % (which is why the example gives it a bus of its own).
+        let e = errors(&edited(&[(
+            "bus = \"can1\"\nnode = 2",
+            "bus = \"can0\"\nnode = 2",
+        )]));
         assert_eq!(
             e,
             [
@@ -2317,20 +2330,12 @@ mod tests {
                 "buses[0].kind: \"virtual\" is no longer a bus kind: say \"simulated\"",
             ),
             (
-                &[(
-                    "# Festo MTR-DCI on CANopen",
-                    "[[buses]]\nname = \"can1\"\nkind = \"vbus\"\ncycle_us = 4000\n# Festo MTR-DCI on CANopen",
-                )],
+                &[("name = \"can1\"\n", "name = \"can1\"\ncycle_us = 4000\n")],
                 "buses[1].cycle_us: 4000 us differs from bus \"can0\"'s 2000 us: one coordinator runs one cycle",
             ),
             (
-                &[
-                    ("sync = \"producer\"", "sync = \"consumer\""),
-                    (
-                        "# Festo MTR-DCI on CANopen",
-                        "[[buses]]\nname = \"can1\"\nkind = \"vbus\"\n# Festo MTR-DCI on CANopen",
-                    ),
-                ],
+                // The example has two buses (can0, can1).
+                &[("sync = \"producer\"", "sync = \"consumer\"")],
                 "buses[0].sync: a SYNC consumer bus must be the coordinator's only CAN bus",
             ),
             (
@@ -2368,7 +2373,7 @@ mod tests {
                 "axes[2].fpc: a tlc5xx axis has no FPC parameter channel on PDO2",
             ),
             (
-                &[("fpc = false", "profile = \"cia402\"")],
+                &[("node = 2 ", "profile = \"cia402\"\nnode = 2 ")],
                 "axes[1].profile: emca does not offer the cia402 profile, only fhpp",
             ),
             (
@@ -2474,10 +2479,7 @@ mod tests {
                 "groups[0].axes: a group needs at least one axis",
             ),
             (
-                &[(
-                    "# Festo MTR-DCI on CANopen",
-                    "[[buses]]\nname = \"can0\"\nkind = \"simulated\"\n# Festo MTR-DCI on CANopen",
-                )],
+                &[("name = \"can1\"\n", "name = \"can0\"\n")],
                 "buses[1].name: the name \"can0\" is already used by buses[0]",
             ),
             (
@@ -2522,32 +2524,33 @@ mod tests {
 
     #[test]
     fn a_group_spans_buses_that_share_the_one_cycle() {
-        let second_bus = "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\n\n[[buses]]";
-        let two = [
-            ("[[buses]]", second_bus),
-            ("bus = \"can0\"\nnode = 2", "bus = \"can1\"\nnode = 2"),
-        ];
-        let c = Config::parse(&edited(&two)).unwrap();
+        // The example's gantry: x on can0, y on can1.
+        let c = Config::parse(EXAMPLE).unwrap();
         let r = c.check();
         assert!(r.is_ok(), "{r}");
         assert_eq!(r.loads.len(), 2);
+        let gantry = &c.groups[0].axes;
+        let bus_of = |name: &str| {
+            c.axes
+                .iter()
+                .find(|a| a.name == name)
+                .and_then(|a| a.bus.clone())
+        };
+        assert_ne!(bus_of(&gantry[0]), bus_of(&gantry[1]));
 
-        let mut other_cycle = two.to_vec();
-        other_cycle[0].1 =
-            "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\ncycle_us = 4000\n\n[[buses]]";
+        let can1 = "name = \"can1\"\n";
+        let other_cycle = [(can1, "name = \"can1\"\ncycle_us = 4000\n")];
         assert_eq!(
             errors(&edited(&other_cycle)),
             [
-                "buses[1].cycle_us: 2000 us differs from bus \"can1\"'s 4000 us: one coordinator \
+                "buses[1].cycle_us: 4000 us differs from bus \"can0\"'s 2000 us: one coordinator \
               runs one cycle for all its buses"
             ]
         );
-        let mut consumer = two.to_vec();
-        consumer[0].1 =
-            "[[buses]]\nname = \"can1\"\nkind = \"socketcan\"\nsync = \"consumer\"\n\n[[buses]]";
+        let consumer = [(can1, "name = \"can1\"\nsync = \"consumer\"\n")];
         let e = errors(&edited(&consumer));
         assert_eq!(e.len(), 1, "{e:?}");
-        assert!(e[0].starts_with("buses[0].sync: a SYNC consumer"), "{e:?}");
+        assert!(e[0].starts_with("buses[1].sync: a SYNC consumer"), "{e:?}");
     }
 
     #[test]
@@ -2556,7 +2559,9 @@ mod tests {
         assert_eq!(
             e,
             [
-                "buses[0]: bus can0: 15 frames, 1555 us per 1000 us cycle = 155.5 %, \
+                "buses[0]: bus can0: 11 frames, 1165 us per 1000 us cycle = 116.5 %, \
+              does not fit the cycle",
+                "buses[1]: bus can1: 10 frames, 1120 us per 1000 us cycle = 112.0 %, \
               does not fit the cycle"
             ]
         );

@@ -61,8 +61,9 @@ enum Command {
     },
     /// Print a commented example configuration (the embedded default machine).
     ConfigExample {
-        /// The same machine with its drives in other processes: the bus on `vbus:can0` and the
-        /// CMMO-ST dialled at 127.0.0.1:1502, as `drive-sim --config` serves them.
+        /// The same machine with its drives in other processes: the buses on `vbus:can0` and
+        /// `vbus:can1` and the CMMO-ST dialled at 127.0.0.1:1502, as `drive-sim --config` serves
+        /// them.
         #[arg(long)]
         vbus: bool,
     },

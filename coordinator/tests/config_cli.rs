@@ -43,10 +43,16 @@ fn the_example_round_trips_through_check() {
     let lines: Vec<&str> = out.lines().collect();
     assert_eq!(
         lines[0],
-        "bus can0: 15 frames, 1555 us per 2000 us cycle = 77.8 % \
-         (mean 62.9 %, 1000 kbit/s, room for 3 more 8-byte frames)"
+        "bus can0: 11 frames, 1165 us per 2000 us cycle = 58.3 % \
+         (mean 49.2 %, 1000 kbit/s, room for 6 more 8-byte frames)"
     );
-    assert!(lines.contains(&"  RPDO                  3 frames    395 bits"));
+    assert!(lines.contains(&"  RPDO                  2 frames    260 bits"));
+    // The EMCA on its own bus, with its parameter channel: PDO1 and PDO2 each way.
+    assert!(lines.contains(
+        &"bus can1: 10 frames, 1120 us per 2000 us cycle = 56.0 % \
+          (mean 50.2 %, 1000 kbit/s, room for 6 more 8-byte frames)"
+    ));
+    assert!(lines.contains(&"  RPDO                  2 frames    270 bits"));
     assert_eq!(lines.last(), Some(&"OK"));
 }
 
@@ -84,21 +90,21 @@ fn a_cycle_that_cannot_fit_is_refused_with_the_numbers() {
     assert!(!ok);
     assert!(
         out.contains(
-            "error: buses[0]: bus can0: 15 frames, 1555 us per 1000 us cycle = 155.5 %, \
+            "error: buses[0]: bus can0: 11 frames, 1165 us per 1000 us cycle = 116.5 %, \
              does not fit the cycle"
         ),
         "{out}"
     );
     // The budget lines are still printed, so the user sees where the time goes.
-    assert!(out.starts_with("bus can0: 15 frames"), "{out}");
+    assert!(out.starts_with("bus can0: 11 frames"), "{out}");
 }
 
 #[test]
 fn a_load_over_the_limit_is_refused() {
-    let text = example().replacen("load_limit_percent = 80", "load_limit_percent = 70", 1);
+    let text = example().replacen("load_limit_percent = 80", "load_limit_percent = 50", 1);
     let (ok, out) = check("limit.toml", &text);
     assert!(!ok);
-    assert!(out.contains("= 77.8 %, over the 70.0 % limit"), "{out}");
+    assert!(out.contains("= 58.3 %, over the 50.0 % limit"), "{out}");
 }
 
 #[test]

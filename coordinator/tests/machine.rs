@@ -300,10 +300,10 @@ fn a_late_tpdo_faults_the_axis() {
     fault_reaction(
         "y",
         |run| {
-            // EMCA node 2: drop its TPDO1 (182h).
-            run.io.buses[0].add_fault(FaultRule::drop(IdMatch::Exact(0x182)));
+            // EMCA node 2 on can1: drop its TPDO1 (182h).
+            run.io.buses[1].add_fault(FaultRule::drop(IdMatch::Exact(0x182)));
         },
-        |run| run.io.buses[0].clear_faults(),
+        |run| run.io.buses[1].clear_faults(),
         |r| r == FaultReason::LateTpdo(3),
     );
 }
@@ -686,8 +686,15 @@ fn hold_and_resume_continue_the_move_to_its_target() {
 
 #[test]
 fn in_sync_consumer_mode_the_cycle_follows_the_received_sync() {
-    let text = EXAMPLE.replace("sync = \"producer\"", "sync = \"consumer\"");
-    assert_ne!(text, EXAMPLE);
+    // A SYNC consumer bus must be the only bus: the EMCA joins can0, without its parameter
+    // channel (which would not fit there beside the other two drives).
+    let text = EXAMPLE
+        .replace("sync = \"producer\"", "sync = \"consumer\"")
+        .replace("[[buses]]\nname = \"can1\"\nkind = \"simulated\"", "")
+        .replace("bus = \"can1\"\nnode = 2", "bus = \"can0\"\nnode = 2")
+        .replace("fpc = true  ", "fpc = false ");
+    assert_eq!(text.matches("[[buses]]").count(), 1);
+    assert!(text.contains("fpc = false"));
     let plan = plan(&Config::parse(&text).unwrap()).unwrap();
     assert!(!plan.cycle.sync_producer);
     let opts = RunOptions {
@@ -818,9 +825,9 @@ fn a_drive_that_resets_itself_is_faulted_configured_again_and_usable_after_ackno
     let mut run = ready(&plan);
     let x = plan.axis("x").unwrap() as u16;
     let y = plan.axis("y").unwrap() as u16;
-    // Another master on the bus resets node 2 (the EMCA) as a power cycle would: it sends its
+    // Another master on can1 resets node 2 (the EMCA) as a power cycle would: it sends its
     // boot-up and comes back pre-operational, its PDO settings at their defaults.
-    let mut other = run.io.buses[0].attach("other-master");
+    let mut other = run.io.buses[1].attach("other-master");
     other
         .send(&drivers::can::Frame::new_std(0x000, &[0x81, 2]).unwrap())
         .unwrap();
@@ -873,15 +880,12 @@ fn a_drive_that_resets_itself_is_faulted_configured_again_and_usable_after_ackno
 #[test]
 fn the_parameter_channel_reads_and_writes_drive_parameters() {
     use coordinator::event::Event as E;
-    // x (MTR-DCI, classic FPC) and y (EMCA, EFPC) with the parameter channel on PDO2; the two
-    // extra frames each way need a longer cycle.
-    let text = EXAMPLE
-        .replace("cycle_us = 2000", "cycle_us = 3000")
-        .replace(
-            "guard_time_ms = 100      # node guarding",
-            "fpc = true\nguard_time_ms = 100      # node guarding",
-        )
-        .replace("fpc = false", "fpc = true");
+    // x (MTR-DCI, classic FPC) and y (EMCA, EFPC, as in the example) with the parameter
+    // channel on PDO2.
+    let text = EXAMPLE.replace(
+        "guard_time_ms = 100      # node guarding",
+        "fpc = true\nguard_time_ms = 100      # node guarding",
+    );
     let plan = plan(&Config::parse(&text).unwrap()).unwrap();
     let mut run = ready(&plan);
     let x = plan.axis("x").unwrap() as u16;

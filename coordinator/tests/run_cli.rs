@@ -29,8 +29,9 @@ fn the_default_machine_runs_in_virtual_time_and_prints_a_summary() {
         String::from_utf8_lossy(&out.stderr)
     );
     for needle in [
-        "machine: 4 axes, 3 groups, 1 bus, cycle 2000 µs, virtual time",
+        "machine: 4 axes, 3 groups, 2 buses, cycle 2000 µs, virtual time",
         "drive ready: node 1 (MTR-DCI \"x\") on can0 (simulated)",
+        "drive ready: node 2 (EMCA \"y\") on can1 (simulated)",
         "drive ready: node 3 (TLC5xx \"z\") on can0 (simulated)",
         "summary: 100",
         "axis x:",

@@ -12,6 +12,7 @@
  *   PREFIX/command    request-response, MotionCommandRequest -> MotionCommandReply
  *   PREFIX/events     event service, event id = MOTION_EVENT_ID_*
  *   PREFIX/event-log  publish-subscribe, MotionEventRecord
+ *   PREFIX/description publish-subscribe, MotionMachineDescription, once at start, history 1
  * Open them with the iceoryx2 C or C++ bindings using the MOTION_*_TYPE_NAME strings as the
  * payload type names (size and alignment from sizeof/alignof): a coordinator built from
  * another layout then refuses the client when it opens the service.
@@ -36,7 +37,7 @@ extern "C" {
 /* The contract's version; bumped on any incompatible change. */
 #define MOTION_LAYOUT_VERSION 1u
 /* The layout hash the coordinator writes into MotionMachineState.layout_hash. */
-#define MOTION_LAYOUT_HASH 0x781f0463u
+#define MOTION_LAYOUT_HASH 0x6feedc2bu
 #define MOTION_MAX_AXES 128
 #define MOTION_MAX_GROUPS 16
 #define MOTION_MAX_GROUP_AXES 8
@@ -45,12 +46,20 @@ extern "C" {
 #define MOTION_UNIT_LEN 8
 /* Positions and velocities are in millionths of the axis's unit. */
 #define MOTION_MICRO 1000000LL
+/* Capacities of MotionMachineDescription. */
+#define MOTION_MAX_BUSES 8
+#define MOTION_MAX_DRIVE_RECORDS 64
+#define MOTION_MAX_GROUP_RECORDS 256
+/* Bytes of a step condition in words and of a Modbus address (NUL-padded UTF-8). */
+#define MOTION_CONDITION_LEN 80
+#define MOTION_ADDRESS_LEN 64
 
 /* iceoryx2 type names of the service payloads (equal to the Rust #[type_name]). */
-#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1::781f0463"
-#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1::781f0463"
-#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1::781f0463"
-#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1::781f0463"
+#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1::6feedc2b"
+#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1::6feedc2b"
+#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1::6feedc2b"
+#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1::6feedc2b"
+#define MOTION_MACHINE_DESCRIPTION_TYPE_NAME "motion::MachineDescription::v1::6feedc2b"
 /* The default service prefix. */
 #define MOTION_DEFAULT_PREFIX "motion"
 
@@ -181,6 +190,40 @@ extern "C" {
 #define MOTION_EVENT_ID_SHUTDOWN 8
 #define MOTION_EVENT_ID_OVERRUN 10
 
+/* MotionAxisDescription.device */
+#define MOTION_DEVICE_UNKNOWN 0
+#define MOTION_DEVICE_MTR_DCI 1
+#define MOTION_DEVICE_EMCA 2
+#define MOTION_DEVICE_CMMO_ST 3
+#define MOTION_DEVICE_TLC5XX 4
+
+/* MotionAxisDescription.profile */
+#define MOTION_PROFILE_FHPP 0
+#define MOTION_PROFILE_CIA402 1
+
+/* MotionAxisDescription.link */
+#define MOTION_LINK_CAN 0
+#define MOTION_LINK_MODBUS 1
+
+/* MotionBusDescription.kind */
+#define MOTION_BUS_KIND_SIMULATED 0
+#define MOTION_BUS_KIND_VBUS 1
+#define MOTION_BUS_KIND_SOCKETCAN 2
+
+/* MotionGroupDescription.shape */
+#define MOTION_SHAPE_TRAPEZOID 0
+#define MOTION_SHAPE_S_CURVE 1
+
+/* MotionGroupRecord.mode */
+#define MOTION_RECORD_MODE_POSITION 0
+#define MOTION_RECORD_MODE_VELOCITY 1
+#define MOTION_RECORD_MODE_FORCE 2
+
+/* MotionGroupRecord.target_kinds[] */
+#define MOTION_TARGET_KIND_KEEP 0
+#define MOTION_TARGET_KIND_ABSOLUTE 1
+#define MOTION_TARGET_KIND_RELATIVE 2
+
 /* ---- payloads ----------------------------------------------------------------------------- */
 
 /* One axis in MotionMachineState (128 bytes). Positions in µunits (MOTION_MICRO). */
@@ -299,6 +342,93 @@ typedef struct MotionEventRecord {
     uint16_t reserved1;
 } MotionEventRecord;
 
+/* One CAN bus in MotionMachineDescription (24 bytes). */
+typedef struct MotionBusDescription {
+    uint8_t name[MOTION_NAME_LEN];
+    uint32_t bitrate; /* bit/s */
+    uint8_t kind;     /* MOTION_BUS_KIND_* */
+    uint8_t reserved0[3];
+} MotionBusDescription;
+
+/* One record of a drive's own record table, as configured (32 bytes). */
+typedef struct MotionDriveRecord {
+    int64_t position;     /* µunits (a distance from the last target when relative) */
+    int64_t velocity;     /* µunits/s */
+    int64_t acceleration; /* µunits/s² */
+    uint8_t number;       /* 1..the device's table size */
+    uint8_t relative;     /* 1: position is relative */
+    uint8_t next;         /* the record chained after this one, or 0 */
+    uint8_t reserved0[5];
+} MotionDriveRecord;
+
+/* One axis in MotionMachineDescription (2200 bytes): what the state does not carry. */
+typedef struct MotionAxisDescription {
+    int64_t position_min;    /* µunits */
+    int64_t position_max;    /* µunits */
+    int64_t velocity;        /* limit, µunits/s */
+    int64_t acceleration;    /* limit, µunits/s² */
+    int64_t jerk;            /* limit, µunits/s³, or 0 (none) */
+    int64_t following_error; /* limit, µunits */
+    uint16_t force_permille; /* force limit, per mille of nominal, or 0 (none) */
+    uint8_t device;          /* MOTION_DEVICE_* */
+    uint8_t profile;         /* MOTION_PROFILE_* */
+    uint8_t fpc;             /* 1: the FHPP parameter channel is mapped */
+    uint8_t link;            /* MOTION_LINK_* */
+    uint8_t bus;             /* index into buses, 0xFF on Modbus */
+    uint8_t node;            /* CANopen node-ID, 0 on Modbus */
+    uint8_t simulated;       /* 1: simulated inside the coordinator */
+    uint8_t record_count;    /* valid entries of records */
+    uint8_t reserved0[6];
+    uint8_t name[MOTION_NAME_LEN];
+    uint8_t unit[MOTION_UNIT_LEN];
+    uint8_t modbus[MOTION_ADDRESS_LEN]; /* host:port the coordinator dials, or empty */
+    MotionDriveRecord records[MOTION_MAX_DRIVE_RECORDS];
+} MotionAxisDescription;
+
+/* One record of a group's table (256 bytes). */
+typedef struct MotionGroupRecord {
+    int64_t targets[MOTION_MAX_GROUP_AXES]; /* per member, µunits, as target_kinds says */
+    uint32_t delay_ms;         /* start delay */
+    int32_t force_permille;    /* force records */
+    uint16_t number;           /* 0..255 */
+    int16_t step_next;         /* where the step condition leads, or -1: the chain ends */
+    int16_t alternative_next;  /* where the alternative leads, or -1 */
+    uint8_t mode;              /* MOTION_RECORD_MODE_* */
+    uint8_t velocity_percent;
+    uint8_t acceleration_percent;
+    uint8_t jerk_percent;
+    uint8_t mc_in_chain;       /* 1: MC shown when the move arrives inside a chain */
+    uint8_t reserved0[5];
+    uint8_t target_kinds[MOTION_MAX_GROUP_AXES]; /* MOTION_TARGET_KIND_* per member */
+    uint8_t step[MOTION_CONDITION_LEN];          /* the condition in words, or empty */
+    uint8_t alternative[MOTION_CONDITION_LEN];   /* the alternative in words, or empty */
+} MotionGroupRecord;
+
+/* One group in MotionMachineDescription. */
+typedef struct MotionGroupDescription {
+    uint8_t name[MOTION_NAME_LEN];
+    uint8_t axes[MOTION_MAX_GROUP_AXES]; /* indices into axes */
+    uint8_t axis_count;
+    uint8_t shape;        /* MOTION_SHAPE_* */
+    uint16_t record_count; /* valid entries of records */
+    uint8_t reserved0[4];
+    MotionGroupRecord records[MOTION_MAX_GROUP_RECORDS];
+} MotionGroupDescription;
+
+/* What the machine is, once at start on PREFIX/description (history 1). */
+typedef struct MotionMachineDescription {
+    uint32_t version;     /* MOTION_LAYOUT_VERSION */
+    uint32_t layout_hash; /* MOTION_LAYOUT_HASH */
+    uint32_t cycle_ns;
+    uint16_t axis_count;  /* valid entries in axes (the state's axes, same order) */
+    uint16_t group_count; /* valid entries in groups */
+    uint8_t bus_count;    /* valid entries in buses */
+    uint8_t reserved0[7];
+    MotionBusDescription buses[MOTION_MAX_BUSES];
+    MotionAxisDescription axes[MOTION_MAX_AXES];
+    MotionGroupDescription groups[MOTION_MAX_GROUPS];
+} MotionMachineDescription;
+
 /* ---- layout checks (the same numbers as the Rust compiler's) ------------------------------ */
 
 MOTION_STATIC_ASSERT(sizeof(MotionAxisState) == 128, "MotionAxisState size");
@@ -409,6 +539,87 @@ MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, sub) == 34, "MotionEventRecord.
 MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, reserved0) == 35, "MotionEventRecord.reserved0 offset");
 MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, code) == 36, "MotionEventRecord.code offset");
 MOTION_STATIC_ASSERT(offsetof(MotionEventRecord, reserved1) == 38, "MotionEventRecord.reserved1 offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionBusDescription) == 24, "MotionBusDescription size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionBusDescription) == 4, "MotionBusDescription alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionBusDescription, name) == 0, "MotionBusDescription.name offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusDescription, bitrate) == 16, "MotionBusDescription.bitrate offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusDescription, kind) == 20, "MotionBusDescription.kind offset");
+MOTION_STATIC_ASSERT(offsetof(MotionBusDescription, reserved0) == 21, "MotionBusDescription.reserved0 offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionDriveRecord) == 32, "MotionDriveRecord size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionDriveRecord) == 8, "MotionDriveRecord alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, position) == 0, "MotionDriveRecord.position offset");
+MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, velocity) == 8, "MotionDriveRecord.velocity offset");
+MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, acceleration) == 16, "MotionDriveRecord.acceleration offset");
+MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, number) == 24, "MotionDriveRecord.number offset");
+MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, relative) == 25, "MotionDriveRecord.relative offset");
+MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, next) == 26, "MotionDriveRecord.next offset");
+MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, reserved0) == 27, "MotionDriveRecord.reserved0 offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionAxisDescription) == 2200, "MotionAxisDescription size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionAxisDescription) == 8, "MotionAxisDescription alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, position_min) == 0, "MotionAxisDescription.position_min offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, position_max) == 8, "MotionAxisDescription.position_max offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, velocity) == 16, "MotionAxisDescription.velocity offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, acceleration) == 24, "MotionAxisDescription.acceleration offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, jerk) == 32, "MotionAxisDescription.jerk offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, following_error) == 40, "MotionAxisDescription.following_error offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, force_permille) == 48, "MotionAxisDescription.force_permille offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, device) == 50, "MotionAxisDescription.device offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, profile) == 51, "MotionAxisDescription.profile offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, fpc) == 52, "MotionAxisDescription.fpc offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, link) == 53, "MotionAxisDescription.link offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, bus) == 54, "MotionAxisDescription.bus offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, node) == 55, "MotionAxisDescription.node offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, simulated) == 56, "MotionAxisDescription.simulated offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, record_count) == 57, "MotionAxisDescription.record_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, reserved0) == 58, "MotionAxisDescription.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, name) == 64, "MotionAxisDescription.name offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, unit) == 80, "MotionAxisDescription.unit offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, modbus) == 88, "MotionAxisDescription.modbus offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, records) == 152, "MotionAxisDescription.records offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionGroupRecord) == 256, "MotionGroupRecord size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionGroupRecord) == 8, "MotionGroupRecord alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, targets) == 0, "MotionGroupRecord.targets offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, delay_ms) == 64, "MotionGroupRecord.delay_ms offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, force_permille) == 68, "MotionGroupRecord.force_permille offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, number) == 72, "MotionGroupRecord.number offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, step_next) == 74, "MotionGroupRecord.step_next offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, alternative_next) == 76, "MotionGroupRecord.alternative_next offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, mode) == 78, "MotionGroupRecord.mode offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, velocity_percent) == 79, "MotionGroupRecord.velocity_percent offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, acceleration_percent) == 80, "MotionGroupRecord.acceleration_percent offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, jerk_percent) == 81, "MotionGroupRecord.jerk_percent offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, mc_in_chain) == 82, "MotionGroupRecord.mc_in_chain offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, reserved0) == 83, "MotionGroupRecord.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, target_kinds) == 88, "MotionGroupRecord.target_kinds offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, step) == 96, "MotionGroupRecord.step offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupRecord, alternative) == 176, "MotionGroupRecord.alternative offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionGroupDescription) == 65568, "MotionGroupDescription size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionGroupDescription) == 8, "MotionGroupDescription alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, name) == 0, "MotionGroupDescription.name offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, axes) == 16, "MotionGroupDescription.axes offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, axis_count) == 24, "MotionGroupDescription.axis_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, shape) == 25, "MotionGroupDescription.shape offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, record_count) == 26, "MotionGroupDescription.record_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, reserved0) == 28, "MotionGroupDescription.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, records) == 32, "MotionGroupDescription.records offset");
+
+MOTION_STATIC_ASSERT(sizeof(MotionMachineDescription) == 1330904, "MotionMachineDescription size");
+MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionMachineDescription) == 8, "MotionMachineDescription alignment");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, version) == 0, "MotionMachineDescription.version offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, layout_hash) == 4, "MotionMachineDescription.layout_hash offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, cycle_ns) == 8, "MotionMachineDescription.cycle_ns offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, axis_count) == 12, "MotionMachineDescription.axis_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, group_count) == 14, "MotionMachineDescription.group_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, bus_count) == 16, "MotionMachineDescription.bus_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, reserved0) == 17, "MotionMachineDescription.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, buses) == 24, "MotionMachineDescription.buses offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, axes) == 216, "MotionMachineDescription.axes offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, groups) == 281816, "MotionMachineDescription.groups offset");
 
 #ifdef __cplusplus
 }

@@ -6,7 +6,7 @@ constants as ``IntEnum``/``IntFlag`` classes, and helpers to read names and to b
 ``shm-api/tests/layout_languages.rs`` compares :func:`layout_json` with the Rust layout, so a
 change on one side without the other fails the test suite.
 
-The four service payloads carry a ``type_name()`` equal to the Rust ``#[type_name]``: the
+The five service payloads carry a ``type_name()`` equal to the Rust ``#[type_name]``: the
 iceoryx2 Python bindings use it when opening a service, so a client built from another layout
 is refused by iceoryx2 exactly as a Rust client would be.
 
@@ -16,6 +16,8 @@ Services, under a prefix (default ``motion``), see :func:`service_names`:
 * ``PREFIX/command``: request-response, :class:`CommandRequest` -> :class:`CommandReply`.
 * ``PREFIX/events``: event service; the event id is an :class:`EventId`.
 * ``PREFIX/event-log``: publish-subscribe, :class:`EventRecord`.
+* ``PREFIX/description``: publish-subscribe, :class:`MachineDescription`, published once at
+  start, history 1 (a client that starts later still receives it).
 
 All integers are in host byte order (little-endian on x86-64 and ARM).
 """
@@ -29,7 +31,7 @@ import json
 #: The contract's version; bumped on any incompatible change.
 LAYOUT_VERSION = 1
 #: The layout hash the coordinator writes into ``MachineState.layout_hash``.
-LAYOUT_HASH = 0x781F0463
+LAYOUT_HASH = 0x6FEEDC2B
 #: Axes a MachineState holds.
 MAX_AXES = 128
 #: Groups a MachineState holds.
@@ -42,15 +44,26 @@ NAME_LEN = 16
 UNIT_LEN = 8
 #: Positions and velocities are in millionths of the axis's unit.
 MICRO = 1_000_000
+#: CAN buses a MachineDescription holds.
+MAX_BUSES = 8
+#: Records of one axis's drive table in an AxisDescription.
+MAX_DRIVE_RECORDS = 64
+#: Records of one group's table in a GroupDescription.
+MAX_GROUP_RECORDS = 256
+#: Bytes of a step condition in words (NUL-padded UTF-8).
+CONDITION_LEN = 80
+#: Bytes of a Modbus TCP address (NUL-padded).
+ADDRESS_LEN = 64
 
 #: The default prefix of every service name.
 DEFAULT_PREFIX = "motion"
 
 #: The iceoryx2 type names; they must equal the Rust ``#[type_name]`` (the test checks it).
-MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1::781f0463"
-COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1::781f0463"
-COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1::781f0463"
-EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1::781f0463"
+MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1::6feedc2b"
+COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1::6feedc2b"
+COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1::6feedc2b"
+EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1::6feedc2b"
+MACHINE_DESCRIPTION_TYPE_NAME = "motion::MachineDescription::v1::6feedc2b"
 
 
 class AxisStateKind(enum.IntEnum):
@@ -221,6 +234,62 @@ class EventId(enum.IntEnum):
     OVERRUN = 10
 
 
+class Device(enum.IntEnum):
+    """The drive of an axis (``AxisDescription.device``; Rust ``device``)."""
+
+    UNKNOWN = 0
+    MTR_DCI = 1
+    EMCA = 2
+    CMMO_ST = 3
+    TLC5XX = 4
+
+
+class Profile(enum.IntEnum):
+    """The device profile (``AxisDescription.profile``; Rust ``profile``)."""
+
+    FHPP = 0
+    CIA402 = 1
+
+
+class Link(enum.IntEnum):
+    """How the coordinator reaches a drive (``AxisDescription.link``; Rust ``link``)."""
+
+    CAN = 0
+    MODBUS = 1
+
+
+class BusKind(enum.IntEnum):
+    """Where a bus's drives are (``BusDescription.kind``; Rust ``bus_kind``)."""
+
+    SIMULATED = 0
+    VBUS = 1
+    SOCKETCAN = 2
+
+
+class Shape(enum.IntEnum):
+    """A group's profile shape (``GroupDescription.shape``; Rust ``shape``)."""
+
+    TRAPEZOID = 0
+    S_CURVE = 1
+
+
+class RecordMode(enum.IntEnum):
+    """What a group record does (``GroupRecord.mode``; Rust ``record_mode``)."""
+
+    POSITION = 0
+    VELOCITY = 1
+    FORCE = 2
+
+
+class TargetKind(enum.IntEnum):
+    """Where a member goes in a group record (``GroupRecord.target_kinds``; Rust
+    ``target_kind``)."""
+
+    KEEP = 0
+    ABSOLUTE = 1
+    RELATIVE = 2
+
+
 #: The Rust module each constant class mirrors (the layout test compares them by these names).
 CONSTANT_GROUPS = {
     "axis_state": AxisStateKind,
@@ -236,6 +305,13 @@ CONSTANT_GROUPS = {
     "target": Target,
     "status": Status,
     "event_id": EventId,
+    "device": Device,
+    "profile": Profile,
+    "link": Link,
+    "bus_kind": BusKind,
+    "shape": Shape,
+    "record_mode": RecordMode,
+    "target_kind": TargetKind,
 }
 
 # --- helpers ----------------------------------------------------------------------------------
@@ -275,6 +351,7 @@ def service_names(prefix: str = DEFAULT_PREFIX) -> dict:
         "command": f"{prefix}/command",
         "events": f"{prefix}/events",
         "event_log": f"{prefix}/event-log",
+        "description": f"{prefix}/description",
     }
 
 
@@ -654,6 +731,157 @@ class EventRecord(ctypes.Structure):
         return enum_name(EventId, self.id)
 
 
+class BusDescription(ctypes.Structure):
+    """One CAN bus in :class:`MachineDescription` (24 bytes)."""
+
+    _fields_ = [
+        ("name", U8 * NAME_LEN),
+        ("bitrate", U32),
+        ("kind", U8),
+        ("reserved0", U8 * 3),
+    ]
+
+    def name_str(self) -> str:
+        """The bus name."""
+        return name_str(self.name)
+
+
+class DriveRecord(ctypes.Structure):
+    """One record of a drive's own table, as configured (32 bytes); µunits."""
+
+    _fields_ = [
+        ("position", I64),
+        ("velocity", I64),
+        ("acceleration", I64),
+        ("number", U8),
+        ("relative", U8),
+        ("next", U8),
+        ("reserved0", U8 * 5),
+    ]
+
+
+class AxisDescription(ctypes.Structure):
+    """One axis in :class:`MachineDescription` (2200 bytes): drive, link, limits (µunits) and
+    the drive's record table."""
+
+    _fields_ = [
+        ("position_min", I64),
+        ("position_max", I64),
+        ("velocity", I64),
+        ("acceleration", I64),
+        ("jerk", I64),
+        ("following_error", I64),
+        ("force_permille", U16),
+        ("device", U8),
+        ("profile", U8),
+        ("fpc", U8),
+        ("link", U8),
+        ("bus", U8),
+        ("node", U8),
+        ("simulated", U8),
+        ("record_count", U8),
+        ("reserved0", U8 * 6),
+        ("name", U8 * NAME_LEN),
+        ("unit", U8 * UNIT_LEN),
+        ("modbus", U8 * ADDRESS_LEN),
+        ("records", DriveRecord * MAX_DRIVE_RECORDS),
+    ]
+
+    def name_str(self) -> str:
+        """The axis name."""
+        return name_str(self.name)
+
+    def device_name(self) -> str:
+        """``device`` as its constant's name (``"EMCA"``)."""
+        return enum_name(Device, self.device)
+
+    def valid_records(self) -> list:
+        """The drive records (the first ``record_count``)."""
+        return list(self.records[: min(self.record_count, MAX_DRIVE_RECORDS)])
+
+
+class GroupRecord(ctypes.Structure):
+    """One record of a group's table (256 bytes); targets in µunits."""
+
+    _fields_ = [
+        ("targets", I64 * MAX_GROUP_AXES),
+        ("delay_ms", U32),
+        ("force_permille", I32),
+        ("number", U16),
+        ("step_next", I16),
+        ("alternative_next", I16),
+        ("mode", U8),
+        ("velocity_percent", U8),
+        ("acceleration_percent", U8),
+        ("jerk_percent", U8),
+        ("mc_in_chain", U8),
+        ("reserved0", U8 * 5),
+        ("target_kinds", U8 * MAX_GROUP_AXES),
+        ("step", U8 * CONDITION_LEN),
+        ("alternative", U8 * CONDITION_LEN),
+    ]
+
+    def step_str(self) -> str:
+        """The step condition in words (empty where the chain ends)."""
+        return name_str(self.step)
+
+    def alternative_str(self) -> str:
+        """The alternative condition in words, or empty."""
+        return name_str(self.alternative)
+
+
+class GroupDescription(ctypes.Structure):
+    """One group in :class:`MachineDescription`."""
+
+    _fields_ = [
+        ("name", U8 * NAME_LEN),
+        ("axes", U8 * MAX_GROUP_AXES),
+        ("axis_count", U8),
+        ("shape", U8),
+        ("record_count", U16),
+        ("reserved0", U8 * 4),
+        ("records", GroupRecord * MAX_GROUP_RECORDS),
+    ]
+
+    def name_str(self) -> str:
+        """The group name."""
+        return name_str(self.name)
+
+    def valid_records(self) -> list:
+        """The group's records (the first ``record_count``)."""
+        return list(self.records[: min(self.record_count, MAX_GROUP_RECORDS)])
+
+
+class MachineDescription(ctypes.Structure):
+    """What the machine is, published once at start on ``PREFIX/description``."""
+
+    _fields_ = [
+        ("version", U32),
+        ("layout_hash", U32),
+        ("cycle_ns", U32),
+        ("axis_count", U16),
+        ("group_count", U16),
+        ("bus_count", U8),
+        ("reserved0", U8 * 7),
+        ("buses", BusDescription * MAX_BUSES),
+        ("axes", AxisDescription * MAX_AXES),
+        ("groups", GroupDescription * MAX_GROUPS),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        """The iceoryx2 type name (equal to the Rust one)."""
+        return MACHINE_DESCRIPTION_TYPE_NAME
+
+    def valid_axes(self) -> list:
+        """The described axes (the first ``axis_count``, the state's order)."""
+        return list(self.axes[: min(self.axis_count, MAX_AXES)])
+
+    def valid_groups(self) -> list:
+        """The described groups (the first ``group_count``)."""
+        return list(self.groups[: min(self.group_count, MAX_GROUPS)])
+
+
 #: Every payload, nested types first (the order of the Rust dump).
 PAYLOADS = [
     AxisState,
@@ -663,6 +891,12 @@ PAYLOADS = [
     CommandRequest,
     CommandReply,
     EventRecord,
+    BusDescription,
+    DriveRecord,
+    AxisDescription,
+    GroupRecord,
+    GroupDescription,
+    MachineDescription,
 ]
 
 #: The top-level constants by their Rust names.
@@ -675,6 +909,11 @@ TOP_LEVEL_CONSTANTS = {
     "NAME_LEN": NAME_LEN,
     "UNIT_LEN": UNIT_LEN,
     "MICRO": MICRO,
+    "MAX_BUSES": MAX_BUSES,
+    "MAX_DRIVE_RECORDS": MAX_DRIVE_RECORDS,
+    "MAX_GROUP_RECORDS": MAX_GROUP_RECORDS,
+    "CONDITION_LEN": CONDITION_LEN,
+    "ADDRESS_LEN": ADDRESS_LEN,
 }
 
 

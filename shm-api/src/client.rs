@@ -5,7 +5,9 @@
 //! A [`Client`] uses iceoryx2's single-threaded `ipc` service: create it on the thread that
 //! uses it.
 
-use crate::contract::{CommandReply, CommandRequest, EventRecord, MachineState, status};
+use crate::contract::{
+    CommandReply, CommandRequest, EventRecord, MachineDescription, MachineState, status,
+};
 use crate::names::ServiceNames;
 use crate::publisher::{ShmError, create_node};
 use crate::request::name_str;
@@ -134,6 +136,10 @@ pub enum ClientError {
     /// Nothing new in time (the coordinator is there).
     #[error("no new state in time")]
     Timeout,
+    /// The coordinator publishes no machine description (a stand-in, or one that failed to
+    /// publish it), or none arrived in time.
+    #[error("the coordinator published no machine description (or not in time)")]
+    NoDescription,
     /// The coordinator went away (no publisher on the state service).
     #[error("the coordinator went away")]
     Disconnected,
@@ -152,6 +158,8 @@ impl From<ShmError> for ClientError {
 pub struct Client {
     prefix: String,
     // Ports and samples before the services and the node: fields drop in order.
+    description: Option<Sample<ipc::Service, MachineDescription, ()>>,
+    description_port: Option<Subscriber<ipc::Service, MachineDescription, ()>>,
     current: Option<Sample<ipc::Service, MachineState, ()>>,
     state: Subscriber<ipc::Service, MachineState, ()>,
     commands: IoxClient<ipc::Service, CommandRequest, (), CommandReply, ()>,
@@ -159,6 +167,7 @@ pub struct Client {
     listener: Listener<ipc::Service>,
     state_service: PubSubFactory<ipc::Service, MachineState, ()>,
     _command_service: ReqResFactory<ipc::Service, CommandRequest, (), CommandReply, ()>,
+    description_service: Option<PubSubFactory<ipc::Service, MachineDescription, ()>>,
     next_tag: u64,
     _node: Node<ipc::Service>,
 }
@@ -307,6 +316,8 @@ impl Client {
             })?;
         Ok(Client {
             prefix: prefix.to_owned(),
+            description: None,
+            description_port: None,
             current: None,
             state,
             commands,
@@ -314,6 +325,7 @@ impl Client {
             listener,
             state_service,
             _command_service: command_service,
+            description_service: None,
             next_tag: 1,
             _node: node,
         })
@@ -423,6 +435,60 @@ impl Client {
             } else {
                 std::thread::sleep((deadline - now).min(POLL_INTERVAL));
             }
+        }
+    }
+
+    /// The machine's description, which the coordinator publishes once at start: the first
+    /// call subscribes to `PREFIX/description` and waits up to `timeout` for it (the
+    /// coordinator hands it to a new subscriber within a poll of its command thread); later
+    /// calls return it at once. Only clients that ask for it subscribe, so a monitor costs the
+    /// service no subscriber slot.
+    pub fn description(&mut self, timeout: Duration) -> Result<&MachineDescription, ClientError> {
+        if self.description.is_none() {
+            let sample = self.receive_description(timeout)?;
+            self.description = Some(sample);
+        }
+        self.description
+            .as_ref()
+            .map(|s| s.payload())
+            .ok_or(ClientError::NoDescription)
+    }
+
+    fn receive_description(
+        &mut self,
+        timeout: Duration,
+    ) -> Result<Sample<ipc::Service, MachineDescription, ()>, ClientError> {
+        let deadline = Instant::now() + timeout;
+        if self.description_port.is_none() {
+            let name = ServiceNames::new(&self.prefix).description;
+            let service = match open_pubsub::<MachineDescription>(&self._node, &name, &self.prefix)
+            {
+                Ok(s) => s,
+                // The state is there, so a coordinator runs: it just has no description.
+                Err(ClientError::NoCoordinator(_)) => return Err(ClientError::NoDescription),
+                Err(e) => return Err(e),
+            };
+            let port = service
+                .subscriber_builder()
+                .buffer_size(1)
+                .create()
+                .map_err(|e| {
+                    ClientError::Shm(format!("creating the description subscriber: {}", words(e)))
+                })?;
+            self.description_service = Some(service);
+            self.description_port = Some(port);
+        }
+        loop {
+            if let Some(port) = &self.description_port
+                && let Ok(Some(sample)) = port.receive()
+            {
+                return Ok(sample);
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(ClientError::NoDescription);
+            }
+            std::thread::sleep((deadline - now).min(POLL_INTERVAL));
         }
     }
 

@@ -10,7 +10,7 @@ use iceoryx2::prelude::ZeroCopySend;
 pub const LAYOUT_VERSION: u32 = 1;
 /// A hash of the layout of every payload (sizes and field offsets), checked by a test that
 /// recomputes it: see `layout::compute_hash`.
-pub const LAYOUT_HASH: u32 = 0x781f_0463;
+pub const LAYOUT_HASH: u32 = 0x6fee_dc2b;
 /// Axes a [`MachineState`] holds.
 pub const MAX_AXES: usize = 128;
 /// Groups a [`MachineState`] holds.
@@ -280,7 +280,7 @@ pub struct BusStats {
 /// The whole machine, published once per cycle on `PREFIX/state`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::MachineState::v1::781f0463")]
+#[type_name("motion::MachineState::v1::6feedc2b")]
 pub struct MachineState {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -370,7 +370,7 @@ pub mod target {
 /// A command, on `PREFIX/command` (request-response).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandRequest::v1::781f0463")]
+#[type_name("motion::CommandRequest::v1::6feedc2b")]
 pub struct CommandRequest {
     /// The client's tag, echoed in the reply.
     pub tag: u64,
@@ -429,7 +429,7 @@ pub mod status {
 /// The answer to a [`CommandRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandReply::v1::781f0463")]
+#[type_name("motion::CommandReply::v1::6feedc2b")]
 pub struct CommandReply {
     /// The request's tag.
     pub tag: u64,
@@ -482,7 +482,7 @@ pub mod event_id {
 /// event service and read the details here.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::EventRecord::v1::781f0463")]
+#[type_name("motion::EventRecord::v1::6feedc2b")]
 pub struct EventRecord {
     /// A sequence number, counting every record published.
     pub seq: u64,
@@ -510,4 +510,256 @@ pub struct EventRecord {
     pub code: u16,
     /// Padding, 0.
     pub reserved1: u16,
+}
+
+// ---- the machine's description ----------------------------------------------------------------
+
+/// CAN buses a [`MachineDescription`] holds.
+pub const MAX_BUSES: usize = 8;
+/// Records of one axis's drive table in an [`AxisDescription`] (the EMCA's and the CMMO-ST's
+/// 64; the MTR-DCI has 31).
+pub const MAX_DRIVE_RECORDS: usize = 64;
+/// Records of one group's table in a [`GroupDescription`] (numbers 0..=255).
+pub const MAX_GROUP_RECORDS: usize = 256;
+/// Bytes of a step condition in words ([`GroupRecord::step`]), NUL-padded UTF-8.
+pub const CONDITION_LEN: usize = 80;
+/// Bytes of a Modbus TCP address ([`AxisDescription::modbus`]), NUL-padded.
+pub const ADDRESS_LEN: usize = 64;
+
+/// The drive of an axis ([`AxisDescription::device`]).
+pub mod device {
+    /// Not known to this contract version.
+    pub const UNKNOWN: u8 = 0;
+    /// Festo MTR-DCI (CANopen; FHPP or CiA 402).
+    pub const MTR_DCI: u8 = 1;
+    /// Festo EMCA (CANopen; FHPP).
+    pub const EMCA: u8 = 2;
+    /// Festo CMMO-ST (Modbus TCP; FHPP).
+    pub const CMMO_ST: u8 = 3;
+    /// Schneider TLC5xx (CANopen; CiA 402).
+    pub const TLC5XX: u8 = 4;
+}
+
+/// The device profile an axis is driven with ([`AxisDescription::profile`]).
+pub mod profile {
+    /// Festo Handling and Positioning Profile.
+    pub const FHPP: u8 = 0;
+    /// CiA 402 (drives and motion control).
+    pub const CIA402: u8 = 1;
+}
+
+/// How the coordinator reaches a drive ([`AxisDescription::link`]).
+pub mod link {
+    /// CANopen on [`super::AxisDescription::bus`], node [`super::AxisDescription::node`].
+    pub const CAN: u8 = 0;
+    /// Modbus TCP at [`super::AxisDescription::modbus`].
+    pub const MODBUS: u8 = 1;
+}
+
+/// Where a bus's drives are ([`BusDescription::kind`]).
+pub mod bus_kind {
+    /// Simulated inside the coordinator's process.
+    pub const SIMULATED: u8 = 0;
+    /// Other processes on the cross-process virtual bus `vbus:NAME`.
+    pub const VBUS: u8 = 1;
+    /// Real drives on the SocketCAN interface `NAME`.
+    pub const SOCKETCAN: u8 = 2;
+}
+
+/// A group's profile shape ([`GroupDescription::shape`]).
+pub mod shape {
+    /// Trapezoidal velocity (a member has no jerk limit).
+    pub const TRAPEZOID: u8 = 0;
+    /// Jerk-limited (every member has a jerk limit).
+    pub const S_CURVE: u8 = 1;
+}
+
+/// What a group record does ([`GroupRecord::mode`]).
+pub mod record_mode {
+    /// A time-synchronised group move to the targets.
+    pub const POSITION: u8 = 0;
+    /// Run at the record's velocity share in the direction of each target's sign.
+    pub const VELOCITY: u8 = 1;
+    /// Push with [`super::GroupRecord::force_permille`] toward the targets.
+    pub const FORCE: u8 = 2;
+}
+
+/// Where a member axis goes in a group record ([`GroupRecord::target_kinds`]).
+pub mod target_kind {
+    /// It keeps still (no target).
+    pub const KEEP: u8 = 0;
+    /// To the position in [`super::GroupRecord::targets`].
+    pub const ABSOLUTE: u8 = 1;
+    /// By the distance in [`super::GroupRecord::targets`] from where the record starts.
+    pub const RELATIVE: u8 = 2;
+}
+
+/// One CAN bus in a [`MachineDescription`] (24 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct BusDescription {
+    /// The bus name (`vbus:NAME` or the SocketCAN interface `NAME`).
+    pub name: [u8; NAME_LEN],
+    /// Bit/s.
+    pub bitrate: u32,
+    /// [`bus_kind`].
+    pub kind: u8,
+    /// Padding, 0.
+    pub reserved0: [u8; 3],
+}
+
+/// One record of a drive's own record table, as configured (`[[records]]`; 32 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct DriveRecord {
+    /// Target position, µunits (a distance from the last target when `relative`).
+    pub position: i64,
+    /// Velocity, µunits/s.
+    pub velocity: i64,
+    /// Acceleration, µunits/s².
+    pub acceleration: i64,
+    /// The record number, 1..=the device's table size.
+    pub number: u8,
+    /// 1: `position` is relative.
+    pub relative: u8,
+    /// The record chained after this one, or 0 (none).
+    pub next: u8,
+    /// Padding, 0.
+    pub reserved0: [u8; 5],
+}
+
+/// One axis in a [`MachineDescription`] (2200 bytes): what the state does not carry.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct AxisDescription {
+    /// Lowest position, µunits.
+    pub position_min: i64,
+    /// Highest position, µunits.
+    pub position_max: i64,
+    /// Velocity limit, µunits/s.
+    pub velocity: i64,
+    /// Acceleration limit, µunits/s².
+    pub acceleration: i64,
+    /// Jerk limit, µunits/s³, or 0 (none: trapezoidal moves).
+    pub jerk: i64,
+    /// The following-error limit, µunits.
+    pub following_error: i64,
+    /// The force limit, ‰ of nominal, or 0 (none).
+    pub force_permille: u16,
+    /// [`device`].
+    pub device: u8,
+    /// [`profile`].
+    pub profile: u8,
+    /// 1: the FHPP parameter channel (FPC) is mapped, so READ_PARAMETER and WRITE_PARAMETER
+    /// reach the drive.
+    pub fpc: u8,
+    /// [`link`].
+    pub link: u8,
+    /// The bus (index into [`MachineDescription::buses`]), or 0xFF on Modbus.
+    pub bus: u8,
+    /// The CANopen node-ID, or 0 on Modbus.
+    pub node: u8,
+    /// 1: the drive is simulated inside the coordinator.
+    pub simulated: u8,
+    /// Valid entries of `records`.
+    pub record_count: u8,
+    /// Padding, 0.
+    pub reserved0: [u8; 6],
+    /// The axis name (as in [`AxisState::name`]).
+    pub name: [u8; NAME_LEN],
+    /// The user unit.
+    pub unit: [u8; UNIT_LEN],
+    /// The Modbus TCP address the coordinator dials (`host:port`), or empty.
+    pub modbus: [u8; ADDRESS_LEN],
+    /// The drive's own record table as configured, in number order; the first
+    /// `record_count` are valid.
+    pub records: [DriveRecord; MAX_DRIVE_RECORDS],
+}
+
+/// One record of a group's table (256 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct GroupRecord {
+    /// Per member (group order): the target, µunits, as `target_kinds` says.
+    pub targets: [i64; MAX_GROUP_AXES],
+    /// Start delay, ms.
+    pub delay_ms: u32,
+    /// Force for [`record_mode::FORCE`], ‰ of nominal.
+    pub force_permille: i32,
+    /// The record number, 0..=255.
+    pub number: u16,
+    /// Where the step condition leads, or -1: the chain ends with this record.
+    pub step_next: i16,
+    /// Where the alternative leads, or -1 (none).
+    pub alternative_next: i16,
+    /// [`record_mode`].
+    pub mode: u8,
+    /// Share of each member's velocity limit, %.
+    pub velocity_percent: u8,
+    /// Share of each member's acceleration limit, %.
+    pub acceleration_percent: u8,
+    /// Share of each member's jerk limit, %.
+    pub jerk_percent: u8,
+    /// 1: MC is shown when the record's move arrives inside a chain.
+    pub mc_in_chain: u8,
+    /// Padding, 0.
+    pub reserved0: [u8; 5],
+    /// Per member: [`target_kind`].
+    pub target_kinds: [u8; MAX_GROUP_AXES],
+    /// The step condition in words, in the axes' units (`position x in [150, 210] mm for 10
+    /// ms`), NUL-padded; empty where the chain ends.
+    pub step: [u8; CONDITION_LEN],
+    /// The alternative condition in words, or empty.
+    pub alternative: [u8; CONDITION_LEN],
+}
+
+/// One group in a [`MachineDescription`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+pub struct GroupDescription {
+    /// The group name.
+    pub name: [u8; NAME_LEN],
+    /// Member axes (indices into [`MachineDescription::axes`]); the first `axis_count` count.
+    pub axes: [u8; MAX_GROUP_AXES],
+    /// Number of member axes.
+    pub axis_count: u8,
+    /// [`shape`].
+    pub shape: u8,
+    /// Valid entries of `records`.
+    pub record_count: u16,
+    /// Padding, 0.
+    pub reserved0: [u8; 4],
+    /// The group's record table, in number order; the first `record_count` are valid.
+    pub records: [GroupRecord; MAX_GROUP_RECORDS],
+}
+
+/// What the machine is, published once by the coordinator at start on `PREFIX/description`
+/// (publish-subscribe, history 1: a client that starts later still receives it). It carries
+/// what [`MachineState`] does not: per axis its drive, link, limits and drive records, per
+/// group its record table with the step conditions in words. The axes and groups are those of
+/// the state, in the same order.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("motion::MachineDescription::v1::6feedc2b")]
+pub struct MachineDescription {
+    /// [`LAYOUT_VERSION`].
+    pub version: u32,
+    /// [`LAYOUT_HASH`].
+    pub layout_hash: u32,
+    /// Cycle period, ns.
+    pub cycle_ns: u32,
+    /// Number of valid entries in `axes`.
+    pub axis_count: u16,
+    /// Number of valid entries in `groups`.
+    pub group_count: u16,
+    /// Number of valid entries in `buses`.
+    pub bus_count: u8,
+    /// Padding, 0.
+    pub reserved0: [u8; 7],
+    /// The CAN buses.
+    pub buses: [BusDescription; MAX_BUSES],
+    /// The axes; the first `axis_count` are valid.
+    pub axes: [AxisDescription; MAX_AXES],
+    /// The groups; the first `group_count` are valid.
+    pub groups: [GroupDescription; MAX_GROUPS],
 }

@@ -5,7 +5,9 @@
 //! alignments when a service is opened).
 
 use crate::contract::{
-    self, AxisState, BusStats, CommandReply, CommandRequest, EventRecord, GroupState, MachineState,
+    self, AxisDescription, AxisState, BusDescription, BusStats, CommandReply, CommandRequest,
+    DriveRecord, EventRecord, GroupDescription, GroupRecord, GroupState, MachineDescription,
+    MachineState,
 };
 use core::mem::{align_of, offset_of, size_of};
 
@@ -56,6 +58,27 @@ macro_rules! for_each_payload {
             seq, cycle, value, id, axis, group, record, state, error, sub, reserved0, code,
             reserved1,
         ]);
+        $m!($($a)*; BusDescription, [name, bitrate, kind, reserved0]);
+        $m!($($a)*; DriveRecord, [
+            position, velocity, acceleration, number, relative, next, reserved0,
+        ]);
+        $m!($($a)*; AxisDescription, [
+            position_min, position_max, velocity, acceleration, jerk, following_error,
+            force_permille, device, profile, fpc, link, bus, node, simulated, record_count,
+            reserved0, name, unit, modbus, records,
+        ]);
+        $m!($($a)*; GroupRecord, [
+            targets, delay_ms, force_permille, number, step_next, alternative_next, mode,
+            velocity_percent, acceleration_percent, jerk_percent, mc_in_chain, reserved0,
+            target_kinds, step, alternative,
+        ]);
+        $m!($($a)*; GroupDescription, [
+            name, axes, axis_count, shape, record_count, reserved0, records,
+        ]);
+        $m!($($a)*; MachineDescription, [
+            version, layout_hash, cycle_ns, axis_count, group_count, bus_count, reserved0, buses,
+            axes, groups,
+        ]);
     };
 }
 pub(crate) use for_each_payload;
@@ -77,9 +100,9 @@ pub const fn compute_hash() -> u32 {
     h
 }
 
-/// The iceoryx2 type names of the four payloads that travel on their own
-/// (`MachineState`, `CommandRequest`, `CommandReply`, `EventRecord`).
-pub fn type_names() -> [&'static str; 4] {
+/// The iceoryx2 type names of the five payloads that travel on their own
+/// (`MachineState`, `CommandRequest`, `CommandReply`, `EventRecord`, `MachineDescription`).
+pub fn type_names() -> [&'static str; 5] {
     use iceoryx2::prelude::ZeroCopySend;
     // SAFETY: `type_name` is unsafe only because an implementer must keep names and layouts
     // consistent; reading it is harmless.
@@ -89,6 +112,7 @@ pub fn type_names() -> [&'static str; 4] {
             <CommandRequest as ZeroCopySend>::type_name(),
             <CommandReply as ZeroCopySend>::type_name(),
             <EventRecord as ZeroCopySend>::type_name(),
+            <MachineDescription as ZeroCopySend>::type_name(),
         ]
     }
 }

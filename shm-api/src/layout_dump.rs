@@ -9,7 +9,9 @@
 //! ```
 
 use crate::contract::{
-    self, AxisState, BusStats, CommandReply, CommandRequest, EventRecord, GroupState, MachineState,
+    self, AxisDescription, AxisState, BusDescription, BusStats, CommandReply, CommandRequest,
+    DriveRecord, EventRecord, GroupDescription, GroupRecord, GroupState, MachineDescription,
+    MachineState,
 };
 use core::fmt::Write;
 use core::mem::{align_of, offset_of, size_of};
@@ -61,6 +63,7 @@ fn service_type_name(name: &str) -> Option<&'static str> {
         "CommandRequest" => Some(iceoryx_type_name::<CommandRequest>()),
         "CommandReply" => Some(iceoryx_type_name::<CommandReply>()),
         "EventRecord" => Some(iceoryx_type_name::<EventRecord>()),
+        "MachineDescription" => Some(iceoryx_type_name::<MachineDescription>()),
         _ => None,
     }
 }
@@ -115,6 +118,11 @@ pub fn constants() -> Vec<(&'static str, i64)> {
         ("NAME_LEN", contract::NAME_LEN as i64),
         ("UNIT_LEN", contract::UNIT_LEN as i64),
         ("MICRO", contract::MICRO),
+        ("MAX_BUSES", contract::MAX_BUSES as i64),
+        ("MAX_DRIVE_RECORDS", contract::MAX_DRIVE_RECORDS as i64),
+        ("MAX_GROUP_RECORDS", contract::MAX_GROUP_RECORDS as i64),
+        ("CONDITION_LEN", contract::CONDITION_LEN as i64),
+        ("ADDRESS_LEN", contract::ADDRESS_LEN as i64),
     ];
     constants!(out;
         axis_state: [OFFLINE, DISABLED, ENABLING, READY, HOMING, MOVING, STOPPING, FAULT],
@@ -145,6 +153,13 @@ pub fn constants() -> Vec<(&'static str, i64)> {
             STATE_CHANGED, FAULT, RECORD_REACHED, CHAIN_COMPLETE, CHAIN_ABORTED, ACKNOWLEDGED,
             PARAMETER, SHUTDOWN, OVERRUN,
         ],
+        device: [UNKNOWN, MTR_DCI, EMCA, CMMO_ST, TLC5XX],
+        profile: [FHPP, CIA402],
+        link: [CAN, MODBUS],
+        bus_kind: [SIMULATED, VBUS, SOCKETCAN],
+        shape: [TRAPEZOID, S_CURVE],
+        record_mode: [POSITION, VELOCITY, FORCE],
+        target_kind: [KEEP, ABSOLUTE, RELATIVE],
     );
     out
 }
@@ -233,6 +248,13 @@ mod tests {
         let get = |n: &str| all.iter().find(|t| t.name == n).cloned();
         assert_eq!(get("AxisState").map(|t| t.size), Some(128));
         assert_eq!(get("GroupState").map(|t| t.size), Some(48));
+        assert_eq!(get("AxisDescription").map(|t| t.size), Some(2200));
+        assert_eq!(get("GroupRecord").map(|t| t.size), Some(256));
+        let d = get("MachineDescription").expect("MachineDescription listed");
+        assert!(
+            d.type_name
+                .is_some_and(|n| n.contains("MachineDescription"))
+        );
         let ms = get("MachineState").expect("MachineState listed");
         let axes = ms.fields.iter().find(|f| f.name == "axes").copied();
         assert_eq!(axes.map(|f| f.size), Some(128 * contract::MAX_AXES));

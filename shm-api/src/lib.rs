@@ -32,13 +32,14 @@ pub mod layout_dump;
 pub mod names;
 pub mod publisher;
 pub mod request;
+pub mod units;
 
 pub use client::{Client, ClientError, Latched, Rejected};
 pub use names::ServiceNames;
 pub use publisher::{
-    CommandServer, EventPublisher, PendingCommand, PublisherSettings, ShmError, StateNotifier,
-    StatePublisher, StateSample, cleanup_dead_nodes, cleanup_dead_nodes_with, create_node,
-    create_node_with,
+    CommandServer, DescriptionPublisher, EventPublisher, PendingCommand, PublisherSettings,
+    ShmError, StateNotifier, StatePublisher, StateSample, cleanup_dead_nodes,
+    cleanup_dead_nodes_with, create_node, create_node_with,
 };
 pub use request::{Target, name_str};
 

@@ -2,7 +2,7 @@
 //! [`crate::DEFAULT_PREFIX`]), so that several coordinators (and parallel tests) can share a
 //! machine without seeing each other.
 
-/// The four service names under a prefix.
+/// The five service names under a prefix.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ServiceNames {
     /// `PREFIX/state`: publish-subscribe, [`crate::contract::MachineState`], history 1.
@@ -14,6 +14,9 @@ pub struct ServiceNames {
     pub events: String,
     /// `PREFIX/event-log`: publish-subscribe, [`crate::contract::EventRecord`], history 16.
     pub event_log: String,
+    /// `PREFIX/description`: publish-subscribe, [`crate::contract::MachineDescription`],
+    /// published once at start, history 1.
+    pub description: String,
 }
 
 impl ServiceNames {
@@ -24,6 +27,7 @@ impl ServiceNames {
             command: format!("{prefix}/command"),
             events: format!("{prefix}/events"),
             event_log: format!("{prefix}/event-log"),
+            description: format!("{prefix}/description"),
         }
     }
 }
@@ -45,6 +49,7 @@ mod tests {
         assert_eq!(n.command, "cell-2/command");
         assert_eq!(n.events, "cell-2/events");
         assert_eq!(n.event_log, "cell-2/event-log");
+        assert_eq!(n.description, "cell-2/description");
         assert_eq!(ServiceNames::default().state, "motion/state");
     }
 }

@@ -1,12 +1,13 @@
-//! The coordinator's side: the state publisher (one sample per cycle), the command server and
-//! the event publisher, and [`cleanup_dead_nodes`].
+//! The coordinator's side: the state publisher (one sample per cycle), the command server, the
+//! event publisher, the description publisher (one sample at start), and [`cleanup_dead_nodes`].
 //!
 //! Everything here uses iceoryx2's single-threaded `ipc` service: create each object on the
 //! thread that uses it (the cycle thread owns the [`StatePublisher`], the services thread the
-//! [`CommandServer`] and [`EventPublisher`]).
+//! [`CommandServer`], [`EventPublisher`] and [`DescriptionPublisher`]).
 
 use crate::contract::{
-    CommandReply, CommandRequest, EventRecord, LAYOUT_HASH, LAYOUT_VERSION, MachineState,
+    CommandReply, CommandRequest, EventRecord, LAYOUT_HASH, LAYOUT_VERSION, MachineDescription,
+    MachineState,
 };
 use crate::names::ServiceNames;
 use core::ops::{Deref, DerefMut};
@@ -219,6 +220,89 @@ impl Deref for StateSample<'_> {
 impl DerefMut for StateSample<'_> {
     fn deref_mut(&mut self) -> &mut MachineState {
         self.sample.payload_mut()
+    }
+}
+
+/// Publishes the [`MachineDescription`] on `PREFIX/description`, once, at start.
+///
+/// History 1, so a client that subscribes later still receives it: iceoryx2 hands the history
+/// to a new subscriber when the publisher next updates its connections, which
+/// [`DescriptionPublisher::update_connections`] does (the coordinator's command thread calls it
+/// with every poll). The payload is large (about 1.3 MB: every record table at full size) and
+/// sent once, so the publisher keeps one sample in shared memory rather than one per
+/// subscriber's buffer; a second [`DescriptionPublisher::publish`] finds no sample to loan.
+pub struct DescriptionPublisher {
+    publisher: Publisher<ipc::Service, MachineDescription, ()>,
+}
+
+impl core::fmt::Debug for DescriptionPublisher {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("DescriptionPublisher")
+            .finish_non_exhaustive()
+    }
+}
+
+impl DescriptionPublisher {
+    /// Creates (or joins) `names.description`.
+    pub fn create(
+        node: &Node<ipc::Service>,
+        names: &ServiceNames,
+        settings: &PublisherSettings,
+    ) -> Result<DescriptionPublisher, ShmError> {
+        let service = node
+            .service_builder(&service_name(&names.description)?)
+            .publish_subscribe::<MachineDescription>()
+            .max_publishers(1)
+            .max_subscribers(settings.max_subscribers)
+            .max_nodes(settings.max_nodes)
+            .history_size(1)
+            .subscriber_max_buffer_size(1)
+            .subscriber_max_borrowed_samples(1)
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(|e| ShmError::iox("opening the description service", e))?;
+        let publisher = service
+            .publisher_builder()
+            .max_loaned_samples(1)
+            // One sample: the history and every subscriber share it (see the type's docs).
+            .override_sample_preallocation(|_| 1)
+            .create()
+            .map_err(|e| ShmError::iox("creating the description publisher", e))?;
+        Ok(DescriptionPublisher { publisher })
+    }
+
+    /// Publishes `description` (loan, copy in place, send). Once: the publisher holds one
+    /// sample.
+    pub fn publish(&mut self, description: &MachineDescription) -> Result<(), ShmError> {
+        let mut sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| ShmError::iox("loaning the description sample", e))?;
+        // SAFETY: the sample's payload is valid for writes of one `MachineDescription` and
+        // does not overlap `description` (one lies in the publisher's shared memory, the other
+        // is borrowed from the caller); after the copy every byte is initialised. Copying by
+        // pointer keeps the 1.3 MB value off the stack.
+        let sample = unsafe {
+            core::ptr::copy_nonoverlapping(
+                description as *const MachineDescription,
+                sample.payload_mut().as_mut_ptr(),
+                1,
+            );
+            sample.assume_init()
+        };
+        sample
+            .send()
+            .map(|_| ())
+            .map_err(|e| ShmError::iox("sending the description", e))
+    }
+
+    /// Hands the description to clients that subscribed since the last call (iceoryx2
+    /// delivers the history only when the publisher updates its connections).
+    pub fn update_connections(&self) -> Result<(), ShmError> {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        self.publisher
+            .update_connections()
+            .map_err(|e| ShmError::iox("updating the description's connections", e))
     }
 }
 

@@ -16,7 +16,8 @@ use shm_api::cli::watch::{self, WatchArgs};
 use shm_api::cli::{ClientError, Latched, Machine, Rejected, Target, exit, resolve};
 use shm_api::contract::{
     AxisState, BusStats, CommandRequest, EventRecord, GroupState, MAX_AXES, MAX_GROUP_AXES,
-    MAX_GROUPS, MachineState, axis_mode, axis_state, buffer_mode, event_id, fault,
+    MAX_GROUPS, MachineDescription, MachineState, axis_mode, axis_state, buffer_mode, command_kind,
+    device, event_id, fault, link,
 };
 
 fn name<const N: usize>(s: &str) -> [u8; N] {
@@ -116,13 +117,20 @@ fn machine(cycle: u64) -> MachineState {
 }
 
 /// The fake: a queue of states, one canned answer, a queue of events; records the requests.
+/// With a description, it has one; with `drive`, every parameter read is answered by an event
+/// from it (value or drive error).
 struct Fake {
     states: VecDeque<MachineState>,
     current: Option<MachineState>,
     answer: Result<Latched, Rejected>,
     events: VecDeque<EventRecord>,
     sent: Vec<CommandRequest>,
+    description: Option<Box<MachineDescription>>,
+    drive: Option<FakeDrive>,
 }
+
+/// A drive's answer to a read of `pnu`:`sub`: the value, or its error number.
+type FakeDrive = fn(u16, u8) -> Result<i64, i64>;
 
 impl Fake {
     fn new(cycles: impl IntoIterator<Item = u64>) -> Self {
@@ -132,6 +140,8 @@ impl Fake {
             answer: Ok(Latched { cycle: 42 }),
             events: VecDeque::new(),
             sent: Vec::new(),
+            description: None,
+            drive: None,
         }
     }
 }
@@ -149,7 +159,23 @@ impl Machine for Fake {
     }
     fn command(&mut self, req: &CommandRequest, _: Duration) -> Result<Latched, Rejected> {
         self.sent.push(*req);
+        if let (Some(drive), Ok(l)) = (self.drive, &self.answer)
+            && req.kind == command_kind::READ_PARAMETER
+        {
+            let (value, error) = match drive(req.pnu, req.sub) {
+                Ok(v) => (v, 0),
+                Err(n) => (n, 1),
+            };
+            let mut ev = param_event(l.cycle, req.axis, req.pnu, value, error);
+            ev.sub = req.sub;
+            self.events.push_back(ev);
+        }
         self.answer.clone()
+    }
+    fn description(&mut self, _: Duration) -> Result<&MachineDescription, ClientError> {
+        self.description
+            .as_deref()
+            .ok_or(ClientError::NoDescription)
     }
     fn wait_event(&mut self, _: Duration) -> Result<Option<EventRecord>, ClientError> {
         Ok(self.events.pop_front())
@@ -280,7 +306,10 @@ fn watch_at_a_rate_prints_user_units_and_faults() {
 fn watch_refuses_unknown_axes_bad_rates_and_no_state() {
     let (code, _, err) = run_watch(&mut Fake::new([1]), &["--axes", "x,w"]);
     assert_eq!(code, exit::ERROR);
-    assert!(err.contains("unknown axis 'w' (axes: x, y, z)"), "{err}");
+    assert!(
+        err.contains("--axes w: no such axis; the axes are x, y, z"),
+        "{err}"
+    );
     let (code, _, err) = run_watch(&mut Fake::new([1]), &["--rate", "0"]);
     assert_eq!(code, exit::ERROR);
     assert!(err.contains("--rate"), "{err}");
@@ -459,7 +488,10 @@ fn cmd_exit_codes() {
     let mut fake = Fake::new([7]);
     let (code, _, err) = run_cmd(&mut fake, &["enable", "--axis", "w"]);
     assert_eq!(code, exit::ERROR);
-    assert!(err.contains("unknown axis 'w'"), "{err}");
+    assert!(
+        err.contains("--axis w: no such axis; the axes are x, y, z"),
+        "{err}"
+    );
     assert!(fake.sent.is_empty());
 
     // No state: no coordinator publishing.
@@ -834,4 +866,143 @@ fn binaries_exit_1_without_coordinator_and_on_usage_errors() {
     assert_eq!(run(cmd, &["--help"]).0, Some(exit::OK));
     let top = env!("CARGO_BIN_EXE_motion-top");
     assert_eq!(run(top, &["--bogus"]).0, Some(exit::ERROR));
+}
+
+/// The fake machine's description: x an EMCA with the parameter channel, y an MTR-DCI without,
+/// z a TLC5xx (all on vbus:can0), group xy without records.
+fn description() -> Box<MachineDescription> {
+    // SAFETY: the description is integers only; all-zero bytes are a valid value.
+    let mut d = unsafe { Box::<MachineDescription>::new_zeroed().assume_init() };
+    (d.axis_count, d.group_count, d.bus_count) = (3, 1, 1);
+    d.buses[0].name = name("can0");
+    d.buses[0].kind = shm_api::contract::bus_kind::VBUS;
+    for (i, (n, dev, fpc)) in [
+        ("x", device::EMCA, 1),
+        ("y", device::MTR_DCI, 0),
+        ("z", device::TLC5XX, 0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let a = &mut d.axes[i];
+        (a.name, a.unit) = (name(n), name("mm"));
+        (a.device, a.fpc, a.link, a.node) = (dev, fpc, link::CAN, i as u8 + 1);
+        if dev == device::TLC5XX {
+            a.profile = shm_api::contract::profile::CIA402;
+        }
+    }
+    d.groups[0].name = name("xy");
+    (d.groups[0].axis_count, d.groups[0].axes[1]) = (2, 1);
+    d
+}
+
+/// The fake drive behind x's parameter channel: 1011 (homing method, i8) is -35 in 32 bits,
+/// 1001:1 and :2 the encoder's 4096 increments per revolution; 1041 refuses with EFPC 0x11.
+fn fake_drive(pnu: u16, sub: u8) -> Result<i64, i64> {
+    match (pnu, sub) {
+        (1011, _) => Ok(0xFFFF_FFDD),
+        (1001, 1) => Ok(4096),
+        (1041, _) => Err(0x11),
+        (p, s) => Ok(i64::from(p) * 10 + i64::from(s)),
+    }
+}
+
+#[test]
+fn records_and_params_read_the_description() {
+    let mut fake = Fake::new([7]);
+    // No description: said plainly, nothing sent.
+    let (code, _, err) = run_cmd(&mut fake, &["records", "--axis", "x"]);
+    assert_eq!(code, exit::ERROR);
+    assert!(err.contains("published no machine description"), "{err}");
+
+    fake.description = Some(description());
+    let (code, out, _) = run_cmd(&mut fake, &["records", "--group", "xy"]);
+    assert_eq!(code, exit::OK);
+    assert!(
+        out.starts_with("group xy: axes x, y, trapezoid profile, 0 records\n"),
+        "{out}"
+    );
+    let (code, _, err) = run_cmd(&mut fake, &["records", "--axis", "w"]);
+    assert_eq!(code, exit::ERROR);
+    assert_eq!(err, "error: --axis w: no such axis; the axes are x, y, z\n");
+    let (code, _, err) = run_cmd(&mut fake, &["params", "--axis", "x", "--pnu", "9999"]);
+    assert_eq!(code, exit::ERROR);
+    assert_eq!(
+        err,
+        "error: --pnu 9999: the Festo EMCA has no parameter 9999\n"
+    );
+    assert!(fake.sent.is_empty());
+
+    // One parameter with two sub-indices, each read; the value as its type.
+    fake.drive = Some(fake_drive);
+    let (code, out, err) = run_cmd(&mut fake, &["params", "--axis", "x", "--pnu", "1001"]);
+    assert_eq!(code, exit::OK, "{err}");
+    assert_eq!(
+        out.lines().collect::<Vec<_>>(),
+        [
+            "axis x: Festo EMCA, FHPP, node 1 on vbus:can0, parameter channel",
+            "2 parameters of the Festo EMCA, 2 values read over the parameter channel:",
+            " PNU  sub  name                type  unit               value",
+            "1001  1    Encoder resolution  u32   increments         4096",
+            "1001  2    Encoder resolution  u32   motor revolutions  10012",
+        ]
+    );
+    assert_eq!(fake.sent.len(), 2);
+    assert!(
+        fake.sent
+            .iter()
+            .all(|r| r.kind == command_kind::READ_PARAMETER && r.axis == 0)
+    );
+
+    // The whole table: every simple value read, arrays and texts pointed to --pnu, a refusal
+    // in words.
+    fake.sent.clear();
+    let (code, out, err) = run_cmd(&mut fake, &["params", "--axis", "x"]);
+    assert_eq!(code, exit::OK, "{err}");
+    let line = |start: &str| {
+        out.lines()
+            .find(|l| l.starts_with(start))
+            .unwrap_or_else(|| panic!("{start:?} in\n{out}"))
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    assert_eq!(line("1011"), "1011 1 Homing method i8 -35");
+    assert!(
+        line(" 401").ends_with("(64 values: --axis x --pnu 401)"),
+        "{out}"
+    );
+    assert!(
+        line("1041").contains("refused by the drive, error 17: not possible in the drive's state"),
+        "{out}"
+    );
+    let simple = fake.sent.len();
+    assert!(simple > 50, "{simple} reads");
+    assert!(out.contains(&format!("{simple} values read over the parameter channel")));
+
+    // No parameter channel: said, and the table still listed; nothing read.
+    fake.sent.clear();
+    let (code, out, _) = run_cmd(&mut fake, &["params", "--axis", "y"]);
+    assert_eq!(code, exit::OK);
+    assert!(
+        out.contains("no parameter channel on axis y (`fpc = true`"),
+        "{out}"
+    );
+    assert!(out.contains("Manufacturer hardware version"), "{out}");
+    assert!(fake.sent.is_empty());
+    // A CiA 402 drive has no PNUs.
+    let (code, out, _) = run_cmd(&mut fake, &["params", "--axis", "z"]);
+    assert_eq!(code, exit::OK);
+    assert!(out.contains("it has no FHPP parameters"), "{out}");
+
+    // read-param with the description: the value as its type, with the parameter's name.
+    let (code, out, _) = run_cmd(
+        &mut fake,
+        &["read-param", "--axis", "x", "--pnu", "1011", "--sub", "1"],
+    );
+    assert_eq!(code, exit::OK);
+    assert_eq!(
+        out,
+        "latched in cycle 42\naxis x parameter 1011:1 = -35 (Homing method)\n"
+    );
 }

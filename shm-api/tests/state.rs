@@ -261,8 +261,8 @@ fn mismatched_layout_is_refused_with_a_clear_message() {
             };
             assert_eq!(
                 found,
-                "motion::MachineState::v1::781f0463"
-                    .replace("v1::781f0463", "v0::00000000")
+                "motion::MachineState::v1::6feedc2b"
+                    .replace("v1::6feedc2b", "v0::00000000")
                     .as_str()
             );
             assert!(expected.ends_with(&shm_api::layout::type_name_suffix()));
@@ -294,4 +294,58 @@ fn no_coordinator_fails_at_once_and_after_the_timeout() {
     let e = Client::connect_timeout(&p, Duration::from_millis(100)).err();
     assert_eq!(e, Some(ClientError::NoCoordinator(p.clone())));
     assert!(e.expect("error").to_string().contains(&p));
+}
+
+#[test]
+fn the_description_reaches_clients_that_start_later() {
+    use shm_api::contract::{MachineDescription, device};
+    use shm_api::name_str;
+    let _g = serial();
+    let p = prefix("description");
+    let standin = Standin::spawn(&p, &["--axes", "3", "--groups", "1"]);
+    // Published at start; these clients subscribe well after it was sent.
+    std::thread::sleep(Duration::from_millis(200));
+    for _ in 0..2 {
+        let mut c = Client::connect_timeout(&p, WAIT).expect("connect");
+        let d: &MachineDescription = c.description(WAIT).expect("the description");
+        assert_eq!(
+            (d.version, d.layout_hash),
+            (
+                shm_api::contract::LAYOUT_VERSION,
+                shm_api::contract::LAYOUT_HASH
+            )
+        );
+        assert_eq!((d.axis_count, d.group_count, d.bus_count), (3, 1, 1));
+        let x2 = &d.axes[2];
+        assert_eq!(
+            (name_str(&x2.name), x2.device, x2.node),
+            ("X2", device::EMCA, 3)
+        );
+        assert_eq!((x2.position_max, x2.record_count), (400_000_000, 1));
+        assert_eq!(x2.records[0].position, 10_000_000);
+        assert_eq!(name_str(&d.groups[0].name), "G0");
+        // Asked again, it is the same sample, at once.
+        let t = Instant::now();
+        assert_eq!(c.description(Duration::ZERO).expect("again").axis_count, 3);
+        assert!(t.elapsed() < Duration::from_millis(100));
+    }
+    standin.stop();
+}
+
+#[test]
+fn a_coordinator_without_a_description_says_so() {
+    let _g = serial();
+    let p = prefix("no-description");
+    let node = shm_api::create_node().expect("node");
+    let names = ServiceNames::new(&p);
+    let settings = shm_api::PublisherSettings::default();
+    // Every service but the description.
+    let _commands = shm_api::CommandServer::create(&node, &names, &settings).expect("commands");
+    let _events = shm_api::EventPublisher::create(&node, &names, &settings).expect("events");
+    let _state = shm_api::StatePublisher::create(&node, &names, &settings).expect("state");
+    let mut c = Client::connect(&p).expect("connect");
+    assert_eq!(
+        c.description(Duration::from_millis(50)).err(),
+        Some(ClientError::NoDescription)
+    );
 }

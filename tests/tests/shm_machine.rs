@@ -1,6 +1,7 @@
 //! The coordinator and its shared-memory clients as separate processes: the real coordinator
 //! (`coordinator run`, real time, the embedded machine) publishing under a unique prefix, and
-//! `motion-watch` processes, the client library and the Python example reading and commanding.
+//! `motion-watch` and `motion-cmd` processes, the client library and the Python example reading
+//! and commanding.
 
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
@@ -29,6 +30,7 @@ fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
 fn prefix(test: &str) -> String {
     bin("coordinator", "coordinator");
     bin("shm-api", "motion-watch");
+    bin("shm-api", "motion-cmd");
     format!("t-{test}-{}", std::process::id())
 }
 
@@ -55,6 +57,11 @@ impl Coordinator {
     fn kill(&mut self) {
         let _ = self.0.kill();
         let _ = self.0.wait();
+    }
+    /// Stops it at once and returns what it printed (for a failure's message).
+    fn output_now(mut self) -> String {
+        let _ = self.0.kill();
+        self.finish()
     }
     fn finish(mut self) -> String {
         let out = std::mem::replace(&mut self.0, Command::new("true").spawn().unwrap())
@@ -439,4 +446,173 @@ fn an_event_driven_client_is_woken_for_the_states_in_order() {
     // 300 states at 2 ms: woken about once per cycle, not by a timeout.
     assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
     drop(coordinator);
+}
+
+/// A client's exit status and what it printed (stdout, stderr).
+type Run = (Option<i32>, String, String);
+
+/// `motion-cmd --prefix PREFIX ARGS`.
+fn motion_cmd(prefix: &str, args: &[&str]) -> Run {
+    let out = Command::new(bin("shm-api", "motion-cmd"))
+        .args(["--prefix", prefix, "--timeout-ms", "5000"])
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Lines of `text` with their runs of blanks made one (the columns' widths are the formatting
+/// tests' business).
+fn squeezed(text: &str) -> Vec<String> {
+    text.lines()
+        .map(|l| l.split_whitespace().collect::<Vec<_>>().join(" "))
+        .collect()
+}
+
+#[test]
+fn motion_cmd_lists_records_and_reads_the_emcas_parameters_on_the_default_machine() {
+    let _scene = one_at_a_time();
+    let p = prefix("describe");
+    let coordinator = Coordinator::start(&p, 90);
+    let mut c = connect(&p);
+    wait_ready(&mut c);
+    // Every run's result first; the coordinator's output goes into any failure's message.
+    let runs: Vec<(&str, Vec<&str>, Run)> = [
+        ("records y", vec!["records", "--axis", "y"]),
+        ("records gantry", vec!["records", "--group", "gantry"]),
+        ("params y", vec!["params", "--axis", "y"]),
+        (
+            "params y 1001",
+            vec!["params", "--axis", "y", "--pnu", "1001"],
+        ),
+        ("params x", vec!["params", "--axis", "x"]),
+        (
+            "write 520",
+            vec![
+                "write-param",
+                "--axis",
+                "y",
+                "--pnu",
+                "520",
+                "--sub",
+                "1",
+                "--value",
+                "3",
+            ],
+        ),
+        (
+            "read 520",
+            vec!["read-param", "--axis", "y", "--pnu", "520", "--sub", "1"],
+        ),
+        (
+            "write 520 too high",
+            vec![
+                "write-param",
+                "--axis",
+                "y",
+                "--pnu",
+                "520",
+                "--sub",
+                "1",
+                "--value",
+                "9",
+            ],
+        ),
+        ("records w", vec!["records", "--axis", "w"]),
+    ]
+    .into_iter()
+    .map(|(what, args)| {
+        let r = motion_cmd(&p, &args);
+        (what, args, r)
+    })
+    .collect();
+    let log = coordinator.output_now();
+    let run = |what: &str| {
+        let (_, args, r) = runs.iter().find(|(w, _, _)| *w == what).unwrap();
+        (args.join(" "), r.clone())
+    };
+    let expect = |what: &str, code: i32, lines: &[&str]| {
+        let (args, (status, out, err)) = run(what);
+        let got = squeezed(&out);
+        let ok = status == Some(code) && lines.iter().all(|l| got.iter().any(|g| g == l));
+        assert!(
+            ok,
+            "motion-cmd {args}: exit {status:?}, expected {code} and the lines\n{}\n\
+             stdout:\n{out}\nstderr:\n{err}\ncoordinator:\n{log}",
+            lines.join("\n")
+        );
+    };
+    expect(
+        "records y",
+        0,
+        &[
+            "axis y: Festo EMCA, FHPP, node 2 on can1 (simulated), parameter channel",
+            "2 drive records configured (the Festo EMCA holds records 1..=64):",
+            "1 10 absolute 60 400 2",
+            "2 240 absolute 80 300 -",
+        ],
+    );
+    expect(
+        "records gantry",
+        0,
+        &[
+            "group gantry: axes x, y, trapezoid profile, 4 records",
+            "10 200 100 80 % 50 % 0 ms position x in [150, 210] mm for 10 ms → 11",
+            "11 by +100 by -40 100 % 100 % 50 ms motion complete → 12",
+            "or input 0 rising → 13",
+            "12 keep 0 100 % 100 % 0 ms group lift reached record 1 → 13",
+            "13 10 0 100 % 100 % 0 ms end of chain",
+        ],
+    );
+    // Real values from the simulated EMCA over its parameter channel: its homing method, its
+    // encoder, the start condition the boot set to 1.
+    expect(
+        "params y",
+        0,
+        &[
+            "1011 1 Homing method i8 -35",
+            "1001 1 Encoder resolution u32 increments 4096",
+            "583 1 Direct start condition (0 ignore, 1 interrupt, 2 wait) u8 1",
+        ],
+    );
+    expect(
+        "params y 1001",
+        0,
+        &["1001 2 Encoder resolution u32 motor revolutions 1"],
+    );
+    expect(
+        "params x",
+        0,
+        &["1011 0 Homing method (27, 23, -17, -18) i8"],
+    );
+    let (_, (_, out, _)) = run("params x");
+    assert!(out.contains("no parameter channel on axis x"), "{out}");
+    expect(
+        "write 520",
+        0,
+        &["axis y parameter 520:1 = 3 (Teach target (1..7))"],
+    );
+    expect(
+        "read 520",
+        0,
+        &["axis y parameter 520:1 = 3 (Teach target (1..7))"],
+    );
+    expect(
+        "write 520 too high",
+        2,
+        &[
+            "rejected: the drive refused parameter 520:1 of axis y: error 2: the value is \
+           outside the parameter's limits",
+        ],
+    );
+    let (_, (status, _, err)) = run("records w");
+    assert_eq!(status, Some(1));
+    assert_eq!(
+        err,
+        "error: --axis w: no such axis; the axes are x, y, z, gripper\n"
+    );
 }

@@ -37,6 +37,31 @@ pub struct AxisPlan {
     /// The drive is simulated inside the coordinator (an axis on a `simulated` bus, or a
     /// Modbus axis with `simulated = true`).
     pub simulated: bool,
+    /// The drive's own record table as configured (`[[records]]`), in number order: the
+    /// machine's description publishes it.
+    pub records: Vec<DriveRecordPlan>,
+    /// The jerk limit as configured, increments/s³ (`setup.limits` holds a stand-in without
+    /// one, which trapezoids ignore).
+    pub jerk_limit: Option<u64>,
+    /// The force limit as configured, ‰ of nominal.
+    pub force_limit_permille: Option<u16>,
+}
+
+/// One record of a drive's own record table, as configured, in increments.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DriveRecordPlan {
+    /// The record number, 1..=the device's table size.
+    pub number: u8,
+    /// Target, increments (a distance from the last target when `relative`).
+    pub position: i64,
+    /// Whether `position` is relative.
+    pub relative: bool,
+    /// Velocity, increments/s.
+    pub velocity: u64,
+    /// Acceleration, increments/s² (the axis's limit where the record gives none).
+    pub acceleration: u64,
+    /// The record chained after this one.
+    pub next: Option<u8>,
 }
 
 /// One CAN bus of the machine, in configuration order (the cycle's bus index).
@@ -283,6 +308,22 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             .following_error
             .map_or(lim.velocity * lag_ms / 1000, |e| inc(e, s))
             .max(1) as i64;
+        let mut records: Vec<DriveRecordPlan> = cfg
+            .records
+            .iter()
+            .filter(|r| r.axis == a.name)
+            .map(|r| DriveRecordPlan {
+                // `check` kept numbers within the device's table (at most 64).
+                number: r.number.min(255) as u8,
+                // `check` kept it within the axis's limits, so within ±2^31 increments.
+                position: s.to_inc(r.position).unwrap_or(0),
+                relative: r.relative,
+                velocity: inc(r.velocity, s),
+                acceleration: r.acceleration.map_or(lim.acceleration, |v| inc(v, s)),
+                next: r.next.map(|n| n.min(255) as u8),
+            })
+            .collect();
+        records.sort_by_key(|r| r.number);
         axes.push(AxisPlan {
             name: a.name.clone(),
             unit: a.unit.clone(),
@@ -310,6 +351,13 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             },
             boot,
             modbus: a.modbus.clone(),
+            records,
+            jerk_limit: a.limits.jerk.map(|j| inc(j, s).max(1)),
+            // `check` kept the force within 0..=300 %.
+            force_limit_permille: a
+                .limits
+                .force
+                .map(|f| config::PERMILLE_PER_PERCENT.to_inc(f).unwrap_or(0) as u16),
         });
     }
     let mut tables = cfg.group_tables().map_err(|e| e.to_string())?;

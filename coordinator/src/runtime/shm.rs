@@ -1,19 +1,21 @@
 //! The coordinator's side of the shared-memory contract (`shm-api`): the machine state written
 //! in place into a loaned sample after every cycle, client commands translated to the cycle's
-//! commands and their answers back, the cycle's events as event records. The conversions are
-//! integer (user units in millionths, `shm_api::contract::MICRO`), done by each axis's exact
-//! [`Scale`] (rounded to nearest, ties away from zero).
+//! commands and their answers back, the cycle's events as event records, and the machine's
+//! description ([`describe`]), published once at start. The conversions are integer (user
+//! units in millionths, `shm_api::contract::MICRO`), done by each axis's exact [`Scale`]
+//! (rounded to nearest, ties away from zero).
 
 use shm_api::contract::{
     self as wire, AxisState as WireAxis, CommandReply, CommandRequest, EventRecord,
-    GroupState as WireGroup, MachineState, axis_flags, buffer_mode, command_kind, status, target,
+    GroupState as WireGroup, MachineDescription, MachineState, axis_flags, buffer_mode,
+    command_kind, status, target,
 };
 
 use iceoryx2::prelude::{Node, ipc};
 use shm_api::names::ServiceNames;
 use shm_api::publisher::{
-    CommandServer, EventPublisher, PendingCommand, PublisherSettings, StatePublisher,
-    cleanup_dead_nodes_with, create_node,
+    CommandServer, DescriptionPublisher, EventPublisher, PendingCommand, PublisherSettings,
+    StatePublisher, cleanup_dead_nodes_with, create_node,
 };
 use shm_api::request::name_bytes;
 
@@ -25,19 +27,34 @@ use crate::event::Event;
 use crate::fault::FaultReason;
 use crate::profile::MoveState as PathState;
 use crate::records::{ChainState, MAX_GROUP_AXES};
-use crate::runtime::plan::MachinePlan;
+use crate::runtime::plan::{AxisPlan, MachinePlan};
 use crate::units::{MICROS_PER_UNIT, Scale};
 
 // The scale's µunits are the contract's.
 const _: () = assert!(MICROS_PER_UNIT == wire::MICRO);
 
-/// What does not change during a run: names, units, scale factors, group members.
+/// What does not change during a run: names, units, scale factors, group members, and the
+/// machine's description the command thread publishes.
 #[derive(Debug, Clone)]
 pub struct StaticInfo {
     axes: Vec<AxisInfo>,
     groups: Vec<GroupInfo>,
     cycle_ns: u32,
     virtual_time: bool,
+    description: Description,
+}
+
+/// The machine's description, shared by the clones of a [`StaticInfo`] (it is 1.3 MB).
+#[derive(Clone)]
+struct Description(std::sync::Arc<MachineDescription>);
+
+impl std::fmt::Debug for Description {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Description")
+            .field("axes", &self.0.axis_count)
+            .field("groups", &self.0.group_count)
+            .finish_non_exhaustive()
+    }
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -95,7 +112,13 @@ impl StaticInfo {
             groups,
             cycle_ns: plan.cycle.cycle_ns,
             virtual_time,
+            description: Description(std::sync::Arc::from(describe(plan))),
         }
+    }
+
+    /// The machine's description ([`describe`]).
+    pub fn description(&self) -> &MachineDescription {
+        &self.description.0
     }
 
     /// Increments (per second) → µunits (per second) of an axis ([`Scale::inc_to_micro`]);
@@ -111,6 +134,217 @@ impl StaticInfo {
             .get(axis)
             .map_or(0, |a| a.scale.micro_to_inc(micro))
     }
+}
+
+/// Unsigned increments (per second^n) of a limit as µunits (per second^n), saturated.
+fn limit_micro(inc: u64, scale: Scale) -> i64 {
+    scale.inc_to_micro(i64::try_from(inc).unwrap_or(i64::MAX))
+}
+
+/// A NUL-padded text field holding `text`; a text too long for it ends in `…` rather than
+/// stopping mid-word without a sign.
+fn text_field<const N: usize>(text: &str) -> [u8; N] {
+    if text.len() <= N {
+        return name_bytes(text);
+    }
+    let mut cut = N.saturating_sub('…'.len_utf8());
+    while !text.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    name_bytes(&format!("{}…", &text[..cut]))
+}
+
+/// A step condition in words and in the units of the axis it watches, as an operator reads
+/// it: `position x in [150, 210] mm for 10 ms`, `200 ms after motion complete`, `input 0
+/// rising`, `group lift reached record 1`; empty for the end of a chain. `members` are the
+/// group's axes, in group order.
+pub fn condition_text(
+    condition: &crate::records::StepCondition,
+    members: &[&AxisPlan],
+    group_names: &[&str],
+) -> String {
+    use crate::records::{Edge, Quantity, StepCondition as C};
+    match *condition {
+        C::End => String::new(),
+        C::Mc => "motion complete".into(),
+        C::Immediately => "immediately".into(),
+        C::Delay(ms) => format!("{ms} ms after motion complete"),
+        C::Comparator {
+            axis,
+            quantity,
+            window,
+        } => {
+            let a = members.get(usize::from(axis));
+            let name = a.map_or("?", |a| a.name.as_str());
+            let unit = a.map_or("", |a| a.unit.as_str());
+            let units = |v: i64| shm_api::units::user(a.map_or(0, |a| a.scale.inc_to_micro(v)));
+            // Forces are ‰ of nominal; the configuration and the operator speak %.
+            let percent = |v: i64| shm_api::units::user(v.saturating_mul(wire::MICRO / 10));
+            let (what, lo, hi, unit) = match quantity {
+                Quantity::Position => (
+                    "position",
+                    units(window.min),
+                    units(window.max),
+                    unit.to_owned(),
+                ),
+                Quantity::Velocity => (
+                    "velocity",
+                    units(window.min),
+                    units(window.max),
+                    format!("{unit}/s"),
+                ),
+                Quantity::Force => (
+                    "force",
+                    percent(window.min),
+                    percent(window.max),
+                    "%".into(),
+                ),
+            };
+            let mut text = format!("{what} {name} in [{lo}, {hi}] {unit}");
+            let damping = window.damping.as_millis();
+            if damping > 0 {
+                text.push_str(&format!(" for {damping} ms"));
+            }
+            text
+        }
+        C::Time { min, max } => format!("time since entry in [{min}, {max}] ms"),
+        C::Input { bit, edge } => format!(
+            "input {bit} {}",
+            match edge {
+                Edge::Rising => "rising",
+                Edge::Falling => "falling",
+            }
+        ),
+        C::RecordReached { group, record } => format!(
+            "group {} reached record {record}",
+            group_names.get(usize::from(group)).copied().unwrap_or("?")
+        ),
+    }
+}
+
+/// The machine's description of `plan` ([`MachineDescription`]): per axis its drive, profile,
+/// parameter channel, bus and node (or Modbus address), limits in µunits and its drive's record
+/// table as configured; per group its members and record table, with the step conditions in
+/// words ([`condition_text`]). Built once at start-up, on the heap (it is 1.3 MB).
+pub fn describe(plan: &MachinePlan) -> Box<MachineDescription> {
+    use crate::axis::{DeviceKind, Profile};
+    use crate::records::{AxisTarget, RecordMode, StepCondition};
+    // SAFETY: `MachineDescription` is integers and arrays of integers only (`repr(C)`, no
+    // references, no enums), so all-zero bytes are a valid value; zeroed on the heap, it never
+    // lies on the stack.
+    let mut d = unsafe { Box::<MachineDescription>::new_zeroed().assume_init() };
+    d.version = wire::LAYOUT_VERSION;
+    d.layout_hash = wire::LAYOUT_HASH;
+    d.cycle_ns = plan.cycle.cycle_ns;
+    d.bus_count = plan.buses.len().min(wire::MAX_BUSES) as u8;
+    for (w, b) in d.buses.iter_mut().zip(&plan.buses) {
+        w.name = name_bytes(&b.name);
+        w.bitrate = b.bitrate;
+        w.kind = match b.kind {
+            crate::config::BusKind::Vbus => wire::bus_kind::VBUS,
+            crate::config::BusKind::Socketcan => wire::bus_kind::SOCKETCAN,
+            crate::config::BusKind::Simulated | crate::config::BusKind::Virtual => {
+                wire::bus_kind::SIMULATED
+            }
+        };
+    }
+    d.axis_count = plan.axes.len().min(wire::MAX_AXES) as u16;
+    for (w, a) in d.axes.iter_mut().zip(&plan.axes) {
+        let setup = &a.setup;
+        let micro = |inc: i64| a.scale.inc_to_micro(inc);
+        let micro_u = |inc: u64| limit_micro(inc, a.scale);
+        w.position_min = micro(setup.position_min);
+        w.position_max = micro(setup.position_max);
+        w.velocity = micro_u(setup.limits.velocity);
+        w.acceleration = micro_u(setup.limits.acceleration);
+        w.jerk = a.jerk_limit.map_or(0, micro_u);
+        w.following_error = micro(setup.following_error);
+        w.force_permille = a.force_limit_permille.unwrap_or(0);
+        w.device = match setup.kind {
+            DeviceKind::MtrDci => wire::device::MTR_DCI,
+            DeviceKind::Emca => wire::device::EMCA,
+            DeviceKind::CmmoSt => wire::device::CMMO_ST,
+            DeviceKind::Tlc5xx => wire::device::TLC5XX,
+        };
+        w.profile = match setup.profile {
+            Profile::Fhpp => wire::profile::FHPP,
+            Profile::Cia402 => wire::profile::CIA402,
+        };
+        w.fpc = u8::from(setup.fpc);
+        (w.link, w.bus, w.node) = match setup.transport {
+            crate::cycle::Transport::Can { bus, node } => (wire::link::CAN, bus, node),
+            crate::cycle::Transport::Modbus { .. } => (wire::link::MODBUS, 0xFF, 0),
+        };
+        w.simulated = u8::from(a.simulated);
+        w.name = name_bytes(&a.name);
+        w.unit = name_bytes(&a.unit);
+        w.modbus = text_field(a.modbus.as_deref().unwrap_or(""));
+        w.record_count = a.records.len().min(wire::MAX_DRIVE_RECORDS) as u8;
+        for (r, rp) in w.records.iter_mut().zip(&a.records) {
+            r.number = rp.number;
+            r.position = micro(rp.position);
+            r.relative = u8::from(rp.relative);
+            r.velocity = micro_u(rp.velocity);
+            r.acceleration = micro_u(rp.acceleration);
+            r.next = rp.next.unwrap_or(0);
+        }
+    }
+    let group_names: Vec<&str> = plan.groups.iter().map(|(n, _, _)| n.as_str()).collect();
+    d.group_count = plan.groups.len().min(wire::MAX_GROUPS) as u16;
+    for (w, (name, setup, table)) in d.groups.iter_mut().zip(&plan.groups) {
+        let members: Vec<&AxisPlan> = setup
+            .axes
+            .iter()
+            .filter_map(|&i| plan.axes.get(usize::from(i)))
+            .collect();
+        w.name = name_bytes(name);
+        w.axis_count = setup.axes.len().min(MAX_GROUP_AXES) as u8;
+        for (k, &m) in setup.axes.iter().enumerate().take(MAX_GROUP_AXES) {
+            w.axes[k] = m.min(255) as u8;
+        }
+        w.shape = match setup.shape {
+            crate::profile::Shape::SCurve => wire::shape::S_CURVE,
+            crate::profile::Shape::Trapezoid => wire::shape::TRAPEZOID,
+        };
+        let mut count = 0u16;
+        for ((number, r), out) in table.iter().zip(w.records.iter_mut()) {
+            count += 1;
+            out.number = number;
+            for (k, t) in r.targets.iter().enumerate() {
+                let micro = |v: i64| members.get(k).map_or(0, |a| a.scale.inc_to_micro(v));
+                (out.target_kinds[k], out.targets[k]) = match *t {
+                    AxisTarget::Keep => (wire::target_kind::KEEP, 0),
+                    AxisTarget::Absolute(v) => (wire::target_kind::ABSOLUTE, micro(v)),
+                    AxisTarget::Relative(v) => (wire::target_kind::RELATIVE, micro(v)),
+                };
+            }
+            out.mode = match r.mode {
+                RecordMode::Position => wire::record_mode::POSITION,
+                RecordMode::Velocity => wire::record_mode::VELOCITY,
+                RecordMode::Force => wire::record_mode::FORCE,
+            };
+            out.velocity_percent = r.velocity_percent;
+            out.acceleration_percent = r.acceleration_percent;
+            out.jerk_percent = r.jerk_percent;
+            out.force_permille = r.force_permille;
+            out.delay_ms = r.delay_ms;
+            out.mc_in_chain = u8::from(r.mc_in_chain);
+            out.step_next = if r.step.condition == StepCondition::End {
+                -1
+            } else {
+                record(Some(r.step.next))
+            };
+            out.step = text_field(&condition_text(&r.step.condition, &members, &group_names));
+            out.alternative_next = record(r.alternative.map(|a| a.next));
+            out.alternative = text_field(
+                &r.alternative
+                    .map(|a| condition_text(&a.condition, &members, &group_names))
+                    .unwrap_or_default(),
+            );
+        }
+        w.record_count = count;
+    }
+    d
 }
 
 /// Counters the runtime adds to the state.
@@ -683,11 +917,12 @@ fn busy(prefix: &str, service: &str, e: &shm_api::ShmError) -> String {
     }
 }
 
-/// The services' side: the command server and the event publisher.
+/// The services' side: the command server, the event publisher and the description.
 pub struct ServiceSide {
     _node: Node<ipc::Service>,
     commands: CommandServer,
     events: EventPublisher,
+    description: DescriptionPublisher,
     info: StaticInfo,
     seq: u64,
     polls: u64,
@@ -702,7 +937,8 @@ impl std::fmt::Debug for ServiceSide {
 }
 
 impl ServiceSide {
-    /// Creates `PREFIX/command`, `PREFIX/events` and `PREFIX/event-log`.
+    /// Creates `PREFIX/command`, `PREFIX/events`, `PREFIX/event-log` and
+    /// `PREFIX/description`, and publishes the machine's description.
     pub fn create(prefix: &str, info: StaticInfo) -> Result<ServiceSide, String> {
         let node = create_node().map_err(|e| e.to_string())?;
         let names = ServiceNames::new(prefix);
@@ -711,10 +947,16 @@ impl ServiceSide {
             .map_err(|e| busy(prefix, &names.command, &e))?;
         let events = EventPublisher::create(&node, &names, &settings)
             .map_err(|e| format!("{}: {e}", names.events))?;
+        let mut description = DescriptionPublisher::create(&node, &names, &settings)
+            .map_err(|e| busy(prefix, &names.description, &e))?;
+        description
+            .publish(info.description())
+            .map_err(|e| format!("{}: {e}", names.description))?;
         Ok(ServiceSide {
             _node: node,
             commands,
             events,
+            description,
             info,
             seq: 0,
             polls: 0,
@@ -729,6 +971,9 @@ impl ServiceSide {
             // A crashed client holds its port slots until someone cleans up.
             let _ = cleanup_dead_nodes_with(&self._node);
         }
+        // A client that subscribed since gets the description now (a failure only delays it
+        // to the next poll).
+        let _ = self.description.update_connections();
         let p = self.commands.receive()?;
         let r = *p.request();
         match to_command(&self.info, &r) {
@@ -828,6 +1073,194 @@ mod tests {
     use super::*;
     use crate::config::{Config, EXAMPLE};
     use crate::runtime::plan::plan;
+
+    #[test]
+    fn the_description_of_the_default_machine_says_what_the_state_does_not() {
+        use shm_api::request::name_str;
+        use wire::{bus_kind, device, link, profile, shape, target_kind as tk};
+        let p = plan(&Config::parse(EXAMPLE).unwrap()).unwrap();
+        let d = describe(&p);
+        assert_eq!(
+            (d.version, d.layout_hash, d.cycle_ns),
+            (wire::LAYOUT_VERSION, wire::LAYOUT_HASH, 2_000_000)
+        );
+        assert_eq!((d.axis_count, d.group_count, d.bus_count), (4, 3, 2));
+        assert_eq!(name_str(&d.buses[1].name), "can1");
+        assert_eq!(
+            (d.buses[1].kind, d.buses[1].bitrate),
+            (bus_kind::SIMULATED, 1_000_000)
+        );
+
+        // x: the MTR-DCI with a jerk and a force limit.
+        let x = &d.axes[0];
+        assert_eq!((name_str(&x.name), name_str(&x.unit)), ("x", "mm"));
+        assert_eq!(
+            (x.device, x.profile, x.fpc),
+            (device::MTR_DCI, profile::FHPP, 0)
+        );
+        assert_eq!(
+            (
+                x.position_min,
+                x.position_max,
+                x.velocity,
+                x.acceleration,
+                x.jerk
+            ),
+            (0, 400_000_000, 150_000_000, 1_000_000_000, 20_000_000_000)
+        );
+        assert_eq!(x.force_permille, 1000);
+        assert_eq!((x.link, x.bus, x.node, x.simulated), (link::CAN, 0, 1, 1));
+        // y: the EMCA with its parameter channel on can1, and its two drive records.
+        let y = &d.axes[1];
+        assert_eq!((y.device, y.fpc, y.bus, y.node), (device::EMCA, 1, 1, 2));
+        assert_eq!((y.jerk, y.force_permille), (0, 0));
+        assert_eq!(y.record_count, 2);
+        let r = |i: usize| {
+            let r = &y.records[i];
+            (
+                r.number,
+                r.position,
+                r.relative,
+                r.velocity,
+                r.acceleration,
+                r.next,
+            )
+        };
+        // Record 1 takes the axis's acceleration limit (400 mm/s²), record 2 its own.
+        assert_eq!(r(0), (1, 10_000_000, 0, 60_000_000, 400_000_000, 2));
+        assert_eq!(r(1), (2, 240_000_000, 0, 80_000_000, 300_000_000, 0));
+        // z: the TLC5xx in CiA 402; gripper: the simulated CMMO-ST on Modbus.
+        assert_eq!(
+            (d.axes[2].device, d.axes[2].profile),
+            (device::TLC5XX, profile::CIA402)
+        );
+        let g = &d.axes[3];
+        assert_eq!(
+            (g.device, g.link, g.bus, g.node, g.simulated),
+            (device::CMMO_ST, link::MODBUS, 0xFF, 0, 1)
+        );
+        assert_eq!((g.position_min, name_str(&g.unit)), (-180_000_000, "deg"));
+        assert_eq!(name_str(&g.modbus), "");
+
+        // The gantry's table: targets in µunits, the conditions in words and units.
+        let gantry = &d.groups[0];
+        assert_eq!(name_str(&gantry.name), "gantry");
+        assert_eq!((gantry.axis_count, &gantry.axes[..2]), (2, &[0u8, 1][..]));
+        // y has no jerk limit, so the group's moves are trapezoids.
+        assert_eq!(gantry.shape, shape::TRAPEZOID);
+        assert_eq!(gantry.record_count, 4);
+        let r10 = &gantry.records[0];
+        assert_eq!(r10.number, 10);
+        assert_eq!(&r10.targets[..2], &[200_000_000, 100_000_000]);
+        assert_eq!(
+            &r10.target_kinds[..3],
+            &[tk::ABSOLUTE, tk::ABSOLUTE, tk::KEEP]
+        );
+        assert_eq!((r10.velocity_percent, r10.acceleration_percent), (80, 50));
+        assert_eq!(
+            (name_str(&r10.step), r10.step_next),
+            ("position x in [150, 210] mm for 10 ms", 11)
+        );
+        assert_eq!((name_str(&r10.alternative), r10.alternative_next), ("", -1));
+        let r11 = &gantry.records[1];
+        assert_eq!(&r11.targets[..2], &[100_000_000, -40_000_000]);
+        assert_eq!(&r11.target_kinds[..2], &[tk::RELATIVE, tk::RELATIVE]);
+        assert_eq!((r11.delay_ms, r11.mc_in_chain), (50, 0));
+        assert_eq!(
+            (name_str(&r11.step), r11.step_next),
+            ("motion complete", 12)
+        );
+        assert_eq!(
+            (name_str(&r11.alternative), r11.alternative_next),
+            ("input 0 rising", 13)
+        );
+        let r12 = &gantry.records[2];
+        assert_eq!(&r12.target_kinds[..2], &[tk::KEEP, tk::ABSOLUTE]);
+        assert_eq!(name_str(&r12.step), "group lift reached record 1");
+        let r13 = &gantry.records[3];
+        assert_eq!(
+            (name_str(&r13.step), r13.step_next, r13.mc_in_chain),
+            ("", -1, 1)
+        );
+        assert_eq!(
+            name_str(&d.groups[1].records[0].step),
+            "200 ms after motion complete"
+        );
+        assert_eq!(
+            name_str(&d.groups[2].records[0].step),
+            "position gripper in [80, 100] deg for 50 ms"
+        );
+        // The clones of the static part share the one description.
+        let info = StaticInfo::new(&p, false);
+        assert_eq!(*info.clone().description(), *d);
+    }
+
+    #[test]
+    fn every_condition_reads_in_words_and_in_its_axis_units() {
+        use crate::comparator::Window;
+        use crate::records::{Edge, Quantity, StepCondition as C};
+        let p = plan(&Config::parse(EXAMPLE).unwrap()).unwrap();
+        let members = [&p.axes[0], &p.axes[1]];
+        let groups = ["gantry", "lift"];
+        let text = |c: C| condition_text(&c, &members, &groups);
+        let window = |min, max, ms| Window::new(min, max, std::time::Duration::from_millis(ms));
+        assert_eq!(text(C::End), "");
+        assert_eq!(text(C::Immediately), "immediately");
+        assert_eq!(text(C::Delay(200)), "200 ms after motion complete");
+        // 400 increments per mm on x, 1000 on y.
+        assert_eq!(
+            text(C::Comparator {
+                axis: 0,
+                quantity: Quantity::Velocity,
+                window: window(-2000, 2000, 0),
+            }),
+            "velocity x in [-5, 5] mm/s"
+        );
+        assert_eq!(
+            text(C::Comparator {
+                axis: 1,
+                quantity: Quantity::Position,
+                window: window(12_345, 12_500, 3),
+            }),
+            "position y in [12.345, 12.5] mm for 3 ms"
+        );
+        // Forces in ‰ read in % as configured.
+        assert_eq!(
+            text(C::Comparator {
+                axis: 1,
+                quantity: Quantity::Force,
+                window: window(-105, 250, 20),
+            }),
+            "force y in [-10.5, 25] % for 20 ms"
+        );
+        assert_eq!(
+            text(C::Time { min: 100, max: 200 }),
+            "time since entry in [100, 200] ms"
+        );
+        assert_eq!(
+            text(C::Input {
+                bit: 3,
+                edge: Edge::Falling
+            }),
+            "input 3 falling"
+        );
+        assert_eq!(
+            text(C::RecordReached {
+                group: 1,
+                record: 7
+            }),
+            "group lift reached record 7"
+        );
+        // A text longer than its field ends in an ellipsis, on a character boundary.
+        let long = "ä".repeat(60);
+        let field: [u8; wire::CONDITION_LEN] = text_field(&long);
+        let shown = shm_api::request::name_str(&field);
+        assert!(
+            shown.ends_with('…') && shown.len() <= wire::CONDITION_LEN,
+            "{shown}"
+        );
+        assert_eq!(shown.chars().filter(|&c| c == 'ä').count(), 38);
+    }
 
     #[test]
     fn user_units_convert_both_ways_in_integers() {

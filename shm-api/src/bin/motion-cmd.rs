@@ -3,7 +3,9 @@
 use shm_api::cli::{self, cmd::CmdArgs, exit};
 
 fn main() {
-    let args: CmdArgs = cli::parse_or_exit(std::env::args_os());
+    let mut args: CmdArgs = cli::parse_or_exit(std::env::args_os());
+    // `params` says how far it got, where someone watches.
+    args.progress = std::io::IsTerminal::is_terminal(&std::io::stderr());
     let code = match cli::connect(&args.prefix) {
         Ok(mut m) => cli::cmd::run(
             &mut m,

@@ -15,7 +15,10 @@
 //! `done published=N commands=N events=N` when `--count` samples are out (0: run forever).
 //!
 //! The axes are in mm at 400 increments per mm (`position_inc` is published beside
-//! `position`) with positions limited to 0..=400 mm (0..=160 000 increments).
+//! `position`) with positions limited to 0..=400 mm (0..=160 000 increments). Its machine
+//! description (`PREFIX/description`) says so: each axis an EMCA on `vbus:standin` (node = its
+//! index + 1, without a parameter channel) with one drive record, record 1 to 10 mm at 50
+//! mm/s; the groups have no members and no records.
 //!
 //! Command rules: axis ≥ `--axes` → unknown axis; group ≥ `--groups` → unknown group; record
 //! ≥ 64 → unknown record; an axis move outside the position limits → out of range in
@@ -26,13 +29,14 @@
 
 use iceoryx2::prelude::SignalHandlingMode;
 use shm_api::contract::{
-    AxisState, CommandReply, CommandRequest, EventRecord, GroupState, MAX_AXES, MAX_GROUPS,
-    MachineState, axis_flags, axis_state, command_kind, event_id, status, target,
+    AxisState, CommandReply, CommandRequest, EventRecord, GroupState, LAYOUT_HASH, LAYOUT_VERSION,
+    MAX_AXES, MAX_GROUPS, MachineDescription, MachineState, axis_flags, axis_state, bus_kind,
+    command_kind, device, event_id, link, status, target,
 };
 use shm_api::request::name_bytes;
 use shm_api::{
-    CommandServer, EventPublisher, PublisherSettings, ServiceNames, StatePublisher,
-    cleanup_dead_nodes_with, create_node_with,
+    CommandServer, DescriptionPublisher, EventPublisher, PublisherSettings, ServiceNames,
+    StatePublisher, cleanup_dead_nodes_with, create_node_with,
 };
 use std::io::Write;
 use std::sync::Arc;
@@ -210,6 +214,47 @@ fn template(args: &Args) -> Box<MachineState> {
     s
 }
 
+/// The stand-in's machine description (see the module docs).
+fn description(args: &Args) -> Box<MachineDescription> {
+    // SAFETY: `MachineDescription` is integers and arrays of integers only, so all-zero bytes
+    // are a valid value; zeroed on the heap, the 1.3 MB value never lies on the stack.
+    let mut d = unsafe { Box::<MachineDescription>::new_zeroed().assume_init() };
+    d.version = LAYOUT_VERSION;
+    d.layout_hash = LAYOUT_HASH;
+    d.cycle_ns = args.period.as_nanos() as u32;
+    d.axis_count = args.axes;
+    d.group_count = args.groups;
+    d.bus_count = 1;
+    d.buses[0].name = name_bytes("standin");
+    d.buses[0].bitrate = 1_000_000;
+    d.buses[0].kind = bus_kind::VBUS;
+    for (i, a) in d.axes.iter_mut().enumerate().take(usize::from(args.axes)) {
+        a.name = name_bytes(&format!("X{i}"));
+        a.unit = name_bytes("mm");
+        a.device = device::EMCA;
+        a.link = link::CAN;
+        a.node = (i % 127) as u8 + 1;
+        a.position_max = POSITION_MAX_INC * MICRO_PER_INC;
+        a.velocity = 100_000_000;
+        a.acceleration = 1_000_000_000;
+        a.following_error = 10_000_000;
+        a.record_count = 1;
+        a.records[0].number = 1;
+        a.records[0].position = 10_000_000;
+        a.records[0].velocity = 50_000_000;
+        a.records[0].acceleration = 1_000_000_000;
+    }
+    for (i, g) in d
+        .groups
+        .iter_mut()
+        .enumerate()
+        .take(usize::from(args.groups))
+    {
+        g.name = name_bytes(&format!("G{i}"));
+    }
+    d
+}
+
 fn run(args: &Args) -> Result<(), String> {
     let names = ServiceNames::new(&args.prefix);
     // SIGINT/SIGTERM end the run cleanly (the services are removed).
@@ -220,6 +265,11 @@ fn run(args: &Args) -> Result<(), String> {
         CommandServer::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
     let mut events =
         EventPublisher::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
+    let mut described =
+        DescriptionPublisher::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
+    described
+        .publish(&description(args))
+        .map_err(|e| e.to_string())?;
     // The state publisher last: a client that sees it finds every other service.
     let mut state =
         StatePublisher::create(&node, &names, &args.settings).map_err(|e| e.to_string())?;
@@ -246,6 +296,8 @@ fn run(args: &Args) -> Result<(), String> {
     loop {
         // Serve commands until the cycle's deadline.
         loop {
+            // A client that subscribed since gets the description.
+            let _ = described.update_connections();
             while let Some(cmd) = server.receive() {
                 let reply = answer(cmd.request(), args, cycle);
                 cmd.reply(&reply).map_err(|e| e.to_string())?;

@@ -1,18 +1,23 @@
-//! `motion-cmd`: every command of the contract from the shell, names resolved from the state.
-//! Exits [`exit::OK`] when the command latched, [`exit::REJECTED`] when it was rejected (or
-//! the drive refused a parameter task), [`exit::ERROR`] on errors.
+//! `motion-cmd`: every command of the contract from the shell, names resolved from the state,
+//! and what an axis or a group holds (`records`, `params`) from the coordinator's machine
+//! description. Exits [`exit::OK`] when the command latched (or the listing was printed),
+//! [`exit::REJECTED`] when it was rejected (or the drive refused a parameter task),
+//! [`exit::ERROR`] on errors.
 
 use std::io::Write;
 use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand};
 
+use super::describe;
 use super::resolve::{
     ResolveError, axes, axis_index, group_index, group_members, groups, parse_micro,
     parse_micro_list,
 };
 use super::{Latched, Machine, Rejected, Target, exit, format, name_str};
-use crate::contract::{AxisState, CommandRequest, EventRecord, MachineState, event_id};
+use crate::contract::{
+    AxisState, CommandRequest, EventRecord, MachineDescription, MachineState, event_id,
+};
 
 /// Arguments of `motion-cmd`.
 #[derive(Debug, Clone, Parser)]
@@ -30,6 +35,22 @@ pub struct CmdArgs {
     /// The command.
     #[command(subcommand)]
     pub command: Command,
+    /// Show a progress line while `params` reads (the binary sets it when standard error is a
+    /// terminal).
+    #[arg(skip)]
+    pub progress: bool,
+}
+
+/// What `records` lists: an axis's drive records or a group's record table.
+#[derive(Debug, Clone, Args)]
+#[group(required = true, multiple = false)]
+pub struct RecordsTarget {
+    /// The axis whose drive records to list.
+    #[arg(long)]
+    pub axis: Option<String>,
+    /// The group whose record table to list, with the step conditions.
+    #[arg(long)]
+    pub group: Option<String>,
 }
 
 /// Which axes a command addresses, by name (or index).
@@ -149,6 +170,19 @@ pub enum Command {
         #[arg(long, allow_negative_numbers = true)]
         value: i64,
     },
+    /// List an axis's drive records, or a group's record table with its step conditions (from
+    /// the coordinator's machine description, in the axes' units).
+    Records(RecordsTarget),
+    /// List the parameters (PNUs) of an axis's drive and, where the axis has the parameter
+    /// channel, read each simple value.
+    Params {
+        /// The axis.
+        #[arg(long)]
+        axis: String,
+        /// Only this parameter: every sub-index of it is read (arrays and texts too).
+        #[arg(long)]
+        pnu: Option<u16>,
+    },
     /// Set a bit of the machine's input word.
     SetInput {
         /// The bit.
@@ -218,6 +252,7 @@ pub fn build_request(
             // clap requires one of the two.
             (None, None) => {
                 return Err(ResolveError::UnknownAxis {
+                    option: "--axis",
                     name: String::new(),
                     known: String::new(),
                 });
@@ -237,6 +272,8 @@ pub fn build_request(
             value,
         } => C::write_parameter(axis_index(state, axis)?, *pnu, *sub, *value),
         Command::SetInput { bit, value } => C::set_input(*bit, *value),
+        Command::Records(_) => return Err(ResolveError::NoRequest("records")),
+        Command::Params { .. } => return Err(ResolveError::NoRequest("params")),
     })
 }
 
@@ -250,11 +287,15 @@ pub fn is_answer(ev: &EventRecord, req: &CommandRequest, latched: Latched) -> bo
         && ev.cycle >= latched.cycle
 }
 
+/// Waits for the answer to the parameter task `req` and prints it; with the axis's `device`
+/// (from the description) the value reads as its type and the refusal in words.
+#[allow(clippy::too_many_arguments)]
 fn wait_parameter(
     m: &mut impl Machine,
     req: &CommandRequest,
     latched: Latched,
     axis_name: &str,
+    device: Option<u8>,
     timeout: Duration,
     out: &mut impl Write,
     err: &mut impl Write,
@@ -277,16 +318,42 @@ fn wait_parameter(
                 if ev.error != 0 {
                     let _ = writeln!(
                         out,
-                        "rejected: the drive refused parameter {}:{} of axis {axis_name}: error {}",
-                        req.pnu, req.sub, ev.value
+                        "rejected: the drive refused parameter {}:{} of axis {axis_name}: {}",
+                        req.pnu,
+                        req.sub,
+                        describe::drive_error_text(device, req.pnu, req.sub, ev.value)
                     );
                     return exit::REJECTED;
                 }
-                let _ = writeln!(
-                    out,
-                    "axis {axis_name} parameter {}:{} = {}",
-                    req.pnu, req.sub, ev.value
-                );
+                let def = device.and_then(describe::fhpp_variant).and_then(|v| {
+                    drivers::fhpp::pnu::Table::of(v)
+                        .lookup(drivers::fhpp::fpc::Param::new(req.pnu, req.sub))
+                        .ok()
+                });
+                match def {
+                    Some(d) => {
+                        let (name, unit) = describe::name_and_unit(d.name);
+                        let _ = writeln!(
+                            out,
+                            "axis {axis_name} parameter {}:{} = {}{} ({name})",
+                            req.pnu,
+                            req.sub,
+                            describe::decode(d, ev.value),
+                            if unit.is_empty() {
+                                String::new()
+                            } else {
+                                format!(" {unit}")
+                            }
+                        );
+                    }
+                    None => {
+                        let _ = writeln!(
+                            out,
+                            "axis {axis_name} parameter {}:{} = {}",
+                            req.pnu, req.sub, ev.value
+                        );
+                    }
+                }
                 return exit::OK;
             }
             Ok(_) => {}
@@ -306,6 +373,13 @@ pub fn run(
     err: &mut impl Write,
 ) -> i32 {
     let timeout = Duration::from_millis(args.timeout_ms);
+    match &args.command {
+        Command::Records(t) => return records(m, t, timeout, out, err),
+        Command::Params { axis, pnu } => {
+            return params(m, axis, *pnu, timeout, args.progress, out, err);
+        }
+        _ => {}
+    }
     let state = match m.latest() {
         Some(s) => *s,
         None => match m.next(timeout) {
@@ -332,7 +406,13 @@ pub fn run(
                         .axes
                         .get(usize::from(req.axis))
                         .map_or("?", |a| name_str(&a.name));
-                    wait_parameter(m, &req, latched, name, timeout, out, err)
+                    // The drive's table reads the answer, where the coordinator describes it.
+                    let device = m.description(timeout).ok().and_then(|d| {
+                        describe::described_axes(d)
+                            .get(usize::from(req.axis))
+                            .map(|a| a.device)
+                    });
+                    wait_parameter(m, &req, latched, name, device, timeout, out, err)
                 }
                 _ => exit::OK,
             }
@@ -350,6 +430,282 @@ pub fn run(
             exit::REJECTED
         }
     }
+}
+
+/// The machine's description, or the error said on `err` (then `None`).
+fn description<'m>(
+    m: &'m mut impl Machine,
+    timeout: Duration,
+    err: &mut impl Write,
+) -> Option<&'m MachineDescription> {
+    match m.description(timeout) {
+        Ok(d) => Some(d),
+        Err(e) => {
+            let _ = writeln!(err, "error: {e}");
+            None
+        }
+    }
+}
+
+/// `motion-cmd records --axis NAME | --group NAME`.
+fn records(
+    m: &mut impl Machine,
+    target: &RecordsTarget,
+    timeout: Duration,
+    out: &mut impl Write,
+    err: &mut impl Write,
+) -> i32 {
+    let Some(d) = description(m, timeout, err) else {
+        return exit::ERROR;
+    };
+    let lines = match (&target.axis, &target.group) {
+        (Some(a), _) => describe::find_axis(d, a).map(|(_, a)| describe::axis_records(d, a)),
+        (None, Some(g)) => describe::find_group(d, g).map(|g| describe::group_records(d, g)),
+        // clap requires one of the two.
+        (None, None) => Ok(Vec::new()),
+    };
+    match lines {
+        Ok(lines) => {
+            for l in lines {
+                let _ = writeln!(out, "{l}");
+            }
+            exit::OK
+        }
+        Err(e) => {
+            let _ = writeln!(err, "error: {e}");
+            exit::ERROR
+        }
+    }
+}
+
+/// Why a parameter could not be read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ReadFailure {
+    /// The drive refused it: its error number.
+    Drive(i64),
+    /// No answer in time.
+    NoAnswer,
+    /// The coordinator refused the request.
+    Refused(Rejected),
+    /// The connection failed (no reply, the coordinator went away).
+    Lost(String),
+}
+
+/// Reads parameter `pnu`:`sub` of `axis` through READ_PARAMETER and waits for its answer: the
+/// drive's 32 bits, as the event carries them. A busy channel (one task at a time, and a closing
+/// exchange between two) is asked again until `timeout`.
+pub fn read_parameter(
+    m: &mut impl Machine,
+    axis: u16,
+    pnu: u16,
+    sub: u8,
+    timeout: Duration,
+) -> Result<i64, ReadFailure> {
+    let req = CommandRequest::read_parameter(axis, pnu, sub);
+    let deadline = Instant::now() + timeout;
+    let latched = loop {
+        match m.command(&req, timeout) {
+            Ok(l) => break l,
+            Err(Rejected::Busy) if Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            Err(e @ (Rejected::Timeout | Rejected::Disconnected)) => {
+                return Err(ReadFailure::Lost(e.to_string()));
+            }
+            Err(e) => return Err(ReadFailure::Refused(e)),
+        }
+    };
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(ReadFailure::NoAnswer);
+        }
+        match m.wait_event(left) {
+            Ok(Some(ev)) if is_answer(&ev, &req, latched) => {
+                return if ev.error != 0 {
+                    Err(ReadFailure::Drive(ev.value))
+                } else {
+                    Ok(ev.value)
+                };
+            }
+            Ok(_) => {}
+            Err(e) => return Err(ReadFailure::Lost(e.to_string())),
+        }
+    }
+}
+
+/// `motion-cmd params --axis NAME [--pnu N]`.
+fn params(
+    m: &mut impl Machine,
+    axis: &str,
+    pnu: Option<u16>,
+    timeout: Duration,
+    progress: bool,
+    out: &mut impl Write,
+    err: &mut impl Write,
+) -> i32 {
+    let Some(d) = description(m, timeout, err) else {
+        return exit::ERROR;
+    };
+    let (index, a) = match describe::find_axis(d, axis) {
+        Ok((i, a)) => (i, *a),
+        Err(e) => {
+            let _ = writeln!(err, "error: {e}");
+            return exit::ERROR;
+        }
+    };
+    let heading = describe::axis_heading(d, &a);
+    let name = name_str(&a.name).to_owned();
+    let device = describe::device_name(a.device);
+    let Some(variant) = describe::fhpp_variant(a.device) else {
+        let _ = writeln!(out, "{heading}");
+        let _ = writeln!(
+            out,
+            "the {device} is a CiA 402 drive: it has no FHPP parameters (PNUs) to list"
+        );
+        return exit::OK;
+    };
+    let entries = match pnu {
+        Some(p) => {
+            let e = describe::entries_of(variant, p);
+            if e.is_empty() {
+                let _ = writeln!(err, "error: --pnu {p}: the {device} has no parameter {p}");
+                return exit::ERROR;
+            }
+            e
+        }
+        None => describe::parameter_entries(variant),
+    };
+    let _ = writeln!(out, "{heading}");
+    if a.fpc == 0 {
+        let why = if a.link == crate::contract::link::MODBUS {
+            "its 8-byte Modbus profile carries none".to_owned()
+        } else if a.profile != crate::contract::profile::FHPP {
+            "the parameter channel is FHPP's, and this axis runs CiA 402".to_owned()
+        } else {
+            "`fpc = true` on the axis in the configuration maps it on PDO2".to_owned()
+        };
+        let _ = writeln!(
+            out,
+            "no parameter channel on axis {name} ({why}): values cannot be read; the \
+             {device}'s {} parameters:",
+            entries.len()
+        );
+        let mut cols = describe::parameter_columns(false);
+        for e in &entries {
+            cols.push(describe::parameter_row(e));
+        }
+        for l in cols.lines() {
+            let _ = writeln!(out, "{l}");
+        }
+        return exit::OK;
+    }
+    // What to read: without --pnu each simple value, with it every readable sub-index.
+    let readable = |e: &drivers::fhpp::pnu::ParamDef| match pnu {
+        Some(_) => e.access != drivers::fhpp::pnu::Access::Wo,
+        None => describe::is_simple(e),
+    };
+    let reads: Vec<(usize, u8)> = entries
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| readable(e))
+        .flat_map(|(i, e)| {
+            let last = if pnu.is_some() {
+                e.last_sub
+            } else {
+                e.first_sub
+            };
+            (e.first_sub..=last).map(move |s| (i, s))
+        })
+        .collect();
+    let mut values: Vec<Vec<(u8, Result<i64, ReadFailure>)>> = vec![Vec::new(); entries.len()];
+    for (k, &(i, sub)) in reads.iter().enumerate() {
+        let e = entries[i];
+        if progress {
+            let _ = write!(
+                err,
+                "\r\x1b[Kreading {}/{}: PNU {}:{sub} {}",
+                k + 1,
+                reads.len(),
+                e.pnu,
+                describe::name_and_unit(e.name).0
+            );
+            let _ = err.flush();
+        }
+        let r = read_parameter(m, index, e.pnu, sub, timeout);
+        match r {
+            Err(ReadFailure::Refused(why)) => {
+                if progress {
+                    let _ = write!(err, "\r\x1b[K");
+                }
+                let text = match why {
+                    Rejected::WrongState(reason) => format!("axis {name}: {reason}"),
+                    other => other.to_string(),
+                };
+                let _ = writeln!(out, "rejected: {text}");
+                return exit::REJECTED;
+            }
+            Err(ReadFailure::Lost(e)) => {
+                if progress {
+                    let _ = write!(err, "\r\x1b[K");
+                }
+                let _ = writeln!(err, "error: reading the parameters: {e}");
+                return exit::ERROR;
+            }
+            r => values[i].push((sub, r)),
+        }
+    }
+    if progress {
+        let _ = write!(err, "\r\x1b[K");
+        let _ = err.flush();
+    }
+    let _ = writeln!(
+        out,
+        "{} parameter{} of the {device}, {} value{} read over the parameter channel:",
+        entries.len(),
+        if entries.len() == 1 { "" } else { "s" },
+        reads.len(),
+        if reads.len() == 1 { "" } else { "s" }
+    );
+    let mut cols = describe::parameter_columns(true);
+    for (e, vals) in entries.iter().zip(&values) {
+        let cell = |r: &Result<i64, ReadFailure>| match r {
+            Ok(v) => describe::decode(e, *v).to_string(),
+            Err(ReadFailure::Drive(n)) => format!(
+                "refused by the drive, {}",
+                describe::drive_error_text(Some(a.device), e.pnu, e.first_sub, *n)
+            ),
+            Err(_) => "no answer".to_owned(),
+        };
+        let mut row = describe::parameter_row(e);
+        if vals.is_empty() {
+            row.push(describe::unread_text(e, &name));
+            cols.push(row);
+        } else if e.dtype == drivers::fhpp::pnu::DataType::Char {
+            // A text, one character per sub-index.
+            let chars: Result<Vec<i64>, &ReadFailure> =
+                vals.iter().map(|(_, r)| r.as_ref().map(|v| *v)).collect();
+            row.push(match chars {
+                Ok(c) => format!("\"{}\"", describe::chars_text(&c)),
+                Err(f) => cell(&Err(f.clone())),
+            });
+            cols.push(row);
+        } else if vals.len() == 1 {
+            row.push(cell(&vals[0].1));
+            cols.push(row);
+        } else {
+            for (sub, r) in vals {
+                let mut row = describe::parameter_row(e);
+                row[1] = sub.to_string();
+                row.push(cell(r));
+                cols.push(row);
+            }
+        }
+    }
+    for l in cols.lines() {
+        let _ = writeln!(out, "{l}");
+    }
+    exit::OK
 }
 
 /// What `command` addressed, in words: `axis x`, `group gantry`, `every axis`.

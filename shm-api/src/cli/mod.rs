@@ -5,6 +5,7 @@
 //! library's `Client` plugs in by implementing it.
 
 pub mod cmd;
+pub mod describe;
 pub mod format;
 pub mod resolve;
 pub mod top;
@@ -12,7 +13,7 @@ pub mod watch;
 
 use core::time::Duration;
 
-use crate::contract::{CommandRequest, EventRecord, MachineState};
+use crate::contract::{CommandRequest, EventRecord, MachineDescription, MachineState};
 
 pub use crate::client::{ClientError, Latched, Rejected};
 pub use crate::request::{Target, name_str};
@@ -31,6 +32,11 @@ pub trait Machine {
     /// Whether the coordinator still publishes the state (a fake that cannot tell says yes).
     fn coordinator_present(&self) -> bool {
         true
+    }
+    /// The machine's description, waiting up to `timeout` for it (a fake without one has
+    /// none).
+    fn description(&mut self, _timeout: Duration) -> Result<&MachineDescription, ClientError> {
+        Err(ClientError::NoDescription)
     }
 }
 
@@ -54,6 +60,9 @@ impl Machine for crate::client::Client {
     }
     fn coordinator_present(&self) -> bool {
         crate::client::Client::coordinator_present(self)
+    }
+    fn description(&mut self, timeout: Duration) -> Result<&MachineDescription, ClientError> {
+        crate::client::Client::description(self, timeout)
     }
 }
 

@@ -10,16 +10,20 @@ use super::name_str;
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ResolveError {
     /// No axis of that name or index.
-    #[error("unknown axis '{name}' (axes: {known})")]
+    #[error("{option} {name}: no such axis; the axes are {known}")]
     UnknownAxis {
+        /// The option it was typed for (`--axis`, `--axes`).
+        option: &'static str,
         /// What was typed.
         name: String,
         /// The axes there are.
         known: String,
     },
     /// No group of that name or index.
-    #[error("unknown group '{name}' (groups: {known})")]
+    #[error("{option} {name}: no such group; the groups are {known}")]
     UnknownGroup {
+        /// The option it was typed for (`--group`).
+        option: &'static str,
         /// What was typed.
         name: String,
         /// The groups there are.
@@ -28,6 +32,9 @@ pub enum ResolveError {
     /// Not a decimal number, or too many decimals, or too large.
     #[error("'{0}' is not a number in user units (at most 6 decimals)")]
     BadNumber(String),
+    /// A listing (`records`, `params`) has no request of its own.
+    #[error("`{0}` lists the machine's description and sends no command of its own")]
+    NoRequest(&'static str),
     /// A group move needs one position per member axis.
     #[error("group '{group}' has {axes} axes but {given} positions were given")]
     PositionCount {
@@ -82,6 +89,7 @@ fn known<'a>(names: impl Iterator<Item = &'a str>) -> String {
 pub fn axis_index(state: &MachineState, text: &str) -> Result<u16, ResolveError> {
     let names = axes(state).iter().map(|a| name_str(&a.name));
     lookup(names.clone(), text).ok_or_else(|| ResolveError::UnknownAxis {
+        option: "--axis",
         name: text.into(),
         known: known(names),
     })
@@ -91,6 +99,7 @@ pub fn axis_index(state: &MachineState, text: &str) -> Result<u16, ResolveError>
 pub fn group_index(state: &MachineState, text: &str) -> Result<u16, ResolveError> {
     let names = groups(state).iter().map(|g| name_str(&g.name));
     lookup(names.clone(), text).ok_or_else(|| ResolveError::UnknownGroup {
+        option: "--group",
         name: text.into(),
         known: known(names),
     })
@@ -102,7 +111,19 @@ pub fn axis_list(state: &MachineState, names: &[String]) -> Result<Vec<u16>, Res
         let n = axes(state).len();
         return Ok((0..n).filter_map(|i| u16::try_from(i).ok()).collect());
     }
-    names.iter().map(|n| axis_index(state, n.trim())).collect()
+    names
+        .iter()
+        .map(|n| {
+            axis_index(state, n.trim()).map_err(|e| match e {
+                ResolveError::UnknownAxis { name, known, .. } => ResolveError::UnknownAxis {
+                    option: "--axes",
+                    name,
+                    known,
+                },
+                e => e,
+            })
+        })
+        .collect()
 }
 
 /// Parses a decimal in user units ("12.5", "-0.001", "3") to µunits, exactly.
