@@ -9,7 +9,8 @@
 //! is documented in `docs/configuration.md`; [`EXAMPLE`] is the embedded default machine.
 //!
 //! Floats appear only here, at the edge: limits and records are given in user units and are
-//! converted to whole increments once, and refused when the result does not fit the drive's
+//! converted to whole increments once, with the axis's exact [`Scale`] (the decimal written,
+//! times the scale, rounded to nearest), and refused when the result does not fit the drive's
 //! integer range.
 
 use std::collections::{BTreeMap, HashMap};
@@ -26,6 +27,10 @@ use crate::records::{
     self, AxisTarget, Edge, MAX_GROUP_AXES, Quantity, RecordError, RecordMode, RecordTable,
     StepCondition,
 };
+use crate::units::{Decimal, Scale, ScaleError};
+
+/// Forces are configured in % and travel in ‰: exactly ten ‰ per %.
+pub const PERMILLE_PER_PERCENT: Scale = Scale::integer(10);
 
 /// The commented example `coordinator config-example` prints: four axes, one of each device
 /// kind, on the virtual bus and Modbus TCP, a group and a few records.
@@ -351,7 +356,8 @@ pub struct AxisConfig {
     /// The user unit's name, for display ("mm", "deg").
     #[serde(default = "default_unit")]
     pub unit: String,
-    /// Drive increments per user unit.
+    /// Drive increments per user unit: a decimal with at most 12 decimal places, held exactly
+    /// ([`AxisConfig::scale`]).
     pub increments_per_unit: f64,
     /// Motion limits.
     pub limits: Limits,
@@ -365,6 +371,11 @@ fn default_unit() -> String {
 }
 
 impl AxisConfig {
+    /// The exact scale of `increments_per_unit` (refused as [`Config::check`] refuses it).
+    pub fn scale(&self) -> Result<Scale, ScaleError> {
+        Scale::from_f64(self.increments_per_unit)
+    }
+
     /// The profile in use (the configured one or the device's default).
     pub fn profile(&self) -> Profile {
         self.profile
@@ -707,17 +718,20 @@ pub enum Problem {
     Increments {
         /// The value in units.
         value: f64,
-        /// The scaled value.
-        increments: f64,
+        /// The scaled value, exactly.
+        increments: Decimal,
     },
     /// A value below one increment (per second...) after scaling: the drive would see 0.
     #[error("{value} units are {increments} increments, less than one")]
     BelowOneIncrement {
         /// The value in units.
         value: f64,
-        /// The scaled value.
-        increments: f64,
+        /// The scaled value, exactly.
+        increments: Decimal,
     },
+    /// An `increments_per_unit` that is not an exact scale.
+    #[error("{0}")]
+    Scale(ScaleError),
     /// A value above the axis's limit.
     #[error("{value} exceeds the axis limit {limit}")]
     OverLimit {
@@ -1599,7 +1613,8 @@ impl Config {
             }
             (GroupRecordMode::Force, Some(f)) => {
                 if f.is_finite() && f != 0.0 && (-300.0..=300.0).contains(&f) {
-                    rec.force_permille = (f * 10.0).round() as i32;
+                    // Within ±300 %: at most ±3000 ‰.
+                    rec.force_permille = PERMILLE_PER_PERCENT.to_inc(f).unwrap_or(0) as i32;
                 } else {
                     err.push(
                         format!("{key}.force"),
@@ -1782,22 +1797,18 @@ impl Config {
         if !ok {
             return None;
         }
+        // `check` refused the axis's scale if it is not one.
+        let axis_scale = axis.scale().ok()?;
         let (quantity, scale, bound) = match s.condition {
-            ConditionKind::Velocity => (
-                Quantity::Velocity,
-                axis.increments_per_unit,
-                u32::MAX as f64,
-            ),
-            ConditionKind::Force => (Quantity::Force, 10.0, 3000.0),
-            _ => (
-                Quantity::Position,
-                axis.increments_per_unit,
-                i32::MAX as f64,
-            ),
+            ConditionKind::Velocity => (Quantity::Velocity, axis_scale, i128::from(u32::MAX)),
+            ConditionKind::Force => (Quantity::Force, PERMILLE_PER_PERCENT, 3000),
+            _ => (Quantity::Position, axis_scale, i128::from(i32::MAX)),
         };
         let mut scaled = [0i64; 2];
         for (slot, (k, v)) in scaled.iter_mut().zip([("min", min), ("max", max)]) {
-            let inc = (v * scale).round();
+            // Finite (checked above): the exact product and its rounding exist.
+            let exact = scale.increments(v).unwrap_or(Decimal::ZERO);
+            let inc = exact.round().unwrap_or(i128::MAX);
             if inc.abs() > bound {
                 let problem = if s.condition == ConditionKind::Force {
                     Problem::Range {
@@ -1808,13 +1819,13 @@ impl Config {
                 } else {
                     Problem::Increments {
                         value: v,
-                        increments: inc,
+                        increments: exact,
                     }
                 };
                 err.push(format!("{key}.{k}"), problem);
                 ok = false;
             }
-            *slot = inc as i64;
+            *slot = inc.clamp(-bound, bound) as i64;
         }
         let damping = Duration::from_millis(s.damping_ms.unwrap_or(0).into());
         ok.then_some(StepCondition::Comparator {
@@ -1936,41 +1947,52 @@ fn target(rc: &GroupRecordConfig, axis: &AxisConfig, v: f64) -> Result<AxisTarge
             return Err(Problem::Range { value: v, min, max });
         }
     }
-    let inc = (v * axis.increments_per_unit).round();
-    if !(i32::MIN as f64..=i32::MAX as f64).contains(&inc) {
-        return Err(Problem::Increments {
+    // A scale that is not one is refused once, on the axis's key; the table is not used then.
+    let Ok(scale) = axis.scale() else {
+        return Ok(AxisTarget::Keep);
+    };
+    let exact = scale.increments(v).ok_or(Problem::NotFinite(v))?;
+    let inc = exact
+        .round()
+        .and_then(|i| i32::try_from(i).ok())
+        .ok_or(Problem::Increments {
             value: v,
-            increments: inc,
-        });
-    }
+            increments: exact,
+        })?;
     Ok(if rc.relative {
-        AxisTarget::Relative(inc as i64)
+        AxisTarget::Relative(inc.into())
     } else {
-        AxisTarget::Absolute(inc as i64)
+        AxisTarget::Absolute(inc.into())
     })
 }
 
 /// Checks the scaling and the limits of one axis, in units and in increments.
 fn check_scaling(key: &str, a: &AxisConfig, err: &mut Errors) {
-    let scale_ok = err.positive(&format!("{key}.increments_per_unit"), a.increments_per_unit);
+    let scale = a
+        .scale()
+        .map_err(|e| err.push(format!("{key}.increments_per_unit"), Problem::Scale(e)))
+        .ok();
     if let Some(fe) = a.following_error {
         err.positive(&format!("{key}.following_error"), fe);
     }
     let l = &a.limits;
     let lk = format!("{key}.limits");
-    let scaled = |v: f64| v * a.increments_per_unit;
+    // The exact increments of a finite value (compared exactly with the drive's range).
+    let scaled = |v: f64| scale.and_then(|s| s.increments(v));
     for (name, v) in [
         ("position_min", l.position_min),
         ("position_max", l.position_max),
     ] {
         if !v.is_finite() {
             err.push(format!("{lk}.{name}"), Problem::NotFinite(v));
-        } else if scale_ok && !(i32::MIN as f64..=i32::MAX as f64).contains(&scaled(v)) {
+        } else if let Some(inc) = scaled(v)
+            && (inc.cmp_int(i32::MIN.into()).is_lt() || inc.cmp_int(i32::MAX.into()).is_gt())
+        {
             err.push(
                 format!("{lk}.{name}"),
                 Problem::Increments {
                     value: v,
-                    increments: scaled(v),
+                    increments: inc,
                 },
             );
         }
@@ -1992,11 +2014,11 @@ fn check_scaling(key: &str, a: &AxisConfig, err: &mut Errors) {
     ] {
         let Some(v) = v else { continue };
         let k = format!("{lk}.{name}");
-        if !err.positive(&k, v) || !scale_ok {
+        if !err.positive(&k, v) {
             continue;
         }
-        let inc = scaled(v);
-        if inc < 1.0 {
+        let Some(inc) = scaled(v) else { continue };
+        if inc.cmp_int(1).is_lt() {
             err.push(
                 k,
                 Problem::BelowOneIncrement {
@@ -2004,7 +2026,7 @@ fn check_scaling(key: &str, a: &AxisConfig, err: &mut Errors) {
                     increments: inc,
                 },
             );
-        } else if inc > u32::MAX as f64 {
+        } else if inc.cmp_int(u32::MAX.into()).is_gt() {
             err.push(
                 k,
                 Problem::Increments {
@@ -2268,6 +2290,17 @@ mod tests {
             (
                 &[("increments_per_unit = 100.0", "increments_per_unit = 0.001")],
                 "axes[3].limits.velocity: 90 units are 0.09 increments, less than one",
+            ),
+            (
+                &[(
+                    "increments_per_unit = 100.0",
+                    "increments_per_unit = 45.51111111111111",
+                )],
+                "axes[3].increments_per_unit: 45.51111111111111 has 14 decimal places; an exact scale takes at most 12 (as in 400.0, 12.8 or 0.5)",
+            ),
+            (
+                &[("increments_per_unit = 100.0", "increments_per_unit = 2e9")],
+                "axes[3].increments_per_unit: 2000000000 is above 1000000000 increments per unit",
             ),
             (
                 &[("simulated = true", "simulated = true\nbus = \"can0\"")],
@@ -2906,7 +2939,8 @@ mod tests {
                     .iter()
                     .map(|n| {
                         let a = c.axes.iter().find(|a| &a.name == n).unwrap();
-                        (a.limits.velocity * a.increments_per_unit * 0.002) as i64
+                        // One 2 ms cycle at the velocity limit.
+                        a.scale().unwrap().to_inc(a.limits.velocity).unwrap() * 2 / 1000
                     })
                     .collect();
                 G {

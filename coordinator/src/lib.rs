@@ -2,7 +2,8 @@
 //! values, advances every axis, evaluates comparators and record chains, computes synchronised
 //! multi-axis setpoints in fixed point and writes them back.
 //!
-//! The `no_std` core: [`axis`] (FHPP and CiA 402 master-side state machines), [`profile`]
+//! The `no_std` core: [`units`] (an axis's exact scale and the conversions between user units,
+//! µunits and increments), [`axis`] (FHPP and CiA 402 master-side state machines), [`profile`]
 //! (trapezoidal and jerk-limited profiles, time-synchronised group moves, fixed point), [`ids`]
 //! (the indices every module shares), [`admission`] (which command each activity allows),
 //! [`comparator`] and [`records`] (host-side record chains across axes), [`budget`] (the
@@ -32,5 +33,6 @@ pub mod profile;
 pub mod records;
 #[cfg(feature = "std")]
 pub mod runtime;
+pub mod units;
 
 pub use drivers;

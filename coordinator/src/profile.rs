@@ -7,20 +7,24 @@
 //! # How it works
 //!
 //! Every move, single-axis or group, is one *path*: a normalised path parameter `s` runs from 0
-//! to [`PATH_ONE`] and axis `i` sits at `start[i] + delta[i] * s / PATH_ONE` (rounded to the
+//! to [`PathPos::END`] and axis `i` sits at `start[i] + delta[i] * s / 2^64` (rounded to the
 //! nearest increment). All axes share `s`, so they start in the same cycle, stay on the straight
 //! line in joint space (within half an increment) and arrive in the same cycle; a single axis is
 //! a group of one. The profile of `s` is planned with the tightest per-axis limits converted to
-//! path units (`limit[i] * PATH_ONE / |delta[i]|`), so no axis exceeds its own limits; the
+//! path units (`limit[i] * 2^64 / |delta[i]|`), so no axis exceeds its own limits; the
 //! group's duration is therefore the slowest axis' duration when one axis is binding, and longer
 //! only when different axes bind different limits (no straight-line move can be faster).
 //!
 //! # Units and fixed point
 //!
+//! The formats are named types, each written once ([`fixed_point`]):
+//!
 //! * Positions: increments (`i64`), limited to ±[`MAX_POSITION`].
-//! * Time: cycles in Q16 ([`TIME_ONE`] = one cycle); phase boundaries need not fall on cycles.
-//! * Path: `s` in sub-units, [`PATH_ONE`] = 2^64 for the whole move; path velocity,
-//!   acceleration and jerk are in sub-units per cycle^n with [`COEF_BITS`] = 32 fractional bits.
+//! * Time: [`Time`], cycles in Q16 ([`Time::ONE`] = one cycle); phase boundaries need not fall
+//!   on cycles.
+//! * Path: `s` is a [`PathPos`] in sub-units, [`PathPos::END`] = 2^64 for the whole move; path
+//!   velocity, acceleration and jerk are [`PathRate`]s, sub-units per cycle^n with 32
+//!   fractional bits. Path limits ([`PathLimits`]) are whole sub-units per cycle^n.
 //! * Limits given per axis in inc/s, inc/s², inc/s³ with the cycle in ns.
 //!
 //! # Limits and exactness
@@ -56,16 +60,15 @@
 //! assert!(m.sample(n / 2).velocity <= 50_000);
 //! ```
 
-/// Fractional bits of the path parameter: the whole move is 2^64 sub-units.
-pub const PATH_BITS: u32 = 64;
-/// The whole path in sub-units.
-pub const PATH_ONE: i128 = 1 << PATH_BITS;
-/// Fractional bits of time (in cycles).
-pub const TIME_BITS: u32 = 16;
-/// One cycle in Q16 time.
-pub const TIME_ONE: i64 = 1 << TIME_BITS;
-/// Fractional bits of path velocity, acceleration and jerk coefficients.
-pub const COEF_BITS: u32 = 32;
+pub mod fixed_point;
+
+pub use fixed_point::{PathPos, PathRate, Time};
+
+/// Fractional bits of time (in cycles), for the planner's raw Q16 durations.
+const TIME_BITS: u32 = Time::BITS;
+/// Fractional bits of path rates, for the planner's raw Q32 peaks.
+const COEF_BITS: u32 = PathRate::BITS;
+
 /// Longest move, in cycles (keeps every product inside `i128`).
 pub const MAX_CYCLES: i64 = 1 << 31;
 /// Largest position magnitude, increments (keeps `delta * s` inside `i128`).
@@ -207,14 +210,14 @@ pub struct PathLimits {
 /// The path state at one instant.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PathSample {
-    /// Path parameter, sub-units (0 ..= [`PATH_ONE`]).
-    pub s: i128,
-    /// Path velocity, sub-units per cycle, Q32.
-    pub v: i128,
-    /// Path acceleration, sub-units per cycle², Q32.
-    pub a: i128,
-    /// Path jerk, sub-units per cycle³, Q32.
-    pub j: i128,
+    /// Path parameter (0 ..= [`PathPos::END`]).
+    pub s: PathPos,
+    /// Path velocity, sub-units per cycle.
+    pub v: PathRate,
+    /// Path acceleration, sub-units per cycle².
+    pub a: PathRate,
+    /// Path jerk, sub-units per cycle³.
+    pub j: PathRate,
 }
 
 /// One axis' setpoint at one cycle.
@@ -233,11 +236,11 @@ pub struct Sample {
 /// One polynomial piece of a segment: constant jerk from `t0`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 struct Phase {
-    t0: i64,
-    s0: i128,
-    v0: i128,
-    a0: i128,
-    j: i128,
+    t0: Time,
+    s0: PathPos,
+    v0: PathRate,
+    a0: PathRate,
+    j: PathRate,
 }
 
 /// A planned piece of path: up to 7 constant-jerk phases from `start` to `end`.
@@ -245,13 +248,9 @@ struct Phase {
 pub struct Segment {
     phases: [Phase; 7],
     count: usize,
-    start: i128,
-    end: i128,
-    duration: i64,
-}
-
-fn mul_shift(a: i128, b: i128, sh: u32) -> i128 {
-    a.saturating_mul(b) >> sh
+    start: PathPos,
+    end: PathPos,
+    duration: Time,
 }
 
 fn ceil_div(a: u128, b: u128) -> u128 {
@@ -263,28 +262,29 @@ fn ceil_sqrt(x: u128) -> u128 {
     if r * r < x { r + 1 } else { r }
 }
 
-fn to_i64(x: u128) -> i64 {
-    x.min(i64::MAX as u128) as i64
-}
-
-/// Evaluates a phase `t` (Q16 cycles) after its start: (s, v, a).
-fn eval(p: &Phase, t: i64) -> (i128, i128, i128) {
-    let t = t as i128;
-    let x = p.a0 / 2 + mul_shift(p.j / 6, t, TIME_BITS);
-    let x = p.v0 + mul_shift(x, t, TIME_BITS);
-    let s = p.s0.saturating_add(mul_shift(x, t, TIME_BITS + COEF_BITS));
-    let v = p.v0 + mul_shift(p.a0 + mul_shift(p.j / 2, t, TIME_BITS), t, TIME_BITS);
-    let a = p.a0 + mul_shift(p.j, t, TIME_BITS);
+/// Evaluates a phase `t` after its start: (s, v, a).
+fn eval(p: &Phase, t: Time) -> (PathPos, PathRate, PathRate) {
+    let x = p.a0 / 2 + (p.j / 6).mul_time(t);
+    let x = p.v0 + x.mul_time(t);
+    let s = p.s0.saturating_add(x.over(t));
+    let v = p.v0 + (p.a0 + (p.j / 2).mul_time(t)).mul_time(t);
+    let a = p.a0 + p.j.mul_time(t);
     (s, v, a)
 }
 
-/// A phase: duration (Q16), jerk (Q32), and the acceleration it starts with when it jumps.
-type Spec = (i64, i128, Option<i128>);
+/// A phase: duration, jerk, and the acceleration it starts with when it jumps.
+type Spec = (Time, PathRate, Option<PathRate>);
 
 impl Segment {
-    fn build(start: i128, v0: i128, a0: i128, specs: &[Spec], end: Option<i128>) -> Segment {
+    fn build(
+        start: PathPos,
+        v0: PathRate,
+        a0: PathRate,
+        specs: &[Spec],
+        end: Option<PathPos>,
+    ) -> Segment {
         let mut phases = [Phase::default(); 7];
-        let (mut s, mut v, mut a, mut t) = (start, v0, a0, 0i64);
+        let (mut s, mut v, mut a, mut t) = (start, v0, a0, Time::ZERO);
         let mut count = 0;
         for (slot, &(dur, j, a_set)) in phases.iter_mut().zip(specs) {
             if let Some(x) = a_set {
@@ -310,18 +310,18 @@ impl Segment {
         }
     }
 
-    /// Duration, Q16 cycles.
-    pub fn duration(&self) -> i64 {
+    /// Duration.
+    pub fn duration(&self) -> Time {
         self.duration
     }
 
-    /// Where the segment ends, path sub-units.
-    pub fn end(&self) -> i128 {
+    /// Where the segment ends.
+    pub fn end(&self) -> PathPos {
         self.end
     }
 
-    /// Index of the phase running at `tau` (Q16 cycles).
-    fn phase_at(&self, tau: i64) -> usize {
+    /// Index of the phase running at `tau`.
+    fn phase_at(&self, tau: Time) -> usize {
         let mut i = 0;
         for (k, p) in self.phases[..self.count].iter().enumerate() {
             if p.t0 <= tau {
@@ -331,17 +331,17 @@ impl Segment {
         i
     }
 
-    /// The path state `tau` (Q16 cycles) after the segment's start; O(1) (at most 7 phases).
-    pub fn at(&self, tau: i64) -> PathSample {
+    /// The path state `tau` after the segment's start; O(1) (at most 7 phases).
+    pub fn at(&self, tau: Time) -> PathSample {
         if tau >= self.duration || self.count == 0 {
             return PathSample {
                 s: self.end,
-                v: 0,
-                a: 0,
-                j: 0,
+                v: PathRate::ZERO,
+                a: PathRate::ZERO,
+                j: PathRate::ZERO,
             };
         }
-        let tau = tau.max(0);
+        let tau = tau.max(Time::ZERO);
         let p = &self.phases[self.phase_at(tau)];
         let (s, v, a) = eval(p, tau - p.t0);
         let (lo, hi) = if self.start <= self.end {
@@ -379,9 +379,15 @@ fn ramp(v: u128, a: u128, j: Option<u128>) -> (u128, u128) {
 }
 
 /// Plans a rest-to-rest segment over `len` path sub-units from `start`.
-fn plan_move(start: i128, len: u128, lim: &PathLimits) -> Result<Segment, PlanError> {
+fn plan_move(start: PathPos, len: u128, lim: &PathLimits) -> Result<Segment, PlanError> {
     if len == 0 {
-        return Ok(Segment::build(start, 0, 0, &[], Some(start)));
+        return Ok(Segment::build(
+            start,
+            PathRate::ZERO,
+            PathRate::ZERO,
+            &[],
+            Some(start),
+        ));
     }
     let (am, dm, jm) = (lim.acceleration, lim.deceleration, lim.jerk);
     let len17 = len << (TIME_BITS + 1);
@@ -431,42 +437,54 @@ fn plan_move(start: i128, len: u128, lim: &PathLimits) -> Result<Segment, PlanEr
     };
     let (ja, jd) = (jerk(tj, ta), jerk(tjd, td));
     let (aa, ad) = (accel(tj, ta), accel(tjd, td));
-    let (tj, ta, tv, tjd, td) = (tj as i64, ta as i64, tv as i64, tjd as i64, td as i64);
+    let (ja, jd, aa, ad) = (
+        PathRate::from_raw(ja),
+        PathRate::from_raw(jd),
+        PathRate::from_raw(aa),
+        PathRate::from_raw(ad),
+    );
+    let q16 = |t: u128| Time::from_raw(t as i64);
+    let (tj, ta, tv, tjd, td) = (q16(tj), q16(ta), q16(tv), q16(tjd), q16(td));
+    let (zero, none) = (Time::ZERO, PathRate::ZERO);
     let specs: [Spec; 7] = if jm.is_some() {
         [
-            (tj, ja, Some(0)),
-            (ta, 0, None),
+            (tj, ja, Some(none)),
+            (ta, none, None),
             (tj, -ja, None),
-            (tv, 0, Some(0)),
-            (tjd, -jd, Some(0)),
-            (td, 0, None),
+            (tv, none, Some(none)),
+            (tjd, -jd, Some(none)),
+            (td, none, None),
             (tjd, jd, None),
         ]
     } else {
         [
-            (0, 0, None),
-            (ta, 0, Some(aa)),
-            (0, 0, None),
-            (tv, 0, Some(0)),
-            (0, 0, None),
-            (td, 0, Some(-ad)),
-            (0, 0, None),
+            (zero, none, None),
+            (ta, none, Some(aa)),
+            (zero, none, None),
+            (tv, none, Some(none)),
+            (zero, none, None),
+            (td, none, Some(-ad)),
+            (zero, none, None),
         ]
     };
     Ok(Segment::build(
         start,
-        0,
-        0,
+        PathRate::ZERO,
+        PathRate::ZERO,
         &specs,
-        Some(start + len as i128),
+        Some(PathPos::from_raw(start.raw() + len as i128)),
     ))
 }
 
 /// Plans a stop along the path from `now` with deceleration and jerk of `lim`, ending at or
 /// before `limit`.
-fn plan_stop(now: PathSample, lim: &PathLimits, limit: i128) -> Segment {
-    let vq = now.v.max(0);
+fn plan_stop(now: PathSample, lim: &PathLimits, limit: PathPos) -> Segment {
+    // Raw Q16 durations and Q32 rates from here to the phases.
+    let vq = now.v.max(PathRate::ZERO).raw();
     let dm = lim.deceleration.max(1);
+    let q16 = |t: u128| Time::from_raw(t as i64);
+    let q32 = PathRate::from_raw;
+    let none = PathRate::ZERO;
     let specs: [Spec; 3] = match lim.jerk {
         None => {
             let t = ceil_div((vq as u128) << TIME_BITS, dm << COEF_BITS);
@@ -475,12 +493,16 @@ fn plan_stop(now: PathSample, lim: &PathLimits, limit: i128) -> Segment {
             } else {
                 (vq << TIME_BITS) / t as i128
             };
-            [(t as i64, 0, Some(-d)), (0, 0, None), (0, 0, None)]
+            [
+                (q16(t), none, Some(q32(-d))),
+                (Time::ZERO, none, None),
+                (Time::ZERO, none, None),
+            ]
         }
         Some(jm) => {
             let jm = jm.max(1);
             let v = (vq >> COEF_BITS) as u128;
-            let aq = now.a;
+            let aq = now.a.raw();
             let a_abs = (aq.unsigned_abs()) >> COEF_BITS;
             let x = jm.saturating_mul(v).saturating_add(a_abs * a_abs / 2);
             let (mut ap, mut t2) = (x.isqrt(), 0u128);
@@ -515,39 +537,26 @@ fn plan_stop(now: PathSample, lim: &PathLimits, limit: i128) -> Segment {
                 (apq << TIME_BITS) / t3 as i128
             };
             [
-                (t1 as i64, -j1, Some(aq)),
-                (t2 as i64, 0, Some(-apq)),
-                (t3 as i64, j3, Some(-apq)),
+                (q16(t1), q32(-j1), Some(q32(aq))),
+                (q16(t2), none, Some(q32(-apq))),
+                (q16(t3), q32(j3), Some(q32(-apq))),
             ]
         }
     };
-    let mut seg = Segment::build(now.s, vq, now.a, &specs, None);
+    let mut seg = Segment::build(now.s, q32(vq), now.a, &specs, None);
     seg.end = seg.end.clamp(now.s, limit.max(now.s));
     seg
 }
 
-/// Converts an axis limit to path units: `lim * PATH_ONE / dist * (cycle / 1 s)^power`,
+/// Converts an axis limit to path units: `lim * 2^64 / dist * (cycle / 1 s)^power`,
 /// truncated, capped at 2^62.
 fn scale_limit(lim: u64, dist: u128, cycle_ns: u32, power: u32) -> u128 {
-    let mut r = (lim as u128).min(LIMIT_CAP) * (PATH_ONE as u128) / dist;
+    let mut r = (lim as u128).min(LIMIT_CAP) * (PathPos::END.raw() as u128) / dist;
     let c = cycle_ns as u128;
     for _ in 0..power {
         r = r / NS_PER_S * c + (r % NS_PER_S) * c / NS_PER_S;
     }
     r.min(LIMIT_CAP)
-}
-
-/// Converts a path quantity (Q32 sub-units per cycle^power) to inc/s^power for an axis moving
-/// `delta`, truncated towards zero.
-fn axis_rate(delta: i64, q: i128, cycle_ns: u32, power: u32) -> i64 {
-    let neg = (delta < 0) != (q < 0);
-    let mut r = ((delta.unsigned_abs() as u128).saturating_mul(q.unsigned_abs() >> 16)) >> 64;
-    // r is Q16 inc/cycle^power.
-    for _ in 0..power {
-        r = r.saturating_mul(NS_PER_S) / cycle_ns as u128;
-    }
-    let r = to_i64(r >> 16);
-    if neg { -r } else { r }
 }
 
 /// What a group is doing.
@@ -575,10 +584,12 @@ pub struct PathMove<const N: usize> {
     quick: PathLimits,
     plan: Segment,
     seg: Segment,
-    tau: i64,
-    rate: i64,
-    rate_target: i64,
-    rate_step: i64,
+    /// Path time in the current segment.
+    tau: Time,
+    /// Path time per cycle (the override; `Time::ONE` at 100 %), its target and ramp step.
+    rate: Time,
+    rate_target: Time,
+    rate_step: Time,
     state: MoveState,
     cycle: u64,
 }
@@ -669,9 +680,9 @@ impl<const N: usize> PathMove<N> {
         let len = if delta.iter().all(|&d| d == 0) {
             0
         } else {
-            PATH_ONE as u128
+            PathPos::END.raw() as u128
         };
-        let plan = plan_move(0, len, &limits)?;
+        let plan = plan_move(PathPos::ZERO, len, &limits)?;
         Ok(PathMove {
             start,
             delta,
@@ -680,12 +691,14 @@ impl<const N: usize> PathMove<N> {
             quick,
             plan,
             seg: plan,
-            tau: 0,
-            rate: TIME_ONE,
-            rate_target: TIME_ONE,
+            tau: Time::ZERO,
+            rate: Time::ONE,
+            rate_target: Time::ONE,
             // A 100 % change in v_max / a_max: the v * dr/dt term stays within a_max.
-            rate_step: ((TIME_ONE as u128 * limits.acceleration) / limits.velocity.max(1))
-                .clamp(1, TIME_ONE as u128) as i64,
+            rate_step: Time::from_raw(
+                ((Time::ONE.raw() as u128 * limits.acceleration) / limits.velocity.max(1))
+                    .clamp(1, Time::ONE.raw() as u128) as i64,
+            ),
             state: if len == 0 {
                 MoveState::Done
             } else {
@@ -703,7 +716,7 @@ impl<const N: usize> PathMove<N> {
     /// The arrival cycle of the plan (without override or hold): the first cycle whose sample
     /// is exactly the target.
     pub fn duration_cycles(&self) -> u64 {
-        (self.plan.duration as u64).div_ceil(TIME_ONE as u64)
+        self.plan.duration.ceil_cycles()
     }
 
     /// The target positions, increments.
@@ -713,8 +726,8 @@ impl<const N: usize> PathMove<N> {
 
     /// The planned path at cycle `k` after the start (no override, no hold); O(1).
     pub fn path_at(&self, k: u64) -> PathSample {
-        let tau = k.min(MAX_CYCLES as u64 + 1) as i64 * TIME_ONE;
-        self.plan.at(tau)
+        self.plan
+            .at(Time::cycles(k.min(MAX_CYCLES as u64 + 1) as i64))
     }
 
     /// The planned setpoints at cycle `k` after the start (no override, no hold); O(1).
@@ -722,15 +735,13 @@ impl<const N: usize> PathMove<N> {
         self.samples(self.path_at(k))
     }
 
-    /// The axis positions for path parameter `s` (sub-units).
-    pub fn positions(&self, s: i128) -> [i64; N] {
+    /// The axis positions at path parameter `s`.
+    pub fn positions(&self, s: PathPos) -> [i64; N] {
         core::array::from_fn(|i| self.position(i, s))
     }
 
-    fn position(&self, i: usize, s: i128) -> i64 {
-        let d = self.delta[i] as i128;
-        let p = (d * s + (PATH_ONE >> 1)) >> PATH_BITS;
-        self.start[i] + p as i64
+    fn position(&self, i: usize, s: PathPos) -> i64 {
+        self.start[i] + s.of(self.delta[i])
     }
 
     fn samples(&self, p: PathSample) -> [Sample; N] {
@@ -738,9 +749,9 @@ impl<const N: usize> PathMove<N> {
             let d = self.delta[i];
             Sample {
                 position: self.position(i, p.s),
-                velocity: axis_rate(d, p.v, self.cycle_ns, 1),
-                acceleration: axis_rate(d, p.a, self.cycle_ns, 2),
-                jerk: axis_rate(d, p.j, self.cycle_ns, 3),
+                velocity: p.v.per_second(d, self.cycle_ns, 1),
+                acceleration: p.a.per_second(d, self.cycle_ns, 2),
+                jerk: p.j.per_second(d, self.cycle_ns, 3),
             }
         })
     }
@@ -766,21 +777,21 @@ impl<const N: usize> PathMove<N> {
         if percent > MAX_OVERRIDE {
             return Err(CommandError::Override(percent));
         }
-        self.rate_target = percent as i64 * TIME_ONE / 100;
+        self.rate_target = Time::from_raw(percent as i64 * Time::ONE.raw() / 100);
         Ok(())
     }
 
     /// Sets how many cycles the override takes to ramp by 100 % (at least 1; default: the
     /// plan's `v_max / a_max`).
     pub fn set_override_ramp(&mut self, cycles: u32) {
-        self.rate_step = (TIME_ONE / cycles.max(1) as i64).max(1);
+        self.rate_step = Time::from_raw((Time::ONE.raw() / cycles.max(1) as i64).max(1));
     }
 
     /// Decelerates along the path to a stop with the planned deceleration and jerk.
     pub fn hold(&mut self) {
         if self.state == MoveState::Moving && self.seg.phase_at(self.tau) < 4 {
-            self.seg = plan_stop(self.path(), &self.limits, PATH_ONE);
-            self.tau = 0;
+            self.seg = plan_stop(self.path(), &self.limits, PathPos::END);
+            self.tau = Time::ZERO;
             self.state = MoveState::Holding;
         }
     }
@@ -791,8 +802,8 @@ impl<const N: usize> PathMove<N> {
             self.state,
             MoveState::Moving | MoveState::Holding | MoveState::QuickStopping
         ) {
-            self.seg = plan_stop(self.path(), &self.quick, PATH_ONE);
-            self.tau = 0;
+            self.seg = plan_stop(self.path(), &self.quick, PathPos::END);
+            self.tau = Time::ZERO;
             self.state = MoveState::QuickStopping;
         }
     }
@@ -803,10 +814,10 @@ impl<const N: usize> PathMove<N> {
             return Err(CommandError::NotStopped(self.state));
         }
         let s = self.seg.end;
-        let len = (PATH_ONE - s).max(0) as u128;
+        let len = (PathPos::END - s).raw().max(0) as u128;
         // A resumed move is never longer than the whole plan, so this cannot fail.
         self.seg = plan_move(s, len, &self.limits).unwrap_or(self.seg);
-        self.tau = 0;
+        self.tau = Time::ZERO;
         self.state = MoveState::Moving;
         Ok(())
     }
@@ -825,7 +836,7 @@ impl<const N: usize> PathMove<N> {
         for (i, o) in out.iter_mut().enumerate().take(N) {
             *o = (
                 self.position(i, p.s),
-                axis_rate(self.delta[i], p.v, self.cycle_ns, 1),
+                p.v.per_second(self.delta[i], self.cycle_ns, 1),
             );
         }
     }
@@ -846,7 +857,7 @@ impl<const N: usize> PathMove<N> {
             self.state = match self.state {
                 MoveState::Holding | MoveState::QuickStopping => MoveState::Stopped,
                 MoveState::Moving => {
-                    if self.seg.end >= PATH_ONE {
+                    if self.seg.end >= PathPos::END {
                         MoveState::Done
                     } else {
                         MoveState::Stopped
@@ -856,15 +867,10 @@ impl<const N: usize> PathMove<N> {
             };
         }
         // Time scaling: v * r, a * r² + v * dr, j * r³ (r = rate per cycle).
-        let r = self.rate as i128;
-        let dr = (self.rate - before) as i128;
-        p.a = mul_shift(mul_shift(p.a, r, TIME_BITS), r, TIME_BITS) + mul_shift(p.v, dr, TIME_BITS);
-        p.j = mul_shift(
-            mul_shift(mul_shift(p.j, r, TIME_BITS), r, TIME_BITS),
-            r,
-            TIME_BITS,
-        );
-        p.v = mul_shift(p.v, r, TIME_BITS);
+        let (r, dr) = (self.rate, self.rate - before);
+        p.a = p.a.mul_time(r).mul_time(r) + p.v.mul_time(dr);
+        p.j = p.j.mul_time(r).mul_time(r).mul_time(r);
+        p.v = p.v.mul_time(r);
         p
     }
 }
@@ -965,11 +971,11 @@ mod tests {
         let mut prev: Option<[Sample; N]> = None;
         // Last three positions per axis, for the second and third differences.
         let mut hist = [[0i64; 3]; N];
-        let mut prev_s = -1;
+        let mut prev_s = PathPos::from_raw(-1);
         for k in 0..=n + 3 {
             let p = g.path_at(k);
             assert!(p.s >= prev_s, "path goes back at cycle {k}");
-            assert!(p.s <= PATH_ONE);
+            assert!(p.s <= PathPos::END);
             prev_s = p.s;
             let smp = g.sample(k);
             for i in 0..N {
@@ -1023,7 +1029,7 @@ mod tests {
             }
             if k + 1 == n && n > 0 {
                 assert!(
-                    g.path_at(k).s < PATH_ONE,
+                    g.path_at(k).s < PathPos::END,
                     "arrives before its arrival cycle"
                 );
             }

@@ -73,13 +73,13 @@ fn axis(run: &VirtualRun<'_>, a: usize) -> coordinator::cycle::AxisStatus {
 fn group_targets(plan: &MachinePlan, units: &[(usize, f64)]) -> [i64; MAX_GROUP_AXES] {
     let mut p = [0i64; MAX_GROUP_AXES];
     for (i, &(a, u)) in units.iter().enumerate() {
-        p[i] = (u * plan.axes[a].scale) as i64;
+        p[i] = plan.axes[a].scale.to_inc(u).unwrap();
     }
     p
 }
 
 fn inc(plan: &MachinePlan, a: usize, units: f64) -> i64 {
-    (units * plan.axes[a].scale) as i64
+    plan.axes[a].scale.to_inc(units).unwrap()
 }
 
 #[test]

@@ -83,8 +83,8 @@ fn a_group_move_starts_together_and_arrives_in_the_same_cycle() {
     let g = plan.group("gantry").unwrap() as u16;
     let x = plan.axis("x").unwrap();
     let y = plan.axis("y").unwrap();
-    let tx = (150.0 * plan.axes[x].scale) as i64;
-    let ty = (120.0 * plan.axes[y].scale) as i64;
+    let tx = plan.axes[x].scale.to_inc(150.0).unwrap();
+    let ty = plan.axes[y].scale.to_inc(120.0).unwrap();
     let mut positions = [0i64; MAX_GROUP_AXES];
     positions[0] = tx;
     positions[1] = ty;
@@ -150,7 +150,7 @@ fn a_bad_group_move_is_refused_whole_and_nothing_moves() {
     let x = plan.axis("x").unwrap() as u16;
     let before = run.stepper.cycle.axis_status(x).unwrap().setpoint;
     let mut positions = [0i64; MAX_GROUP_AXES];
-    positions[0] = (100.0 * plan.axes[x as usize].scale) as i64;
+    positions[0] = plan.axes[x as usize].scale.to_inc(100.0).unwrap();
     positions[1] = 10_000_000; // y far beyond its 250 mm
     let r = run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
@@ -194,8 +194,14 @@ fn fault_reaction(
     let mut run = ready(&plan);
     let g = plan.group("gantry").unwrap() as u16;
     let mut positions = [0i64; MAX_GROUP_AXES];
-    positions[0] = (300.0 * plan.axes[plan.axis("x").unwrap()].scale) as i64;
-    positions[1] = (200.0 * plan.axes[plan.axis("y").unwrap()].scale) as i64;
+    positions[0] = plan.axes[plan.axis("x").unwrap()]
+        .scale
+        .to_inc(300.0)
+        .unwrap();
+    positions[1] = plan.axes[plan.axis("y").unwrap()]
+        .scale
+        .to_inc(200.0)
+        .unwrap();
     latched(run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions,
@@ -458,8 +464,8 @@ fn the_gantry_chain_steps_on_its_comparator_then_waits_for_the_lift() {
                 .axis_status(x as u16)
                 .unwrap()
                 .feedback
-                .position as f64
-                / plan.axes[x].scale;
+                .position;
+            let pos = plan.axes[x].scale.to_units(pos);
             stepped_at = Some(pos);
             assert!(st.chain.rc1, "RC1 once the first step condition is met");
             break;
@@ -624,8 +630,11 @@ fn hold_and_resume_continue_the_move_to_its_target() {
     let g = plan.group("gantry").unwrap() as u16;
     let x = plan.axis("x").unwrap();
     let mut positions = [0i64; MAX_GROUP_AXES];
-    positions[0] = (350.0 * plan.axes[x].scale) as i64;
-    positions[1] = (200.0 * plan.axes[plan.axis("y").unwrap()].scale) as i64;
+    positions[0] = plan.axes[x].scale.to_inc(350.0).unwrap();
+    positions[1] = plan.axes[plan.axis("y").unwrap()]
+        .scale
+        .to_inc(200.0)
+        .unwrap();
     latched(run.stepper.cycle.command(&Command::MoveGroup {
         group: g,
         positions,

@@ -218,7 +218,7 @@ fn events_faults_and_states_have_words() {
     };
     assert_eq!(describe(fe), "following error 2500 inc > 1000 inc");
     assert_eq!(
-        describe_in(fe, "mm", 1000.0),
+        describe_in(fe, "mm", coordinator::units::Scale::integer(1000)),
         "following error 2.500 mm > limit 1.000 mm (2500 inc > 1000 inc)"
     );
     assert_eq!(FaultReason::LateTpdo(3).to_string(), "no TPDO for 3 cycles");

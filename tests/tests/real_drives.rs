@@ -33,7 +33,7 @@ const PATIENCE: Duration = Duration::from_secs(90);
 /// Replies to commands.
 const REPLY: Duration = Duration::from_secs(5);
 /// One millimetre in µunits (the contract's positions).
-const MM: i64 = 1_000_000;
+const MM: i64 = shm_api::contract::MICRO;
 /// The machines' cycle, µs. The coordinator faults a drive after three cycles without its
 /// TPDO, and these drives are processes of a shared host: on this 2-CPU VM (kernel with
 /// preempt=none, other builds running) a SCHED_FIFO thread was measured waiting up to 20 ms.

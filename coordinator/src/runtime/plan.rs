@@ -1,6 +1,6 @@
 //! From a checked configuration to what the cycle and the boot need: axis and group setups in
-//! increments, record tables, boot plans. Floating point (user units) ends here; the cycle sees
-//! integers only.
+//! increments, record tables, boot plans. Floating point (user units) ends here, converted by
+//! each axis's exact [`Scale`]; the cycle sees integers only.
 
 use std::time::Duration;
 
@@ -14,6 +14,7 @@ use crate::fault::Reaction;
 use crate::profile::{AxisLimits, Shape};
 use crate::records::RecordTable;
 use crate::runtime::boot::{self, BootPlan, PdoPlan, SupervisionPlan};
+use crate::units::Scale;
 use drivers::canopen::pdo::PdoDirection;
 
 pub use crate::config::{MAX_AXES, MAX_BUSES, MAX_GROUPS};
@@ -25,8 +26,8 @@ pub struct AxisPlan {
     pub name: String,
     /// The user unit.
     pub unit: String,
-    /// Increments per unit.
-    pub scale: f64,
+    /// Increments per unit, exactly.
+    pub scale: Scale,
     /// The cycle's setup.
     pub setup: AxisSetup,
     /// The boot plan (CANopen axes).
@@ -135,12 +136,12 @@ impl MachinePlan {
     }
 }
 
-fn inc(v: f64, scale: f64) -> u64 {
-    (v * scale).round().clamp(0.0, u64::MAX as f64) as u64
+/// A positive value (checked) in increments (per second^n), saturated at `i64::MAX`.
+fn inc(v: f64, scale: Scale) -> u64 {
+    scale.to_inc(v).map_or(i64::MAX as u64, |i| i.max(0) as u64)
 }
 
-fn limits(a: &AxisConfig) -> AxisLimits {
-    let s = a.increments_per_unit;
+fn limits(a: &AxisConfig, s: Scale) -> AxisLimits {
     let l = &a.limits;
     // Without a jerk limit the group is trapezoidal and the jerk is unused; keep it non-zero.
     let jerk = l.jerk.map_or(u64::MAX >> 8, |j| inc(j, s).max(1));
@@ -223,10 +224,12 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     let mut axes = Vec::new();
     let mut modbus_slot = 0u8;
     for a in &cfg.axes {
-        let s = a.increments_per_unit;
+        let s = a
+            .scale()
+            .map_err(|e| format!("axes.{}.increments_per_unit: {e}", a.name))?;
         let k = a.device.axis_kind();
         let p: Profile = a.profile().into();
-        let lim = limits(a);
+        let lim = limits(a, s);
         let (transport, sup, boot) = if a.device.is_modbus() {
             let slot = modbus_slot;
             modbus_slot += 1;
@@ -312,7 +315,8 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             .map(|r| DriveRecordPlan {
                 // `check` kept numbers within the device's table (at most 64).
                 number: r.number.min(255) as u8,
-                position: (r.position * s).round() as i64,
+                // `check` kept it within the axis's limits, so within ±2^31 increments.
+                position: s.to_inc(r.position).unwrap_or(0),
                 relative: r.relative,
                 velocity: inc(r.velocity, s),
                 acceleration: r.acceleration.map_or(lim.acceleration, |v| inc(v, s)),
@@ -330,8 +334,9 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 transport,
                 supervision: sup,
                 limits: lim,
-                position_min: (a.limits.position_min * s).round() as i64,
-                position_max: (a.limits.position_max * s).round() as i64,
+                // `check` kept both within ±2^31 increments.
+                position_min: s.to_inc(a.limits.position_min).unwrap_or(0),
+                position_max: s.to_inc(a.limits.position_max).unwrap_or(0),
                 following_error: fe,
                 late_cycles: if a.device.is_modbus() { 0 } else { 3 },
                 fpc: a.fpc && axis::fpc_mapping(k, p).is_some(),
@@ -349,7 +354,10 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             records,
             jerk_limit: a.limits.jerk.map(|j| inc(j, s).max(1)),
             // `check` kept the force within 0..=300 %.
-            force_limit_permille: a.limits.force.map(|f| (f * 10.0).round() as u16),
+            force_limit_permille: a
+                .limits
+                .force
+                .map(|f| config::PERMILLE_PER_PERCENT.to_inc(f).unwrap_or(0) as u16),
         });
     }
     let mut tables = cfg.group_tables().map_err(|e| e.to_string())?;

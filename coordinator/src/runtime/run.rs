@@ -111,7 +111,7 @@ pub struct Summary {
     /// The script's last phase.
     pub phase: Option<Phase>,
     /// Per axis: name, unit and increments per unit (to say faults in the axis's unit).
-    pub units: Vec<(String, String, f64)>,
+    pub units: Vec<(String, String, crate::units::Scale)>,
     /// What the capture wrote, a line per bus.
     pub captures: Vec<String>,
 }
@@ -213,12 +213,12 @@ pub fn describe(r: FaultReason) -> String {
 
 /// A fault reason in words, a following error in the axis's own unit (with the increments the
 /// drive counts).
-pub fn describe_in(r: FaultReason, unit: &str, scale: f64) -> String {
+pub fn describe_in(r: FaultReason, unit: &str, scale: crate::units::Scale) -> String {
     match r {
-        FaultReason::FollowingError { error, limit } if scale > 0.0 => format!(
+        FaultReason::FollowingError { error, limit } => format!(
             "following error {:.3} {unit} > limit {:.3} {unit} ({error} inc > {limit} inc)",
-            error as f64 / scale,
-            limit as f64 / scale
+            scale.to_units(error),
+            scale.to_units(limit)
         ),
         _ => r.to_string(),
     }
@@ -342,9 +342,9 @@ pub fn status_lines(plan: &MachinePlan, snap: &Snapshot) -> String {
             a.name,
             fb.state.name(),
             st.activity.name(),
-            fb.position as f64 / a.scale,
+            a.scale.to_units(fb.position),
             a.unit,
-            st.setpoint as f64 / a.scale,
+            a.scale.to_units(st.setpoint),
             a.unit,
             if fb.homed { " homed" } else { "" },
             if st.fault != FaultReason::None {
@@ -464,7 +464,7 @@ pub fn finish_summary<const A: usize, const G: usize>(
             Some((
                 a.name.clone(),
                 a.unit.clone(),
-                s.feedback.position as f64 / a.scale,
+                a.scale.to_units(s.feedback.position),
                 s.feedback.state,
             ))
         })

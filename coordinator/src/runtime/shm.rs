@@ -1,9 +1,9 @@
 //! The coordinator's side of the shared-memory contract (`shm-api`): the machine state written
 //! in place into a loaned sample after every cycle, client commands translated to the cycle's
 //! commands and their answers back, the cycle's events as event records, and the machine's
-//! description ([`describe`]), published once at start. The state's conversions are integer
-//! (user units in millionths, `shm_api::contract::MICRO`), done with per-axis scale factors
-//! computed once at start-up.
+//! description ([`describe`]), published once at start. The conversions are integer (user
+//! units in millionths, `shm_api::contract::MICRO`), done by each axis's exact [`Scale`]
+//! (rounded to nearest, ties away from zero).
 
 use shm_api::contract::{
     self as wire, AxisState as WireAxis, CommandReply, CommandRequest, EventRecord,
@@ -28,8 +28,10 @@ use crate::fault::FaultReason;
 use crate::profile::MoveState as PathState;
 use crate::records::{ChainState, MAX_GROUP_AXES};
 use crate::runtime::plan::{AxisPlan, MachinePlan};
+use crate::units::{MICROS_PER_UNIT, Scale};
 
-const Q: u32 = 32;
+// The scale's µunits are the contract's.
+const _: () = assert!(MICROS_PER_UNIT == wire::MICRO);
 
 /// What does not change during a run: names, units, scale factors, group members, and the
 /// machine's description the command thread publishes.
@@ -59,10 +61,7 @@ impl std::fmt::Debug for Description {
 struct AxisInfo {
     name: [u8; wire::NAME_LEN],
     unit: [u8; wire::UNIT_LEN],
-    /// µunits per increment, Q32.
-    micro_per_inc: i128,
-    /// increments per µunit, Q32.
-    inc_per_micro: i128,
+    scale: Scale,
     fhpp: bool,
     group: Option<u16>,
 }
@@ -77,7 +76,6 @@ struct GroupInfo {
 impl StaticInfo {
     /// The fixed part of the state of `plan`.
     pub fn new(plan: &MachinePlan, virtual_time: bool) -> StaticInfo {
-        let q = f64::from(1u32 << 16) * f64::from(1u32 << 16);
         let axes = plan
             .axes
             .iter()
@@ -85,8 +83,7 @@ impl StaticInfo {
             .map(|(i, a)| AxisInfo {
                 name: name_bytes(&a.name),
                 unit: name_bytes(&a.unit),
-                micro_per_inc: (1e6 / a.scale * q).round() as i128,
-                inc_per_micro: (a.scale / 1e6 * q).round() as i128,
+                scale: a.scale,
                 fhpp: a.setup.profile == crate::axis::Profile::Fhpp,
                 group: plan
                     .groups
@@ -124,34 +121,24 @@ impl StaticInfo {
         &self.description.0
     }
 
-    /// Increments → µunits of an axis.
+    /// Increments (per second) → µunits (per second) of an axis ([`Scale::inc_to_micro`]);
+    /// 0 for an axis that does not exist.
     pub fn to_micro(&self, axis: usize, inc: i64) -> i64 {
-        let m = self.axes.get(axis).map_or(0, |a| a.micro_per_inc);
-        ((i128::from(inc) * m) >> Q) as i64
+        self.axes.get(axis).map_or(0, |a| a.scale.inc_to_micro(inc))
     }
 
-    /// µunits → increments of an axis (rounded to nearest).
+    /// µunits → increments of an axis ([`Scale::micro_to_inc`]); 0 for an axis that does not
+    /// exist.
     pub fn to_inc(&self, axis: usize, micro: i64) -> i64 {
-        let m = self.axes.get(axis).map_or(0, |a| a.inc_per_micro);
-        ((i128::from(micro) * m + (1 << (Q - 1))) >> Q) as i64
+        self.axes
+            .get(axis)
+            .map_or(0, |a| a.scale.micro_to_inc(micro))
     }
 }
 
-/// Increments of an axis at `scale` increments per unit as µunits, rounded to the nearest.
-/// Only for the description, once at start-up: the state's conversions are the integer
-/// factors of [`StaticInfo`].
-fn described_micro(inc: i64, scale: f64) -> i64 {
-    if scale > 0.0 {
-        // `as` saturates: a limit beyond ±9.2e12 units reads as the extreme, never wraps.
-        (inc as f64 * wire::MICRO as f64 / scale).round() as i64
-    } else {
-        0
-    }
-}
-
-/// As [`described_micro`], for the limits (unsigned increments).
-fn described_micro_u(inc: u64, scale: f64) -> i64 {
-    described_micro(i64::try_from(inc).unwrap_or(i64::MAX), scale)
+/// Unsigned increments (per second^n) of a limit as µunits (per second^n), saturated.
+fn limit_micro(inc: u64, scale: Scale) -> i64 {
+    scale.inc_to_micro(i64::try_from(inc).unwrap_or(i64::MAX))
 }
 
 /// A NUL-padded text field holding `text`; a text too long for it ends in `…` rather than
@@ -189,9 +176,8 @@ pub fn condition_text(
         } => {
             let a = members.get(usize::from(axis));
             let name = a.map_or("?", |a| a.name.as_str());
-            let scale = a.map_or(0.0, |a| a.scale);
             let unit = a.map_or("", |a| a.unit.as_str());
-            let units = |v: i64| shm_api::units::user(described_micro(v, scale));
+            let units = |v: i64| shm_api::units::user(a.map_or(0, |a| a.scale.inc_to_micro(v)));
             // Forces are ‰ of nominal; the configuration and the operator speak %.
             let percent = |v: i64| shm_api::units::user(v.saturating_mul(wire::MICRO / 10));
             let (what, lo, hi, unit) = match quantity {
@@ -265,8 +251,8 @@ pub fn describe(plan: &MachinePlan) -> Box<MachineDescription> {
     d.axis_count = plan.axes.len().min(wire::MAX_AXES) as u16;
     for (w, a) in d.axes.iter_mut().zip(&plan.axes) {
         let setup = &a.setup;
-        let micro = |inc: i64| described_micro(inc, a.scale);
-        let micro_u = |inc: u64| described_micro_u(inc, a.scale);
+        let micro = |inc: i64| a.scale.inc_to_micro(inc);
+        let micro_u = |inc: u64| limit_micro(inc, a.scale);
         w.position_min = micro(setup.position_min);
         w.position_max = micro(setup.position_max);
         w.velocity = micro_u(setup.limits.velocity);
@@ -325,15 +311,11 @@ pub fn describe(plan: &MachinePlan) -> Box<MachineDescription> {
             count += 1;
             out.number = number;
             for (k, t) in r.targets.iter().enumerate() {
-                let scale = members.get(k).map_or(0.0, |a| a.scale);
+                let micro = |v: i64| members.get(k).map_or(0, |a| a.scale.inc_to_micro(v));
                 (out.target_kinds[k], out.targets[k]) = match *t {
                     AxisTarget::Keep => (wire::target_kind::KEEP, 0),
-                    AxisTarget::Absolute(v) => {
-                        (wire::target_kind::ABSOLUTE, described_micro(v, scale))
-                    }
-                    AxisTarget::Relative(v) => {
-                        (wire::target_kind::RELATIVE, described_micro(v, scale))
-                    }
+                    AxisTarget::Absolute(v) => (wire::target_kind::ABSOLUTE, micro(v)),
+                    AxisTarget::Relative(v) => (wire::target_kind::RELATIVE, micro(v)),
                 };
             }
             out.mode = match r.mode {
