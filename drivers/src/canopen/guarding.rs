@@ -25,6 +25,7 @@
 
 use super::NodeId;
 use super::cob::ids;
+use super::heartbeat::min_deadline;
 use super::nmt::{NmtCommand, NmtState, NmtTarget, frame};
 use crate::can::Frame;
 use crate::time::Instant;
@@ -260,6 +261,13 @@ pub struct GuardingMaster<const N: usize, const Q: usize = 16> {
     nodes: Vec<Guarded, N>,
     events: Deque<GuardingEvent, Q>,
     dropped: u32,
+    /// At or before every node's reply and life deadline (`None`: no deadline), so that a
+    /// timeout check before it costs one comparison instead of a walk over every node (it runs
+    /// once per cycle, per reply received and per poll sent).
+    earliest: Option<Instant>,
+    /// At or before every due poll's time (nodes with no poll outstanding; `None`: none), for
+    /// the same reason in [`GuardingMaster::poll_transmit`].
+    next_poll: Option<Instant>,
 }
 
 impl<const N: usize, const Q: usize> Default for GuardingMaster<N, Q> {
@@ -275,6 +283,8 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
             nodes: Vec::new(),
             events: Deque::new(),
             dropped: 0,
+            earliest: None,
+            next_poll: None,
         }
     }
 
@@ -295,21 +305,26 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         if let Some(g) = self.nodes.iter_mut().find(|g| g.node == node) {
             g.guard = guard;
             g.factor = life_time_factor;
+            let (reply, life) = (g.reply_deadline(), g.life_deadline());
+            self.earliest = min_deadline(self.earliest, min_deadline(reply, life));
             return Ok(());
         }
+        let g = Guarded {
+            node,
+            guard,
+            factor: life_time_factor,
+            next_poll: now,
+            awaiting: None,
+            toggle: false,
+            expected: None,
+            state: None,
+            last_valid: now,
+            lost: false,
+        };
+        self.earliest = min_deadline(self.earliest, g.life_deadline());
+        self.next_poll = min_deadline(self.next_poll, Some(g.next_poll));
         self.nodes
-            .push(Guarded {
-                node,
-                guard,
-                factor: life_time_factor,
-                next_poll: now,
-                awaiting: None,
-                toggle: false,
-                expected: None,
-                state: None,
-                last_valid: now,
-                lost: false,
-            })
+            .push(g)
             .map_err(|_| GuardingError::TooManyNodes(N))
     }
 
@@ -370,10 +385,15 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
 
     /// Reports missed replies and lost nodes whose deadlines have passed at `now`.
     pub fn handle_timeout(&mut self, now: Instant) -> Result<(), GuardingError> {
+        if self.earliest.is_none_or(|e| now < e) {
+            return Ok(());
+        }
         let mut result = Ok(());
+        let mut earliest = None;
         for g in self.nodes.iter_mut() {
             if g.reply_deadline().is_some_and(|d| now >= d) {
                 g.awaiting = None;
+                self.next_poll = min_deadline(self.next_poll, Some(g.next_poll));
                 if let Err(e) = Self::push(
                     &mut self.events,
                     &mut self.dropped,
@@ -392,7 +412,12 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
                     result = Err(e);
                 }
             }
+            earliest = min_deadline(
+                earliest,
+                min_deadline(g.reply_deadline(), g.life_deadline()),
+            );
         }
+        self.earliest = earliest;
         result
     }
 
@@ -405,17 +430,33 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         // master that fell behind (a stall) catches up on its schedule with polls one cycle
         // apart; sent before the first reply was taken, the second reply was dropped as
         // unsolicited and the next one reported a toggle error (the node "lost").
-        let g = self
+        if self.next_poll.is_none_or(|p| now < p) {
+            return None;
+        }
+        let Some(g) = self
             .nodes
             .iter_mut()
-            .find(|g| now >= g.next_poll && g.awaiting.is_none())?;
+            .find(|g| now >= g.next_poll && g.awaiting.is_none())
+        else {
+            // None due: every waiting node's poll is later than `now`.
+            self.next_poll = self
+                .nodes
+                .iter()
+                .filter(|g| g.awaiting.is_none())
+                .map(|g| g.next_poll)
+                .min();
+            return None;
+        };
         // Absolute schedule; a caller more than a guard time late does not get a burst.
         g.next_poll += g.guard;
         if g.next_poll <= now {
             g.next_poll = now + g.guard;
         }
         g.awaiting = Some(now);
-        Some(guard_poll(g.node))
+        let reply = g.reply_deadline();
+        let node = g.node;
+        self.earliest = min_deadline(self.earliest, reply);
+        Some(guard_poll(node))
     }
 
     /// Feeds a frame received at `now`. Frames of unguarded nodes and other COB-IDs are
@@ -467,6 +508,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         }
         let (_, reply) = GuardReply::from_frame(f)?;
         g.awaiting = None;
+        self.next_poll = min_deadline(self.next_poll, Some(g.next_poll));
         if reply.toggle != g.toggle {
             let expected = g.toggle;
             // Resynchronise on the node's toggle, so one glitch is reported once.
@@ -485,6 +527,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         g.last_valid = now;
         g.state = Some(reply.state);
         let was_lost = core::mem::replace(&mut g.lost, false);
+        self.earliest = min_deadline(self.earliest, g.life_deadline());
         let unexpected = match g.expected {
             Some(e) => e != reply.state,
             None => {
@@ -645,6 +688,36 @@ mod tests {
         m: &mut GuardingMaster<N, Q>,
     ) -> std::vec::Vec<GuardingEvent> {
         core::iter::from_fn(|| m.poll_event()).collect()
+    }
+
+    #[test]
+    fn a_shortened_guard_time_is_checked_at_its_new_deadline() {
+        // The timeout check skips the walk before its earliest deadline; a deadline moved
+        // earlier (a shorter guard time, a new node, a reply) must move that bound too.
+        let mut m: GuardingMaster<4> = GuardingMaster::new();
+        m.add_node(n(1), 100, 3, ms(0)).unwrap();
+        assert_eq!(m.poll_transmit(ms(0)), Some(guard_poll(n(1))));
+        m.handle_timeout(ms(50)).unwrap();
+        assert_eq!(events(&mut m), []);
+        m.add_node(n(1), 10, 3, ms(50)).unwrap();
+        m.handle_timeout(ms(10)).unwrap();
+        assert_eq!(events(&mut m), [GuardingEvent::NoReply { node: n(1) }]);
+        m.add_node(n(2), 10, 2, ms(10)).unwrap();
+        assert_eq!(m.poll_timeout(), Some(ms(10)));
+        m.handle_timeout(ms(29)).unwrap();
+        assert_eq!(events(&mut m), []);
+        m.handle_timeout(ms(30)).unwrap();
+        assert_eq!(
+            events(&mut m),
+            [
+                GuardingEvent::Lost { node: n(1) },
+                GuardingEvent::Lost { node: n(2) }
+            ]
+        );
+        // A poll due long ago after a quiet stretch still goes out.
+        assert_eq!(m.poll_transmit(ms(1000)), Some(guard_poll(n(1))));
+        assert_eq!(m.poll_transmit(ms(1000)), Some(guard_poll(n(2))));
+        assert_eq!(m.poll_transmit(ms(1000)), None);
     }
 
     #[test]

@@ -188,6 +188,10 @@ impl Monitored {
 pub struct HeartbeatConsumer<const N: usize, const Q: usize = 16> {
     nodes: Vec<Monitored, N>,
     events: Deque<HeartbeatEvent, Q>,
+    /// At or before every node's deadline (`None`: no deadline), so that a timeout check before
+    /// it costs one comparison instead of a walk over every node (it runs once per cycle and
+    /// once per heartbeat received).
+    earliest: Option<Instant>,
 }
 
 impl<const N: usize, const Q: usize> Default for HeartbeatConsumer<N, Q> {
@@ -202,6 +206,7 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
         HeartbeatConsumer {
             nodes: Vec::new(),
             events: Deque::new(),
+            earliest: None,
         }
     }
 
@@ -226,6 +231,8 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
     pub fn monitor(&mut self, node: NodeId, time: Duration) -> Result<(), HeartbeatError> {
         if let Some(m) = self.nodes.iter_mut().find(|m| m.node == node) {
             m.time = time;
+            let d = m.deadline();
+            self.lower(d);
             return Ok(());
         }
         self.nodes
@@ -298,6 +305,8 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
             state
         };
         m.state = Some(new);
+        let d = m.deadline();
+        self.lower(d);
         if was_lost {
             self.push(HeartbeatEvent::Resumed { node })?;
         }
@@ -317,7 +326,11 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
 
     /// Reports every node whose heartbeat is overdue at `now`.
     pub fn handle_timeout(&mut self, now: Instant) -> Result<(), HeartbeatError> {
+        if self.earliest.is_none_or(|e| now < e) {
+            return Ok(());
+        }
         let mut result = Ok(());
+        let mut earliest = None;
         for m in self.nodes.iter_mut() {
             if m.deadline().is_some_and(|d| now >= d) {
                 m.lost = true;
@@ -326,8 +339,15 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
                     result = Err(HeartbeatError::EventQueueFull(Q));
                 }
             }
+            earliest = min_deadline(earliest, m.deadline());
         }
+        self.earliest = earliest;
         result
+    }
+
+    /// Keeps [`HeartbeatConsumer::earliest`] at or before a deadline that was set or moved.
+    fn lower(&mut self, d: Option<Instant>) {
+        self.earliest = min_deadline(self.earliest, d);
     }
 
     fn push(&mut self, e: HeartbeatEvent) -> Result<(), HeartbeatError> {
@@ -339,6 +359,14 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
     /// The next event.
     pub fn poll_event(&mut self) -> Option<HeartbeatEvent> {
         self.events.pop_front()
+    }
+}
+
+/// The earlier of two optional deadlines (`None`: none).
+pub(crate) fn min_deadline(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
     }
 }
 
@@ -355,6 +383,20 @@ mod tests {
     }
     fn ms(v: u64) -> Instant {
         Instant::from_millis(v)
+    }
+
+    #[test]
+    fn a_shortened_consumer_time_is_checked_at_its_new_deadline() {
+        // The timeout check skips the walk before its earliest deadline; a consumer time made
+        // shorter must move that bound too.
+        let mut c: HeartbeatConsumer<4> = HeartbeatConsumer::new();
+        c.monitor(n(1), Duration::from_millis(100)).unwrap();
+        c.handle_frame(&f("701#05"), ms(0)).unwrap();
+        c.handle_timeout(ms(50)).unwrap();
+        assert!(!c.is_lost(n(1)));
+        c.monitor(n(1), Duration::from_millis(20)).unwrap();
+        c.handle_timeout(ms(20)).unwrap();
+        assert!(c.is_lost(n(1)));
     }
 
     #[test]
