@@ -23,10 +23,10 @@
 //! assert_eq!(GuardReply::from_byte(0x85), Ok(GuardReply { toggle: true, state: NmtState::Operational }));
 //! ```
 
-use super::NodeId;
 use super::cob::ids;
 use super::heartbeat::min_deadline;
 use super::nmt::{NmtCommand, NmtState, NmtTarget, frame};
+use super::{NodeId, NodeIndex};
 use crate::can::Frame;
 use crate::time::Instant;
 use core::time::Duration;
@@ -265,6 +265,8 @@ pub struct GuardingMaster<const N: usize, const Q: usize = 16> {
     /// timeout check before it costs one comparison instead of a walk over every node (it runs
     /// once per cycle, per reply received and per poll sent).
     earliest: Option<Instant>,
+    /// Where each node's entry is in `nodes`.
+    index: NodeIndex,
     /// At or before every due poll's time (nodes with no poll outstanding; `None`: none), for
     /// the same reason in [`GuardingMaster::poll_transmit`].
     next_poll: Option<Instant>,
@@ -284,6 +286,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
             events: Deque::new(),
             dropped: 0,
             earliest: None,
+            index: NodeIndex::new(),
             next_poll: None,
         }
     }
@@ -325,12 +328,15 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         self.next_poll = min_deadline(self.next_poll, Some(g.next_poll));
         self.nodes
             .push(g)
-            .map_err(|_| GuardingError::TooManyNodes(N))
+            .map_err(|_| GuardingError::TooManyNodes(N))?;
+        self.index.rebuild(self.nodes.iter().map(|g| g.node));
+        Ok(())
     }
 
     /// Stops guarding `node`.
     pub fn remove(&mut self, node: NodeId) {
         self.nodes.retain(|g| g.node != node);
+        self.index.rebuild(self.nodes.iter().map(|g| g.node));
     }
 
     /// Tells the master which NMT command went out, so replies in the commanded state are not
@@ -468,11 +474,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         if cob & !0x7F != ids::NMT_ERROR_CONTROL || f.is_remote() {
             return Ok(());
         }
-        let Some(idx) = self
-            .nodes
-            .iter()
-            .position(|g| g.node.get() as u16 == cob & 0x7F)
-        else {
+        let Some(idx) = self.index.get(cob & 0x7F) else {
             return Ok(());
         };
         // A reply after the deadline: the NoReply / Lost it missed come first. A full event

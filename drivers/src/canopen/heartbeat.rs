@@ -5,9 +5,9 @@
 //! Heartbeat and node guarding exclude each other on one node; see
 //! [`crate::canopen::guarding::ErrorControlMode`] for how the choice is made and reported.
 
-use super::NodeId;
 use super::cob::ids;
 use super::nmt::{NmtError, NmtState, frame};
+use super::{NodeId, NodeIndex};
 use crate::can::Frame;
 use crate::time::Instant;
 use core::time::Duration;
@@ -192,6 +192,8 @@ pub struct HeartbeatConsumer<const N: usize, const Q: usize = 16> {
     /// it costs one comparison instead of a walk over every node (it runs once per cycle and
     /// once per heartbeat received).
     earliest: Option<Instant>,
+    /// Where each node's entry is in `nodes`.
+    index: NodeIndex,
 }
 
 impl<const N: usize, const Q: usize> Default for HeartbeatConsumer<N, Q> {
@@ -207,6 +209,7 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
             nodes: Vec::new(),
             events: Deque::new(),
             earliest: None,
+            index: NodeIndex::new(),
         }
     }
 
@@ -243,12 +246,15 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
                 state: None,
                 lost: false,
             })
-            .map_err(|_| HeartbeatError::TooManyNodes(N))
+            .map_err(|_| HeartbeatError::TooManyNodes(N))?;
+        self.index.rebuild(self.nodes.iter().map(|m| m.node));
+        Ok(())
     }
 
     /// Stops monitoring `node`.
     pub fn remove(&mut self, node: NodeId) {
         self.nodes.retain(|m| m.node != node);
+        self.index.rebuild(self.nodes.iter().map(|m| m.node));
     }
 
     /// The node's last reported state.
@@ -270,11 +276,7 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
         if cob & !0x7F != ids::NMT_ERROR_CONTROL || f.is_remote() {
             return Ok(());
         }
-        let Some(idx) = self
-            .nodes
-            .iter()
-            .position(|m| m.node.get() as u16 == cob & 0x7F)
-        else {
+        let Some(idx) = self.index.get(cob & 0x7F) else {
             return Ok(());
         };
         let (node, state) = decode_heartbeat(f)?;
@@ -383,6 +385,20 @@ mod tests {
     }
     fn ms(v: u64) -> Instant {
         Instant::from_millis(v)
+    }
+
+    #[test]
+    fn a_removal_keeps_the_other_nodes_found() {
+        let mut c: HeartbeatConsumer<4> = HeartbeatConsumer::new();
+        for id in 1..=3 {
+            c.monitor(n(id), Duration::from_millis(100)).unwrap();
+        }
+        c.remove(n(1));
+        c.handle_frame(&f("703#05"), ms(0)).unwrap();
+        assert_eq!(c.state(n(3)), Some(NmtState::Operational));
+        assert_eq!(c.state(n(2)), None);
+        c.handle_frame(&f("701#05"), ms(0)).unwrap();
+        assert_eq!(c.state(n(1)), None);
     }
 
     #[test]
