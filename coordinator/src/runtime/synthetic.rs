@@ -340,6 +340,23 @@ mod tests {
                 }
             }
         }
+        // At a given cycle the drives take as many buses as the budget needs, or are refused.
+        let spec = Spec {
+            axes: 8,
+            kinds: Kinds::Cia402,
+            group_size: None,
+        };
+        let c = Config::parse(&config_of_with_cycle_us(&spec, 1000).expect("fits")).unwrap();
+        assert!(c.check().is_ok());
+        assert_eq!((c.cycle_us, c.buses.len(), c.axes.len()), (1000, 8, 8));
+        let one_bus = Config::parse(&config_of_with_cycle_us(&spec, 20_000).unwrap()).unwrap();
+        assert_eq!(one_bus.buses.len(), 1);
+        let big = Spec { axes: 32, ..spec };
+        assert!(
+            config_of_with_cycle_us(&big, 1000)
+                .unwrap_err()
+                .contains("does not fit")
+        );
         // The mixed machine is the one the benchmarks always measured.
         assert_eq!(
             config(8, 8),
