@@ -203,7 +203,8 @@ fn measure(
         let spent = t1.saturating_duration_since(w0);
         if t1.saturating_duration_since(last_progress) > Duration::from_millis(100) {
             last_progress = t1;
-            progress.set(k * 100 + (spent.as_secs_f64() / budget.as_secs_f64() * 100.0) as u64);
+            let pct = (spent.as_secs_f64() / budget.as_secs_f64() * 100.0).min(100.0);
+            progress.set(k * 100 + pct as u64);
         }
         if spent >= budget || run.lp.script.phase() == Phase::Done {
             break;
