@@ -48,7 +48,7 @@ enum Command {
         #[arg(long)]
         quiet: bool,
         /// Publish the machine over shared memory under this prefix (services
-        /// PREFIX/state, PREFIX/command, PREFIX/events, PREFIX/event-log).
+        /// PREFIX/state, PREFIX/command, PREFIX/events, PREFIX/event-log, PREFIX/description).
         #[arg(long, default_value = shm_api::DEFAULT_PREFIX)]
         shm_prefix: String,
         /// Do not publish over shared memory.

@@ -37,7 +37,7 @@ extern "C" {
 /* The contract's version; bumped on any incompatible change. */
 #define MOTION_LAYOUT_VERSION 1u
 /* The layout hash the coordinator writes into MotionMachineState.layout_hash. */
-#define MOTION_LAYOUT_HASH 0x6feedc2bu
+#define MOTION_LAYOUT_HASH 0xad8069d3u
 #define MOTION_MAX_AXES 128
 #define MOTION_MAX_GROUPS 16
 #define MOTION_MAX_GROUP_AXES 8
@@ -55,11 +55,11 @@ extern "C" {
 #define MOTION_ADDRESS_LEN 64
 
 /* iceoryx2 type names of the service payloads (equal to the Rust #[type_name]). */
-#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1::6feedc2b"
-#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1::6feedc2b"
-#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1::6feedc2b"
-#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1::6feedc2b"
-#define MOTION_MACHINE_DESCRIPTION_TYPE_NAME "motion::MachineDescription::v1::6feedc2b"
+#define MOTION_MACHINE_STATE_TYPE_NAME "motion::MachineState::v1::ad8069d3"
+#define MOTION_COMMAND_REQUEST_TYPE_NAME "motion::CommandRequest::v1::ad8069d3"
+#define MOTION_COMMAND_REPLY_TYPE_NAME "motion::CommandReply::v1::ad8069d3"
+#define MOTION_EVENT_RECORD_TYPE_NAME "motion::EventRecord::v1::ad8069d3"
+#define MOTION_MACHINE_DESCRIPTION_TYPE_NAME "motion::MachineDescription::v1::ad8069d3"
 /* The default service prefix. */
 #define MOTION_DEFAULT_PREFIX "motion"
 
@@ -361,7 +361,7 @@ typedef struct MotionDriveRecord {
     uint8_t reserved0[5];
 } MotionDriveRecord;
 
-/* One axis in MotionMachineDescription (2200 bytes): what the state does not carry. */
+/* One axis in MotionMachineDescription (2216 bytes): what the state does not carry. */
 typedef struct MotionAxisDescription {
     int64_t position_min;    /* µunits */
     int64_t position_max;    /* µunits */
@@ -369,6 +369,8 @@ typedef struct MotionAxisDescription {
     int64_t acceleration;    /* limit, µunits/s² */
     int64_t jerk;            /* limit, µunits/s³, or 0 (none) */
     int64_t following_error; /* limit, µunits */
+    uint64_t increments_per_unit_num; /* the scale: num/den increments per unit, lowest terms */
+    uint64_t increments_per_unit_den;
     uint16_t force_permille; /* force limit, per mille of nominal, or 0 (none) */
     uint8_t device;          /* MOTION_DEVICE_* */
     uint8_t profile;         /* MOTION_PROFILE_* */
@@ -557,7 +559,7 @@ MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, relative) == 25, "MotionDriveRe
 MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, next) == 26, "MotionDriveRecord.next offset");
 MOTION_STATIC_ASSERT(offsetof(MotionDriveRecord, reserved0) == 27, "MotionDriveRecord.reserved0 offset");
 
-MOTION_STATIC_ASSERT(sizeof(MotionAxisDescription) == 2200, "MotionAxisDescription size");
+MOTION_STATIC_ASSERT(sizeof(MotionAxisDescription) == 2216, "MotionAxisDescription size");
 MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionAxisDescription) == 8, "MotionAxisDescription alignment");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, position_min) == 0, "MotionAxisDescription.position_min offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, position_max) == 8, "MotionAxisDescription.position_max offset");
@@ -565,20 +567,22 @@ MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, velocity) == 16, "MotionAxi
 MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, acceleration) == 24, "MotionAxisDescription.acceleration offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, jerk) == 32, "MotionAxisDescription.jerk offset");
 MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, following_error) == 40, "MotionAxisDescription.following_error offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, force_permille) == 48, "MotionAxisDescription.force_permille offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, device) == 50, "MotionAxisDescription.device offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, profile) == 51, "MotionAxisDescription.profile offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, fpc) == 52, "MotionAxisDescription.fpc offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, link) == 53, "MotionAxisDescription.link offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, bus) == 54, "MotionAxisDescription.bus offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, node) == 55, "MotionAxisDescription.node offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, simulated) == 56, "MotionAxisDescription.simulated offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, record_count) == 57, "MotionAxisDescription.record_count offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, reserved0) == 58, "MotionAxisDescription.reserved0 offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, name) == 64, "MotionAxisDescription.name offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, unit) == 80, "MotionAxisDescription.unit offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, modbus) == 88, "MotionAxisDescription.modbus offset");
-MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, records) == 152, "MotionAxisDescription.records offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, increments_per_unit_num) == 48, "MotionAxisDescription.increments_per_unit_num offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, increments_per_unit_den) == 56, "MotionAxisDescription.increments_per_unit_den offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, force_permille) == 64, "MotionAxisDescription.force_permille offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, device) == 66, "MotionAxisDescription.device offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, profile) == 67, "MotionAxisDescription.profile offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, fpc) == 68, "MotionAxisDescription.fpc offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, link) == 69, "MotionAxisDescription.link offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, bus) == 70, "MotionAxisDescription.bus offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, node) == 71, "MotionAxisDescription.node offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, simulated) == 72, "MotionAxisDescription.simulated offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, record_count) == 73, "MotionAxisDescription.record_count offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, reserved0) == 74, "MotionAxisDescription.reserved0 offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, name) == 80, "MotionAxisDescription.name offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, unit) == 96, "MotionAxisDescription.unit offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, modbus) == 104, "MotionAxisDescription.modbus offset");
+MOTION_STATIC_ASSERT(offsetof(MotionAxisDescription, records) == 168, "MotionAxisDescription.records offset");
 
 MOTION_STATIC_ASSERT(sizeof(MotionGroupRecord) == 256, "MotionGroupRecord size");
 MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionGroupRecord) == 8, "MotionGroupRecord alignment");
@@ -608,7 +612,7 @@ MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, record_count) == 26, "Moti
 MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, reserved0) == 28, "MotionGroupDescription.reserved0 offset");
 MOTION_STATIC_ASSERT(offsetof(MotionGroupDescription, records) == 32, "MotionGroupDescription.records offset");
 
-MOTION_STATIC_ASSERT(sizeof(MotionMachineDescription) == 1330904, "MotionMachineDescription size");
+MOTION_STATIC_ASSERT(sizeof(MotionMachineDescription) == 1332952, "MotionMachineDescription size");
 MOTION_STATIC_ASSERT(MOTION_ALIGNOF(MotionMachineDescription) == 8, "MotionMachineDescription alignment");
 MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, version) == 0, "MotionMachineDescription.version offset");
 MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, layout_hash) == 4, "MotionMachineDescription.layout_hash offset");
@@ -619,7 +623,7 @@ MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, bus_count) == 16, "Motio
 MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, reserved0) == 17, "MotionMachineDescription.reserved0 offset");
 MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, buses) == 24, "MotionMachineDescription.buses offset");
 MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, axes) == 216, "MotionMachineDescription.axes offset");
-MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, groups) == 281816, "MotionMachineDescription.groups offset");
+MOTION_STATIC_ASSERT(offsetof(MotionMachineDescription, groups) == 283864, "MotionMachineDescription.groups offset");
 
 #ifdef __cplusplus
 }

@@ -31,7 +31,7 @@ import json
 #: The contract's version; bumped on any incompatible change.
 LAYOUT_VERSION = 1
 #: The layout hash the coordinator writes into ``MachineState.layout_hash``.
-LAYOUT_HASH = 0x6FEEDC2B
+LAYOUT_HASH = 0xAD8069D3
 #: Axes a MachineState holds.
 MAX_AXES = 128
 #: Groups a MachineState holds.
@@ -59,11 +59,11 @@ ADDRESS_LEN = 64
 DEFAULT_PREFIX = "motion"
 
 #: The iceoryx2 type names; they must equal the Rust ``#[type_name]`` (the test checks it).
-MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1::6feedc2b"
-COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1::6feedc2b"
-COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1::6feedc2b"
-EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1::6feedc2b"
-MACHINE_DESCRIPTION_TYPE_NAME = "motion::MachineDescription::v1::6feedc2b"
+MACHINE_STATE_TYPE_NAME = "motion::MachineState::v1::ad8069d3"
+COMMAND_REQUEST_TYPE_NAME = "motion::CommandRequest::v1::ad8069d3"
+COMMAND_REPLY_TYPE_NAME = "motion::CommandReply::v1::ad8069d3"
+EVENT_RECORD_TYPE_NAME = "motion::EventRecord::v1::ad8069d3"
+MACHINE_DESCRIPTION_TYPE_NAME = "motion::MachineDescription::v1::ad8069d3"
 
 
 class AxisStateKind(enum.IntEnum):
@@ -761,7 +761,7 @@ class DriveRecord(ctypes.Structure):
 
 
 class AxisDescription(ctypes.Structure):
-    """One axis in :class:`MachineDescription` (2200 bytes): drive, link, limits (µunits) and
+    """One axis in :class:`MachineDescription` (2216 bytes): drive, link, limits (µunits) and
     the drive's record table."""
 
     _fields_ = [
@@ -771,6 +771,8 @@ class AxisDescription(ctypes.Structure):
         ("acceleration", I64),
         ("jerk", I64),
         ("following_error", I64),
+        ("increments_per_unit_num", U64),
+        ("increments_per_unit_den", U64),
         ("force_permille", U16),
         ("device", U8),
         ("profile", U8),

@@ -10,7 +10,7 @@ use iceoryx2::prelude::ZeroCopySend;
 pub const LAYOUT_VERSION: u32 = 1;
 /// A hash of the layout of every payload (sizes and field offsets), checked by a test that
 /// recomputes it: see `layout::compute_hash`.
-pub const LAYOUT_HASH: u32 = 0x6fee_dc2b;
+pub const LAYOUT_HASH: u32 = 0xad80_69d3;
 /// Axes a [`MachineState`] holds.
 pub const MAX_AXES: usize = 128;
 /// Groups a [`MachineState`] holds.
@@ -280,7 +280,7 @@ pub struct BusStats {
 /// The whole machine, published once per cycle on `PREFIX/state`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::MachineState::v1::6feedc2b")]
+#[type_name("motion::MachineState::v1::ad8069d3")]
 pub struct MachineState {
     /// [`LAYOUT_VERSION`].
     pub version: u32,
@@ -370,7 +370,7 @@ pub mod target {
 /// A command, on `PREFIX/command` (request-response).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandRequest::v1::6feedc2b")]
+#[type_name("motion::CommandRequest::v1::ad8069d3")]
 pub struct CommandRequest {
     /// The client's tag, echoed in the reply.
     pub tag: u64,
@@ -429,7 +429,7 @@ pub mod status {
 /// The answer to a [`CommandRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::CommandReply::v1::6feedc2b")]
+#[type_name("motion::CommandReply::v1::ad8069d3")]
 pub struct CommandReply {
     /// The request's tag.
     pub tag: u64,
@@ -482,7 +482,7 @@ pub mod event_id {
 /// event service and read the details here.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::EventRecord::v1::6feedc2b")]
+#[type_name("motion::EventRecord::v1::ad8069d3")]
 pub struct EventRecord {
     /// A sequence number, counting every record published.
     pub seq: u64,
@@ -628,7 +628,7 @@ pub struct DriveRecord {
     pub reserved0: [u8; 5],
 }
 
-/// One axis in a [`MachineDescription`] (2200 bytes): what the state does not carry.
+/// One axis in a [`MachineDescription`] (2216 bytes): what the state does not carry.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 pub struct AxisDescription {
@@ -644,6 +644,11 @@ pub struct AxisDescription {
     pub jerk: i64,
     /// The following-error limit, µunits.
     pub following_error: i64,
+    /// The axis's scale, exactly: `increments_per_unit_num / increments_per_unit_den`
+    /// increments per user unit, in lowest terms (`increments_per_unit = 12.8` is 64/5).
+    pub increments_per_unit_num: u64,
+    /// The denominator of the scale (at least 1).
+    pub increments_per_unit_den: u64,
     /// The force limit, ‰ of nominal, or 0 (none).
     pub force_permille: u16,
     /// [`device`].
@@ -740,7 +745,7 @@ pub struct GroupDescription {
 /// the state, in the same order.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("motion::MachineDescription::v1::6feedc2b")]
+#[type_name("motion::MachineDescription::v1::ad8069d3")]
 pub struct MachineDescription {
     /// [`LAYOUT_VERSION`].
     pub version: u32,

@@ -64,6 +64,7 @@ macro_rules! for_each_payload {
         ]);
         $m!($($a)*; AxisDescription, [
             position_min, position_max, velocity, acceleration, jerk, following_error,
+            increments_per_unit_num, increments_per_unit_den,
             force_permille, device, profile, fpc, link, bus, node, simulated, record_count,
             reserved0, name, unit, modbus, records,
         ]);

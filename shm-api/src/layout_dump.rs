@@ -248,7 +248,7 @@ mod tests {
         let get = |n: &str| all.iter().find(|t| t.name == n).cloned();
         assert_eq!(get("AxisState").map(|t| t.size), Some(128));
         assert_eq!(get("GroupState").map(|t| t.size), Some(48));
-        assert_eq!(get("AxisDescription").map(|t| t.size), Some(2200));
+        assert_eq!(get("AxisDescription").map(|t| t.size), Some(2216));
         assert_eq!(get("GroupRecord").map(|t| t.size), Some(256));
         let d = get("MachineDescription").expect("MachineDescription listed");
         assert!(

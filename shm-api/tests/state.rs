@@ -261,8 +261,8 @@ fn mismatched_layout_is_refused_with_a_clear_message() {
             };
             assert_eq!(
                 found,
-                "motion::MachineState::v1::6feedc2b"
-                    .replace("v1::6feedc2b", "v0::00000000")
+                "motion::MachineState::v1::ad8069d3"
+                    .replace("v1::ad8069d3", "v0::00000000")
                     .as_str()
             );
             assert!(expected.ends_with(&shm_api::layout::type_name_suffix()));

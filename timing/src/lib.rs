@@ -4,6 +4,8 @@
 //! - [`cycle`]: the cycle thread's wake-up lateness, set up as the coordinator sets it up,
 //!   interleaved with cyclictest ([`cyclictest`]);
 //! - [`step`]: the cycle step's compute time on synthetic machines;
+//! - [`sim`]: the virtual-time simulation's speed, drive-seconds per wall second, with every
+//!   drive sending its TPDOs on every SYNC;
 //! - [`shm_latency`]: publish-to-client latency over shared memory, the contract's publisher
 //!   and client beside a bare iceoryx2 pair of the same payload;
 //! - the framework: [`stats`] (a histogram and timeline per series, the table's figures),
@@ -38,6 +40,7 @@ pub mod progress;
 pub mod report;
 pub mod session;
 pub mod shm_latency;
+pub mod sim;
 pub mod stats;
 pub mod step;
 

@@ -1,4 +1,4 @@
-//! `timing all --duration 2` as a user runs it, into a folder: the folder's `summary.json` has
+//! `timing all --duration 2` as a user runs it (cycle, step, sim, shm-latency), into a folder: the folder's `summary.json` has
 //! the structure the docs describe, every sample count matches the run and the histogram files,
 //! every ratio and goal is the quotient of figures in the same file; `timing report DIR`
 //! redraws the plots and the table; `timing compare DIR DIR` reads both.
@@ -108,7 +108,7 @@ fn all_writes_a_consistent_summary() {
     assert!(s["load"].is_null());
     let runs = s["runs"].as_array().unwrap();
     let names: Vec<&str> = runs.iter().map(|r| r["name"].as_str().unwrap()).collect();
-    assert_eq!(names, ["cycle", "step", "shm-latency"], "{ctx}");
+    assert_eq!(names, ["cycle", "step", "sim", "shm-latency"], "{ctx}");
 
     for run in runs {
         let name = run["name"].as_str().unwrap();
@@ -207,6 +207,55 @@ fn all_writes_a_consistent_summary() {
         );
     }
 
+    // The sim run: its figures add up, and every drive sent its TPDO on every SYNC.
+    let sim = &runs[2];
+    let results = sim["settings"]["results"].as_array().unwrap();
+    assert_eq!(results.len(), 1, "{sim}");
+    let m = &results[0];
+    let num = |k: &str| {
+        m[k].as_f64()
+            .unwrap_or_else(|| panic!("sim: no {k} in {m}"))
+    };
+    assert_eq!(m["drives"], 8, "{m}");
+    assert_eq!(m["period_us"], 1000, "{m}");
+    assert_eq!(m["can_drives"], 8, "{m}");
+    let series = m["series"].as_str().unwrap();
+    assert_eq!(
+        figure(sim, series, "samples"),
+        m["cycles"].as_u64().unwrap()
+    );
+    // Drive-seconds per wall second from the file's own figures.
+    let dsps = num("drive_seconds_per_wall_second");
+    let expect = num("drives") * num("machine_s") / num("wall_s");
+    assert!(dsps > 0.0 && (dsps - expect).abs() <= 1e-9 * dsps, "{m}");
+    // The machine time is the cycles times the period.
+    let machine = num("cycles") * num("period_us") / 1e6;
+    assert!((num("machine_s") - machine).abs() < 1e-6, "{m}");
+    // One TPDO frame per drive per SYNC, within a count per drive (the last cycle's frames
+    // may fall either side of the end).
+    let syncs = num("drive_syncs");
+    let tpdo = num("tpdo_frames");
+    assert!(syncs >= num("cycles") * 8.0 - 8.0, "{m}");
+    assert!((tpdo - syncs).abs() <= num("can_drives"), "{m}");
+    assert!(
+        (num("tpdos_per_drive_per_cycle") - tpdo / syncs).abs() < 1e-12,
+        "{m}"
+    );
+    assert_eq!(m["tpdo_senders"], 8, "{m}");
+    for k in [
+        "tpdos_per_drive_per_cycle_min",
+        "tpdos_per_drive_per_cycle_max",
+    ] {
+        assert!((num(k) - 1.0).abs() * num("cycles") <= 1.0, "{k}: {m}");
+    }
+    // SYNC, RPDO and TPDO at least, per drive (one bus each at 1 ms).
+    assert!(num("frames_per_cycle") >= 3.0 * 8.0 - 1.0, "{m}");
+    let goal = &sim["goals"].as_array().unwrap()[0];
+    assert!(
+        (goal["measured"].as_f64().unwrap() - 1e6 / dsps).abs() < 1e-6,
+        "{goal}"
+    );
+
     // The table went to the terminal and into the folder, with every column.
     let table = std::fs::read_to_string(r.dir.join("table.txt")).unwrap();
     for head in [
@@ -252,7 +301,7 @@ fn report_redraws_the_folder_and_compare_reads_two() {
         "{text}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    for run in ["cycle", "step", "shm-latency"] {
+    for run in ["cycle", "step", "sim", "shm-latency"] {
         for kind in ["histogram", "percentiles", "over-time"] {
             let png = std::fs::read(dir.join(format!("{run}-{kind}.png")))
                 .unwrap_or_else(|e| panic!("{run}-{kind}.png: {e}\n{text}"));

@@ -259,6 +259,7 @@ pub fn describe(plan: &MachinePlan) -> Box<MachineDescription> {
         w.acceleration = micro_u(setup.limits.acceleration);
         w.jerk = a.jerk_limit.map_or(0, micro_u);
         w.following_error = micro(setup.following_error);
+        (w.increments_per_unit_num, w.increments_per_unit_den) = a.scale.fraction();
         w.force_permille = a.force_limit_permille.unwrap_or(0);
         w.device = match setup.kind {
             DeviceKind::MtrDci => wire::device::MTR_DCI,
@@ -1109,6 +1110,25 @@ mod tests {
             (0, 400_000_000, 150_000_000, 1_000_000_000, 20_000_000_000)
         );
         assert_eq!(x.force_permille, 1000);
+        // The exact scales: 400 and 1000 increments per mm, 100 per degree.
+        assert_eq!(
+            (x.increments_per_unit_num, x.increments_per_unit_den),
+            (400, 1)
+        );
+        assert_eq!(
+            (
+                d.axes[1].increments_per_unit_num,
+                d.axes[1].increments_per_unit_den
+            ),
+            (1000, 1)
+        );
+        assert_eq!(
+            (
+                d.axes[3].increments_per_unit_num,
+                d.axes[3].increments_per_unit_den
+            ),
+            (100, 1)
+        );
         assert_eq!((x.link, x.bus, x.node, x.simulated), (link::CAN, 0, 1, 1));
         // y: the EMCA with its parameter channel on can1, and its two drive records.
         let y = &d.axes[1];

@@ -67,6 +67,43 @@ pub fn config_of(spec: &Spec) -> String {
     spec_with_cycle(spec, 100)
 }
 
+/// The configuration text of `spec`'s machine with a given cycle, µs, its CANopen drives
+/// spread over the fewest buses (at most [`crate::config::MAX_BUSES`]) whose budget fits that
+/// cycle, as a real machine would have them; where two SDO slots per bus do not fit, one; where
+/// the default 80 % load limit does not fit, 100 % (every frame's worst case inside the cycle).
+/// When none fits, the refusal of the most buses (`coordinator check`'s report, with the
+/// numbers).
+pub fn config_of_with_cycle_us(spec: &Spec, cycle_us: u32) -> Result<String, String> {
+    let can = axes_of(spec, MAX_CAN_AXES)
+        .iter()
+        .filter(|a| a.bus.is_some())
+        .count()
+        .max(1);
+    let mut last = String::new();
+    for limit in [None, Some(100)] {
+        for buses in 1..=crate::config::MAX_BUSES {
+            let per_bus = can.div_ceil(buses).clamp(1, MAX_CAN_AXES);
+            for sdo_slots in [2, 1] {
+                let mut text = spec_with_cycle_us(spec, cycle_us, per_bus, sdo_slots);
+                if let Some(l) = limit {
+                    text = format!("load_limit_percent = {l}\n{text}");
+                }
+                match crate::config::Config::parse(&text) {
+                    Ok(c) => {
+                        let report = c.check();
+                        if report.is_ok() {
+                            return Ok(text);
+                        }
+                        last = report.to_string();
+                    }
+                    Err(e) => last = e.to_string(),
+                }
+            }
+        }
+    }
+    Err(last)
+}
+
 /// As [`config`] with a given cycle, ms (which `check` may refuse).
 pub fn config_with_cycle(n: usize, group_size: usize, cycle_ms: usize) -> String {
     spec_with_cycle(
@@ -87,7 +124,10 @@ struct Axis {
     bus: Option<usize>,
 }
 
-fn axes_of(spec: &Spec) -> Vec<Axis> {
+/// The axes, at most `per_bus` CANopen nodes on a bus (1..=127): the CiA 402 machine takes a
+/// new bus for the next; the others too, up to one bus's 127 nodes in all, CMMO-STs beyond.
+fn axes_of(spec: &Spec, per_bus: usize) -> Vec<Axis> {
+    let per_bus = per_bus.clamp(1, MAX_CAN_AXES);
     let mut out = Vec::with_capacity(spec.axes);
     let mut can = 0usize;
     for i in 0..spec.axes {
@@ -105,12 +145,12 @@ fn axes_of(spec: &Spec) -> Vec<Axis> {
             (device, None)
         } else if spec.kinds == Kinds::Cia402 {
             can += 1;
-            (device, Some((can - 1) / MAX_CAN_AXES))
+            (device, Some((can - 1) / per_bus))
         } else if can >= MAX_CAN_AXES {
             ("cmmo-st", None)
         } else {
             can += 1;
-            (device, Some(0))
+            (device, Some((can - 1) / per_bus))
         };
         out.push(Axis {
             device,
@@ -122,14 +162,20 @@ fn axes_of(spec: &Spec) -> Vec<Axis> {
 }
 
 fn spec_with_cycle(spec: &Spec, cycle_ms: usize) -> String {
-    let axes = axes_of(spec);
+    let cycle_us = (cycle_ms * 1000).try_into().unwrap_or(u32::MAX);
+    spec_with_cycle_us(spec, cycle_us, MAX_CAN_AXES, 2)
+}
+
+/// At most `per_bus` CANopen nodes on a bus (1..=127), `sdo_slots` on each bus.
+fn spec_with_cycle_us(spec: &Spec, cycle_us: u32, per_bus: usize, sdo_slots: u32) -> String {
+    let axes = axes_of(spec, per_bus);
     let buses = axes.iter().filter_map(|a| a.bus).max().map_or(1, |b| b + 1);
     let mut s = String::new();
-    let _ = writeln!(s, "cycle_us = {}", cycle_ms * 1000);
+    let _ = writeln!(s, "cycle_us = {cycle_us}");
     for b in 0..buses {
         let _ = writeln!(
             s,
-            "\n[[buses]]\nname = \"can{b}\"\nkind = \"simulated\"\nbitrate = 1000000\nsdo_slots = 2"
+            "\n[[buses]]\nname = \"can{b}\"\nkind = \"simulated\"\nbitrate = 1000000\nsdo_slots = {sdo_slots}"
         );
     }
     let mut nodes = vec![0u32; buses];
@@ -294,6 +340,23 @@ mod tests {
                 }
             }
         }
+        // At a given cycle the drives take as many buses as the budget needs, or are refused.
+        let spec = Spec {
+            axes: 8,
+            kinds: Kinds::Cia402,
+            group_size: None,
+        };
+        let c = Config::parse(&config_of_with_cycle_us(&spec, 1000).expect("fits")).unwrap();
+        assert!(c.check().is_ok());
+        assert_eq!((c.cycle_us, c.buses.len(), c.axes.len()), (1000, 8, 8));
+        let one_bus = Config::parse(&config_of_with_cycle_us(&spec, 20_000).unwrap()).unwrap();
+        assert_eq!(one_bus.buses.len(), 1);
+        let big = Spec { axes: 32, ..spec };
+        assert!(
+            config_of_with_cycle_us(&big, 1000)
+                .unwrap_err()
+                .contains("does not fit")
+        );
         // The mixed machine is the one the benchmarks always measured.
         assert_eq!(
             config(8, 8),

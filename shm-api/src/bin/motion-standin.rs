@@ -238,6 +238,8 @@ fn description(args: &Args) -> Box<MachineDescription> {
         a.velocity = 100_000_000;
         a.acceleration = 1_000_000_000;
         a.following_error = 10_000_000;
+        (a.increments_per_unit_num, a.increments_per_unit_den) =
+            (1_000_000 / MICRO_PER_INC as u64, 1);
         a.record_count = 1;
         a.records[0].number = 1;
         a.records[0].position = 10_000_000;

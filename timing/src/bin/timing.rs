@@ -3,7 +3,8 @@
 //!
 //! - `timing cycle [--period-us 1000] [--priority 80] [--cpu N] [--duration S] [--window-s 1]`
 //! - `timing step --axes 8,128 [--profile fhpp|cia402|both] [--grouped|--single]`
-//! - `timing all [--duration S]`: cycle, step and shm-latency into one folder
+//! - `timing sim [--drives 8] [--period-us 1000] [--duration S] [--profile fhpp|cia402|both]`
+//! - `timing all [--duration S]`: cycle, step, sim and shm-latency into one folder
 //! - `timing report DIR`, `timing compare DIR DIR`
 //! - `timing shm-latency [--samples N] [--period-us P] [--out DIR]`: the raw latencies (ns, one
 //!   per line) per phase and a table, as before.
@@ -18,6 +19,7 @@ use std::time::Duration;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use timing::cycle::CycleOptions;
 use timing::session::{self, Session};
+use timing::sim::SimOptions;
 use timing::step::{Cache, Profile, StepOptions};
 
 #[derive(Parser)]
@@ -126,10 +128,28 @@ enum Cmd {
         #[command(flatten)]
         common: Common,
     },
-    /// Cycle, step and shm-latency into one folder.
+    /// Virtual-time simulation speed: drive-seconds per wall second, every drive sending its
+    /// TPDOs on every SYNC.
+    Sim {
+        /// Machine sizes, drives (comma-separated, each 1..128).
+        #[arg(long, value_delimiter = ',', default_values_t = [8usize])]
+        drives: Vec<usize>,
+        /// The SYNC period, µs (250..100000).
+        #[arg(long, default_value_t = 1000)]
+        period_us: u32,
+        /// Wall time per machine, s (boot and homing, unmeasured, come on top).
+        #[arg(long, default_value_t = 5.0)]
+        duration: f64,
+        /// The drives' profile: FHPP drives, CiA 402 drives, or the four kinds in turn.
+        #[arg(long, value_enum, default_value = "cia402")]
+        profile: ProfileArg,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Cycle, step, sim and shm-latency into one folder.
     All {
         /// Length of the cycle run, s; the step gets an eighth of it per series (two machines,
-        /// cold and hot), shm-latency half of it.
+        /// cold and hot), sim a tenth (8 CiA 402 drives at 1 ms), shm-latency half of it.
         #[arg(long, default_value_t = 10.0)]
         duration: f64,
         #[command(flatten)]
@@ -244,6 +264,28 @@ fn main() -> ExitCode {
             s.add(timing::step::run(&o)?);
             finish(s, common.out)
         })(),
+        Cmd::Sim {
+            drives,
+            period_us,
+            duration,
+            profile,
+            common,
+        } => (|| {
+            let o = SimOptions {
+                drives,
+                period_us,
+                seconds_per_machine: duration,
+                profiles: match profile {
+                    ProfileArg::Fhpp => vec![Profile::Fhpp],
+                    ProfileArg::Cia402 => vec![Profile::Cia402],
+                    ProfileArg::Both => vec![Profile::Both],
+                },
+            };
+            o.check()?;
+            let mut s = Session::start(command_line(), common.load);
+            s.add(timing::sim::run(&o)?);
+            finish(s, common.out)
+        })(),
         Cmd::All {
             duration,
             cycle,
@@ -261,10 +303,18 @@ fn main() -> ExitCode {
                 priority: Some(cycle.priority),
             };
             step.check()?;
+            let sim = SimOptions {
+                drives: vec![8],
+                period_us: 1000,
+                seconds_per_machine: duration / 10.0,
+                profiles: vec![Profile::Cia402],
+            };
+            sim.check()?;
             let exe = own_exe()?;
             let mut s = Session::start(command_line(), common.load);
             s.add(timing::cycle::run(&o)?);
             s.add(timing::step::run(&step)?);
+            s.add(timing::sim::run(&sim)?);
             // Five phases of a tenth of the run each (at least 100 samples).
             let samples =
                 ((duration * 1e6 / 10.0 / cycle.period_us as f64) as usize).clamp(100, 1_000_000);
