@@ -11,8 +11,7 @@ use coordinator::command::{BufferMode, Command, GroupId, Reply};
 use coordinator::config::Config;
 use coordinator::records::MAX_GROUP_AXES;
 use coordinator::runtime::plan::plan;
-use coordinator::runtime::run::RunOptions;
-use coordinator::runtime::script::{Phase, ScriptOptions};
+use coordinator::runtime::script::Phase;
 use coordinator::runtime::synthetic;
 use coordinator::runtime::virtual_clock::VirtualRun;
 
@@ -62,18 +61,7 @@ fn probe(on: bool) {
 fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
     let cfg = Config::parse(&synthetic::config(axes, 8)).expect("synthetic config parses");
     let plan = plan(&cfg).expect("synthetic machine plans");
-    let opts = RunOptions {
-        duration: None,
-        virtual_time: true,
-        status_every: None,
-        script: ScriptOptions {
-            demo: true,
-            chains: false,
-            home: true,
-        },
-        shm: None,
-        capture: None,
-    };
+    let opts = synthetic::homed_options();
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     run.lp.probe = Some(probe);
     let before = allocations();

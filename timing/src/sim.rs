@@ -20,8 +20,7 @@ use std::time::Duration;
 
 use coordinator::config::Config;
 use coordinator::runtime::plan::plan;
-use coordinator::runtime::run::RunOptions;
-use coordinator::runtime::script::{Phase, ScriptOptions};
+use coordinator::runtime::script::Phase;
 use coordinator::runtime::synthetic::{self, Spec};
 use coordinator::runtime::virtual_clock::VirtualRun;
 use drivers::can::{Bus, VirtualPort};
@@ -146,18 +145,7 @@ fn measure(
     let cfg = Config::parse(&text)
         .map_err(|e| format!("{name}: the synthetic machine does not parse: {e}"))?;
     let plan = plan(&cfg).map_err(|e| format!("{name}: {e}"))?;
-    let opts = RunOptions {
-        duration: None,
-        virtual_time: true,
-        status_every: None,
-        script: ScriptOptions {
-            demo: true,
-            chains: false,
-            home: true,
-        },
-        shm: None,
-        capture: None,
-    };
+    let opts = coordinator::runtime::synthetic::homed_options();
     let mut run = VirtualRun::new(&plan, &opts).map_err(|e| format!("{name}: {e}"))?;
     let mut monitors: Vec<VirtualPort> = run
         .io

@@ -226,12 +226,11 @@ fn spec_with_cycle_us(spec: &Spec, cycle_us: u32, per_bus: usize, sdo_slots: u32
     s
 }
 
-/// Runs `plan` in virtual time with its simulated drives until every axis is enabled and
-/// homed, starts a move to three quarters of the range on every group (or, where `grouped` is
-/// false, on every axis by itself), lets 20 cycles pass and captures the next step: the state
-/// and inputs `benches/cycle.rs` and `timing step` replay. Every axis moves in that step.
-pub fn capture_moving(plan: &MachinePlan, grouped: bool) -> Result<Captured<'_>, String> {
-    let opts = RunOptions {
+/// Virtual time, with the demonstration's enable and homing but no record chains, no shared
+/// memory and no capture: how the benchmarks, `timing` and the allocation test bring a test
+/// machine to a state where every axis can move.
+pub fn homed_options() -> RunOptions {
+    RunOptions {
         duration: None,
         virtual_time: true,
         status_every: None,
@@ -242,7 +241,15 @@ pub fn capture_moving(plan: &MachinePlan, grouped: bool) -> Result<Captured<'_>,
         },
         shm: None,
         capture: None,
-    };
+    }
+}
+
+/// Runs `plan` in virtual time with its simulated drives until every axis is enabled and
+/// homed, starts a move to three quarters of the range on every group (or, where `grouped` is
+/// false, on every axis by itself), lets 20 cycles pass and captures the next step: the state
+/// and inputs `benches/cycle.rs` and `timing step` replay. Every axis moves in that step.
+pub fn capture_moving(plan: &MachinePlan, grouped: bool) -> Result<Captured<'_>, String> {
+    let opts = homed_options();
     let mut run = VirtualRun::new(plan, &opts).map_err(|e| e.to_string())?;
     let mut out = Vec::new();
     while run.lp.script.phase() != Phase::Running {
