@@ -180,24 +180,13 @@ impl core::fmt::Debug for Client {
     }
 }
 
-/// An iceoryx2 error in words: its Display is `Type::Variant` (`InsufficientPermissions` reads
-/// "insufficient permissions").
-fn words(e: impl core::fmt::Display) -> String {
-    let text = e.to_string();
-    let variant = text.rsplit("::").next().unwrap_or(&text);
-    let mut out = String::new();
-    for (i, c) in variant.chars().enumerate() {
-        if c.is_ascii_uppercase() && i > 0 {
-            out.push(' ');
-        }
-        out.push(c.to_ascii_lowercase());
-    }
-    out
-}
-
 fn service_name(name: &str) -> Result<ServiceName, ClientError> {
-    name.try_into()
-        .map_err(|e| ClientError::Shm(format!("invalid service name `{name}`: {}", words(e))))
+    name.try_into().map_err(|e| {
+        ClientError::Shm(format!(
+            "invalid service name `{name}`: {}",
+            crate::words(e)
+        ))
+    })
 }
 
 /// The payload type name of the existing publish-subscribe service `name`, if readable.
@@ -242,7 +231,10 @@ fn open_pubsub<T: ZeroCopySend + core::fmt::Debug + 'static>(
             found: existing_type_name(node, &service)
                 .unwrap_or_else(|| "an unreadable type".to_owned()),
         }),
-        Err(e) => Err(ClientError::Shm(format!("opening {name}: {}", words(e)))),
+        Err(e) => Err(ClientError::Shm(format!(
+            "opening {name}: {}",
+            crate::words(e)
+        ))),
     }
 }
 
@@ -278,7 +270,7 @@ impl Client {
                         found: "another command layout".to_owned(),
                     }
                 }
-                e => ClientError::Shm(format!("opening {}: {}", names.command, words(e))),
+                e => ClientError::Shm(format!("opening {}: {}", names.command, crate::words(e))),
             })?;
         let log_service = open_pubsub::<EventRecord>(&node, &names.event_log, prefix)?;
         let events_service = node
@@ -287,24 +279,25 @@ impl Client {
             .open()
             .map_err(|e| match e {
                 iceoryx2::service::builder::event::EventOpenError::DoesNotExist => no_coordinator(),
-                e => ClientError::Shm(format!("opening {}: {}", names.events, words(e))),
+                e => ClientError::Shm(format!("opening {}: {}", names.events, crate::words(e))),
             })?;
 
-        let commands = command_service
-            .client_builder()
-            .create()
-            .map_err(|e| ClientError::Shm(format!("creating the command client: {}", words(e))))?;
+        let commands = command_service.client_builder().create().map_err(|e| {
+            ClientError::Shm(format!("creating the command client: {}", crate::words(e)))
+        })?;
         let log = log_service
             .subscriber_builder()
             .buffer_size(log_service.static_config().subscriber_max_buffer_size())
             .create()
             .map_err(|e| {
-                ClientError::Shm(format!("creating the event-log subscriber: {}", words(e)))
+                ClientError::Shm(format!(
+                    "creating the event-log subscriber: {}",
+                    crate::words(e)
+                ))
             })?;
-        let listener = events_service
-            .listener_builder()
-            .create()
-            .map_err(|e| ClientError::Shm(format!("creating the events listener: {}", words(e))))?;
+        let listener = events_service.listener_builder().create().map_err(|e| {
+            ClientError::Shm(format!("creating the events listener: {}", crate::words(e)))
+        })?;
         // The state subscriber last: from its creation on, samples queue up in its buffer, so
         // nothing slow may come between it and the caller's first read.
         let state = state_service
@@ -312,7 +305,10 @@ impl Client {
             .buffer_size(state_service.static_config().subscriber_max_buffer_size())
             .create()
             .map_err(|e| {
-                ClientError::Shm(format!("creating the state subscriber: {}", words(e)))
+                ClientError::Shm(format!(
+                    "creating the state subscriber: {}",
+                    crate::words(e)
+                ))
             })?;
         Ok(Client {
             prefix: prefix.to_owned(),
@@ -407,7 +403,9 @@ impl Client {
             // one POLL_INTERVAL (the wait is capped by it).
             self.listener
                 .timed_wait(|_| {}, (deadline - now).min(POLL_INTERVAL * 10))
-                .map_err(|e| ClientError::Shm(format!("waiting for a state: {}", words(e))))?;
+                .map_err(|e| {
+                    ClientError::Shm(format!("waiting for a state: {}", crate::words(e)))
+                })?;
         }
     }
 
@@ -473,7 +471,10 @@ impl Client {
                 .buffer_size(1)
                 .create()
                 .map_err(|e| {
-                    ClientError::Shm(format!("creating the description subscriber: {}", words(e)))
+                    ClientError::Shm(format!(
+                        "creating the description subscriber: {}",
+                        crate::words(e)
+                    ))
                 })?;
             self.description_service = Some(service);
             self.description_port = Some(port);
@@ -583,7 +584,9 @@ impl Client {
             }
             self.listener
                 .timed_wait(|_| {}, deadline - now)
-                .map_err(|e| ClientError::Shm(format!("waiting for events: {}", words(e))))?;
+                .map_err(|e| {
+                    ClientError::Shm(format!("waiting for events: {}", crate::words(e)))
+                })?;
         }
     }
 }
@@ -593,6 +596,6 @@ mod words_tests {
     #[test]
     fn an_iceoryx2_error_reads_as_words() {
         let e = iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError::InsufficientPermissions;
-        assert_eq!(super::words(e), "insufficient permissions");
+        assert_eq!(crate::words(e), "insufficient permissions");
     }
 }

@@ -45,3 +45,18 @@ pub use request::{Target, name_str};
 
 /// The default prefix of every service name of the contract.
 pub const DEFAULT_PREFIX: &str = "motion";
+
+/// An iceoryx2 error in words: its Display is `Type::Variant` (`InsufficientPermissions` reads
+/// "insufficient permissions").
+pub fn words(e: impl core::fmt::Display) -> String {
+    let text = e.to_string();
+    let variant = text.rsplit("::").next().unwrap_or(&text);
+    let mut out = String::new();
+    for (i, c) in variant.chars().enumerate() {
+        if c.is_ascii_uppercase() && i > 0 {
+            out.push(' ');
+        }
+        out.push(c.to_ascii_lowercase());
+    }
+    out
+}

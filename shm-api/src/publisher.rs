@@ -40,10 +40,10 @@ pub enum ShmError {
 }
 
 impl ShmError {
-    pub(crate) fn iox(step: &'static str, e: impl core::fmt::Debug) -> ShmError {
+    pub(crate) fn iox(step: &'static str, e: impl core::fmt::Display) -> ShmError {
         ShmError::Iceoryx {
             step,
-            reason: format!("{e:?}"),
+            reason: crate::words(e),
         }
     }
 }
@@ -80,7 +80,7 @@ impl Default for PublisherSettings {
 fn service_name(name: &str) -> Result<ServiceName, ShmError> {
     name.try_into().map_err(|e| ShmError::Name {
         name: name.to_owned(),
-        reason: format!("{e:?}"),
+        reason: crate::words(e),
     })
 }
 

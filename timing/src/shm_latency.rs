@@ -83,20 +83,20 @@ pub fn publish(prefix: &str, period: Duration, count: u64) -> Result<(), String>
         .subscriber_max_buffer_size(settings.state_buffer)
         .enable_safe_overflow(true)
         .open_or_create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     let bare = bare_service
         .publisher_builder()
         .create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     let bare_events = node
         .service_builder(&event_name)
         .event()
         .open_or_create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     let notifier = bare_events
         .notifier_builder()
         .create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     // The coordinator's relay: wakes after each period's publication and signals it.
     let published = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
@@ -160,25 +160,25 @@ pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
         .map_err(|e| e.to_string())?;
     let node = NodeBuilder::new()
         .create::<ipc::Service>()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     let (state_name, event_name) = bare_names(prefix);
     let bare_service = node
         .service_builder(&state_name)
         .publish_subscribe::<MachineState>()
         .open()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     let bare = bare_service
         .subscriber_builder()
         .create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     let listener = node
         .service_builder(&event_name)
         .event()
         .open()
-        .map_err(|e| format!("{e:?}"))?
+        .map_err(shm_api::words)?
         .listener_builder()
         .create()
-        .map_err(|e| format!("{e:?}"))?;
+        .map_err(shm_api::words)?;
     let t = Duration::from_secs(2);
     let drain_bare = || while let Ok(Some(_)) = bare.receive() {};
     let mut out = Vec::new();
@@ -229,7 +229,7 @@ pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
     while raw.len() < samples {
         listener
             .timed_wait(|_| {}, t)
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(shm_api::words)?;
         while let Ok(Some(s)) = bare.receive() {
             // One wake-up can bring several samples: exactly `samples` are kept.
             if raw.len() < samples {

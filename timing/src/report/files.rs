@@ -101,7 +101,7 @@ pub fn write_series(dir: &Path, file: &str, s: &Series) -> Result<(), FileError>
     let mut bytes = Vec::new();
     V2DeflateSerializer::new()
         .serialize(s.histogram(), &mut bytes)
-        .map_err(|e| err(&path, format!("cannot encode the histogram: {e:?}")))?;
+        .map_err(|e| err(&path, format!("cannot encode the histogram: {e}")))?;
     write(&path, &bytes)?;
     write_hgrm(dir, file, s.histogram())?;
     let mut csv = String::from("start_s,count,min_ns,mean_ns,max_ns,sum_ns\n");
@@ -126,7 +126,7 @@ pub fn read_series(dir: &Path, file: &str, name: &str) -> Result<Series, FileErr
     let bytes = read(&path)?;
     let hist: Histogram<u64> = Deserializer::new()
         .deserialize(&mut bytes.as_slice())
-        .map_err(|e| err(&path, format!("not an HdrHistogram V2 file ({e:?})")))?;
+        .map_err(|e| err(&path, format!("not an HdrHistogram V2 file ({e})")))?;
     let path = dir.join(format!("{file}.timeline.csv"));
     let text = String::from_utf8(read(&path)?).map_err(|e| err(&path, e))?;
     let mut buckets = Vec::new();
@@ -135,7 +135,7 @@ pub fn read_series(dir: &Path, file: &str, name: &str) -> Result<Series, FileErr
         let bad = || {
             err(
                 &path,
-                format!("line {}: expected 6 numbers, found {line:?}", i + 1),
+                format!("line {}: expected 6 numbers, found \"{line}\"", i + 1),
             )
         };
         if f.len() != 6 {
