@@ -61,7 +61,7 @@ fn probe(on: bool) {
 fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
     let cfg = Config::parse(&synthetic::config(axes, 8)).expect("synthetic config parses");
     let plan = plan(&cfg).expect("synthetic machine plans");
-    let opts = synthetic::homed_options();
+    let opts = synthetic::demo_options(false);
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     run.lp.probe = Some(probe);
     let before = allocations();

@@ -227,9 +227,7 @@ pub fn measure(prefix: &str, samples: usize) -> Result<Vec<Figures>, String> {
     drain_bare();
     let mut raw = Vec::with_capacity(samples);
     while raw.len() < samples {
-        listener
-            .timed_wait(|_| {}, t)
-            .map_err(shm_api::words)?;
+        listener.timed_wait(|_| {}, t).map_err(shm_api::words)?;
         while let Ok(Some(s)) = bare.receive() {
             // One wake-up can bring several samples: exactly `samples` are kept.
             if raw.len() < samples {

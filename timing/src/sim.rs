@@ -145,7 +145,7 @@ fn measure(
     let cfg = Config::parse(&text)
         .map_err(|e| format!("{name}: the synthetic machine does not parse: {e}"))?;
     let plan = plan(&cfg).map_err(|e| format!("{name}: {e}"))?;
-    let opts = coordinator::runtime::synthetic::homed_options();
+    let opts = coordinator::runtime::synthetic::demo_options(false);
     let mut run = VirtualRun::new(&plan, &opts).map_err(|e| format!("{name}: {e}"))?;
     let mut monitors: Vec<VirtualPort> = run
         .io

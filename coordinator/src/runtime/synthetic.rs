@@ -226,17 +226,17 @@ fn spec_with_cycle_us(spec: &Spec, cycle_us: u32, per_bus: usize, sdo_slots: u32
     s
 }
 
-/// Virtual time, with the demonstration's enable and homing but no record chains, no shared
-/// memory and no capture: how the benchmarks, `timing` and the allocation test bring a test
+/// Virtual time with the demonstration (enable, home, and the record chains if `chains`), no
+/// end, no shared memory, no capture: how the benchmarks, `timing` and the tests bring a
 /// machine to a state where every axis can move.
-pub fn homed_options() -> RunOptions {
+pub fn demo_options(chains: bool) -> RunOptions {
     RunOptions {
         duration: None,
         virtual_time: true,
         status_every: None,
         script: ScriptOptions {
             demo: true,
-            chains: false,
+            chains,
             home: true,
         },
         shm: None,
@@ -249,7 +249,7 @@ pub fn homed_options() -> RunOptions {
 /// false, on every axis by itself), lets 20 cycles pass and captures the next step: the state
 /// and inputs `benches/cycle.rs` and `timing step` replay. Every axis moves in that step.
 pub fn capture_moving(plan: &MachinePlan, grouped: bool) -> Result<Captured<'_>, String> {
-    let opts = homed_options();
+    let opts = demo_options(false);
     let mut run = VirtualRun::new(plan, &opts).map_err(|e| e.to_string())?;
     let mut out = Vec::new();
     while run.lp.script.phase() != Phase::Running {

@@ -3,7 +3,6 @@
 use coordinator::config::{Config, EXAMPLE};
 use coordinator::runtime::plan::{MachinePlan, plan};
 use coordinator::runtime::run::RunOptions;
-use coordinator::runtime::script::ScriptOptions;
 
 /// The embedded default machine, planned.
 pub fn example() -> MachinePlan {
@@ -13,16 +12,5 @@ pub fn example() -> MachinePlan {
 /// A quiet virtual-time run with the demonstration (its chains as given), no end, no shared
 /// memory, no capture.
 pub fn demo(chains: bool) -> RunOptions {
-    RunOptions {
-        duration: None,
-        virtual_time: true,
-        status_every: None,
-        script: ScriptOptions {
-            demo: true,
-            chains,
-            home: true,
-        },
-        shm: None,
-        capture: None,
-    }
+    coordinator::runtime::synthetic::demo_options(chains)
 }

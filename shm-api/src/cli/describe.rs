@@ -14,7 +14,7 @@ use crate::contract::{
 };
 
 use super::name_str;
-use super::resolve::ResolveError;
+use super::resolve::{ResolveError, known};
 use crate::units::user;
 
 /// ‰ of nominal as µ% (millionths of a percent), for [`user`]: 1 ‰ = 0.1 %.
@@ -106,15 +106,6 @@ pub fn described_axes(d: &MachineDescription) -> &[AxisDescription] {
 pub fn described_groups(d: &MachineDescription) -> &[GroupDescription] {
     let n = usize::from(d.group_count).min(d.groups.len());
     d.groups.get(..n).unwrap_or(&[])
-}
-
-fn known<'a>(names: impl Iterator<Item = &'a str>) -> String {
-    let v: Vec<&str> = names.collect();
-    if v.is_empty() {
-        "none".into()
-    } else {
-        v.join(", ")
-    }
 }
 
 /// The axis `--axis` names (by name, or by index when no axis has that name), with its index

@@ -76,7 +76,8 @@ fn lookup<'a>(names: impl Iterator<Item = &'a str> + Clone, text: &str) -> Optio
         .and_then(|i| u16::try_from(i).ok())
 }
 
-fn known<'a>(names: impl Iterator<Item = &'a str>) -> String {
+/// The names for an error's "the axes are ...": comma-separated, or `none`.
+pub(crate) fn known<'a>(names: impl Iterator<Item = &'a str>) -> String {
     let v: Vec<&str> = names.collect();
     if v.is_empty() {
         "none".into()
