@@ -11,8 +11,8 @@
 //! - [`nodes`]: the drives' boot and lifecycle on every bus, sans-I/O;
 //! - [`ticker`]: absolute-deadline wake-ups; [`realtime_thread`]: SCHED_FIFO, mlockall, CPU
 //!   pinning; [`signals`]: the stop flag every stop signal sets;
-//! - [`triple_buffer`]: the wait-free latest-value hand-over between threads;
-//! - [`modbus`]: the CMMO-ST exchange off the cycle thread;
+//! - [`modbus`]: the CMMO-ST exchange off the cycle thread (its hand-over is `handover`'s
+//!   triple buffer);
 //! - [`boot`]: drive boot over SDO; [`services`]: the non-real-time tasks on embassy;
 //! - [`shm`]: the machine state, commands and events over shared memory (`shm-api`);
 //! - [`capture`]: `--capture DIR`, a candump log and a pcap per bus, off the cycle thread.
@@ -34,5 +34,4 @@ pub mod sim;
 pub mod stepper;
 pub mod synthetic;
 pub mod ticker;
-pub mod triple_buffer;
 pub mod virtual_clock;

@@ -4,7 +4,7 @@
 //! [`spawn`] starts the exchange thread and returns the [`ModbusCycleSide`] the cycle thread
 //! uses: [`put_output`](ModbusCycleSide::put_output) hands over this cycle's 8 control bytes,
 //! [`take_input`](ModbusCycleSide::take_input) the latest status bytes with their age and the
-//! link state. Both are two triple-buffer operations ([`super::triple_buffer::triple_buffer`]): no lock,
+//! link state. Both are two triple-buffer operations ([`handover::triple_buffer::triple_buffer`]): no lock,
 //! no allocation, no syscall.
 //!
 //! The exchange thread:
@@ -32,7 +32,7 @@ use std::time::Duration;
 use drivers::modbus::client::{self, Client, MAX_ADU, ResponseError};
 use drivers::time::{Instant, monotonic_now};
 
-use super::triple_buffer::{TripleReader, TripleWriter, triple_buffer};
+use handover::triple_buffer::{TripleReader, TripleWriter, triple_buffer};
 
 /// How the exchange thread runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
