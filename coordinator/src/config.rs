@@ -689,6 +689,24 @@ pub enum Problem {
     /// A Modbus address that is not `host:port`.
     #[error("{0:?} is not host:port with a port in 1..=65535")]
     ModbusAddress(String),
+    /// A step back to its own record on a condition that can hold at once.
+    #[error(
+        "{number} is the record itself, on condition \"{condition}\", which can hold as soon as it starts: it would restart every cycle (a relative one crawls on for ever); step back to it on \"mc\" or a delay, or to another record"
+    )]
+    SelfStep {
+        /// The record.
+        number: u32,
+        /// The condition's name.
+        condition: &'static str,
+    },
+    /// A Modbus host name that does not resolve: the run could never dial it.
+    #[error("\"{addr}\": cannot resolve the host ({reason})")]
+    ModbusResolve {
+        /// The address as written.
+        addr: String,
+        /// What the resolver said.
+        reason: String,
+    },
     /// A number outside its range.
     #[error("{value} is outside {min}..={max}")]
     Range {
@@ -1134,6 +1152,20 @@ impl Config {
                         format!("{key}.modbus"),
                         Problem::ModbusAddress(addr.clone()),
                     ),
+                    // Resolved here as `run` will (a numeric address resolves without asking
+                    // anyone), so a name that cannot be dialled is refused before the machine
+                    // starts rather than leaving an axis waiting forever.
+                    (Some(addr), false) => {
+                        if let Err(reason) = resolves(addr) {
+                            err.push(
+                                format!("{key}.modbus"),
+                                Problem::ModbusResolve {
+                                    addr: addr.clone(),
+                                    reason,
+                                },
+                            );
+                        }
+                    }
                     _ => {}
                 }
             } else {
@@ -1661,6 +1693,33 @@ impl Config {
             );
             ok = false;
         }
+        // A step back to the record itself on a condition that can hold as soon as the record
+        // starts restarts it every cycle: a relative record then crawls on for ever, an
+        // absolute one never gets anywhere. Only a condition that waits for the move (MC, a
+        // delay after it) or for something outside it may lead back.
+        for (which, s) in [("step", &rc.step), ("alternative", &rc.alternative)] {
+            if let Some(s) = s
+                && s.next == rc.number
+                && (s.condition == ConditionKind::Immediately
+                    || (rc.relative
+                        && matches!(
+                            s.condition,
+                            ConditionKind::Position
+                                | ConditionKind::Velocity
+                                | ConditionKind::Force
+                                | ConditionKind::Time
+                        )))
+            {
+                err.push(
+                    format!("{key}.{which}.next"),
+                    Problem::SelfStep {
+                        number: rc.number,
+                        condition: s.condition.name(),
+                    },
+                );
+                ok = false;
+            }
+        }
         if let Some(s) = &rc.step {
             match self.step(g, &format!("{key}.step"), s, defined, err) {
                 Some(step) => rec.step = step,
@@ -2094,6 +2153,18 @@ fn check_supervision(key: &str, a: &AxisConfig, cycle_us: u32, err: &mut Errors)
 }
 
 /// `host:port` with a non-empty host and a port in 1..=65535.
+/// Whether `addr` (already `host:port`) resolves to at least one address.
+fn resolves(addr: &str) -> Result<(), String> {
+    use std::net::ToSocketAddrs;
+    match addr.to_socket_addrs() {
+        Ok(mut all) => match all.next() {
+            Some(_) => Ok(()),
+            None => Err("the name has no address".into()),
+        },
+        Err(e) => Err(e.to_string()),
+    }
+}
+
 fn valid_host_port(s: &str) -> bool {
     match s.rsplit_once(':') {
         Some((host, port)) => {

@@ -24,9 +24,9 @@ enum Command {
         /// `config-example`).
         #[arg(long)]
         config: Option<std::path::PathBuf>,
-        /// End after this many seconds of machine time (then stop and disable the drives);
-        /// without it the run lasts until Ctrl-C.
-        #[arg(long)]
+        /// End after this many seconds of machine time (then stop and disable the drives;
+        /// 0.001 to 31536000); without it the run lasts until Ctrl-C.
+        #[arg(long, value_parser = run_seconds)]
         duration: Option<f64>,
         /// Run as fast as the machine allows (virtual time, deterministic) instead of in real
         /// time.
@@ -49,7 +49,7 @@ enum Command {
         quiet: bool,
         /// Publish the machine over shared memory under this prefix (services
         /// PREFIX/state, PREFIX/command, PREFIX/events, PREFIX/event-log, PREFIX/description).
-        #[arg(long, default_value = shm_api::DEFAULT_PREFIX)]
+        #[arg(long, default_value = shm_api::DEFAULT_PREFIX, value_parser = shm_api::names::check_prefix)]
         shm_prefix: String,
         /// Do not publish over shared memory.
         #[arg(long)]
@@ -73,6 +73,15 @@ enum Command {
         /// The TOML configuration file.
         file: std::path::PathBuf,
     },
+}
+
+/// `--duration`: finite seconds of machine time, a millisecond to a year, checked before any
+/// conversion (`Duration::from_secs_f64` panics on NaN, negatives and overflow).
+fn run_seconds(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(d) if d.is_finite() && (0.001..=31_536_000.0).contains(&d) => Ok(d),
+        _ => Err("give seconds of machine time, 0.001 to 31536000".into()),
+    }
 }
 
 fn main() -> ExitCode {
@@ -99,12 +108,6 @@ fn main() -> ExitCode {
             no_shm,
             capture,
         } => {
-            if let Some(d) = duration
-                && !(d.is_finite() && d > 0.0 && d <= 31_536_000.0)
-            {
-                eprintln!("error: --duration must be between 0 and 31536000 seconds, not {d}");
-                return ExitCode::FAILURE;
-            }
             if duration.is_none() && virtual_time {
                 eprintln!("error: --virtual-time needs --duration (it would run flat out forever)");
                 return ExitCode::FAILURE;

@@ -32,6 +32,29 @@ impl ServiceNames {
     }
 }
 
+/// The longest prefix: iceoryx2 keeps a service's name in its files' names, which the file
+/// system bounds; 64 leaves room for the longest suffix (`/description`) and its own additions.
+pub const PREFIX_MAX_LEN: usize = 64;
+
+/// Checks a prefix a user typed (`--prefix`, `--shm-prefix`): 1 to [`PREFIX_MAX_LEN`] ASCII
+/// letters, digits, `-`, `_`, `.`, with `/` between non-empty parts. Returns it unchanged, so
+/// that it serves as a clap value parser; the error says what is allowed.
+pub fn check_prefix(prefix: &str) -> Result<String, String> {
+    let allowed = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
+    let ok = !prefix.is_empty()
+        && prefix.len() <= PREFIX_MAX_LEN
+        && prefix
+            .split('/')
+            .all(|part| !part.is_empty() && part.chars().all(allowed));
+    if ok {
+        Ok(prefix.to_owned())
+    } else {
+        Err(format!(
+            "a service prefix is 1 to {PREFIX_MAX_LEN} letters, digits, `-`, `_` or `.`, with `/` between non-empty parts"
+        ))
+    }
+}
+
 impl Default for ServiceNames {
     fn default() -> Self {
         ServiceNames::new(crate::DEFAULT_PREFIX)
@@ -51,5 +74,25 @@ mod tests {
         assert_eq!(n.event_log, "cell-2/event-log");
         assert_eq!(n.description, "cell-2/description");
         assert_eq!(ServiceNames::default().state, "motion/state");
+    }
+
+    #[test]
+    fn prefixes_are_checked() {
+        for good in ["motion", "cell-2", "t-run_cli.x-123", "plant/cell-2"] {
+            assert_eq!(check_prefix(good).as_deref(), Ok(good));
+        }
+        let long = "a".repeat(PREFIX_MAX_LEN + 1);
+        for bad in [
+            "",
+            "/motion",
+            "motion/",
+            "a//b",
+            "a b",
+            "a:b",
+            "ä",
+            long.as_str(),
+        ] {
+            assert!(check_prefix(bad).is_err(), "{bad}");
+        }
     }
 }

@@ -310,9 +310,11 @@ fn watch_refuses_unknown_axes_bad_rates_and_no_state() {
         err.contains("--axes w: no such axis; the axes are x, y, z"),
         "{err}"
     );
-    let (code, _, err) = run_watch(&mut Fake::new([1]), &["--rate", "0"]);
-    assert_eq!(code, exit::ERROR);
-    assert!(err.contains("--rate"), "{err}");
+    // A rate out of range is refused as it is parsed, before anything connects.
+    let err = WatchArgs::try_parse_from(["motion-watch", "--rate", "0"])
+        .expect_err("a rate of 0 is refused")
+        .to_string();
+    assert!(err.contains("--rate") && err.contains("0.01 to 1000000"), "{err}");
     let (code, _, _) = run_watch(&mut Fake::new([]), &[]);
     assert_eq!(code, exit::ERROR);
     assert!(WatchArgs::try_parse_from(["motion-watch", "--rate", "5", "--every-cycle"]).is_err());
@@ -460,7 +462,11 @@ fn bad_command_lines_are_refused() {
             ..
         })
     ));
-    assert!(request(&["move", "--axis", "x", "--to", "1.2345678"]).is_err());
+    // A position that is not a decimal in user units is refused as it is parsed.
+    let err = parse(&["move", "--axis", "x", "--to", "1.2345678"])
+        .expect_err("7 decimals are refused")
+        .to_string();
+    assert!(err.contains("--to") && err.contains("at most 6 decimals"), "{err}");
     assert!(request(&["start-chain", "--group", "ab", "--record", "1"]).is_err());
 }
 

@@ -42,8 +42,10 @@ use drivers::sim::mtr_dci::{FestoNode, MtrDci, Profile as MtrProfile};
 use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
 use drivers::time::{Instant, monotonic_now};
 
-/// `--duration`: the same range as `coordinator run --duration`.
+/// `--duration`: the same range as `coordinator run --duration`...
 const MAX_DURATION_S: f64 = 31_536_000.0;
+/// ...from a millisecond (less would end before a drive could answer anything).
+const MIN_DURATION_S: f64 = 0.001;
 /// `--status-every`: 0 (never), or at least this often...
 const MIN_STATUS_S: f64 = 0.01;
 /// ...and at most this (one line a day).
@@ -187,12 +189,12 @@ fn timing(cli: &Cli) -> Result<(Option<Duration>, Option<Duration>), String> {
     let duration = match &cli.duration {
         None => None,
         Some(text) => match text.trim().parse::<f64>() {
-            Ok(d) if d.is_finite() && d > 0.0 && d <= MAX_DURATION_S => {
+            Ok(d) if d.is_finite() && (MIN_DURATION_S..=MAX_DURATION_S).contains(&d) => {
                 Some(Duration::from_secs_f64(d))
             }
             _ => {
                 return Err(format!(
-                    "--duration {text}: give seconds, more than 0 and at most {MAX_DURATION_S} \
+                    "--duration {text}: give seconds, {MIN_DURATION_S} to {MAX_DURATION_S} \
                      (leave --duration out to run until Ctrl-C)"
                 ));
             }

@@ -60,11 +60,11 @@ enum Cmd {
         /// Write a pcap (LINKTYPE_CAN_SOCKETCAN) capture here.
         #[arg(long)]
         pcap: Option<PathBuf>,
-        /// Stop after this many frames.
-        #[arg(long)]
+        /// Stop after this many frames (at least 1).
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1_000_000_000))]
         count: Option<u64>,
-        /// Stop after this many seconds (fails if --count was not reached).
-        #[arg(long)]
+        /// Stop after this many seconds (fails if --count was not reached); 0.001 to 31536000.
+        #[arg(long, value_parser = seconds)]
         timeout: Option<f64>,
     },
     /// Send frames given in cansend notation (605#4000100000000000, 123#R, 12345678#00).
@@ -74,8 +74,8 @@ enum Cmd {
         /// One or more frames, sent in order.
         #[arg(required = true)]
         frames: Vec<String>,
-        /// Milliseconds to stay on the bus after the last frame (see LINGER).
-        #[arg(long, default_value_t = LINGER_MS)]
+        /// Milliseconds to stay on the bus after the last frame (see LINGER); 0 to 60000.
+        #[arg(long, default_value_t = LINGER_MS, value_parser = clap::value_parser!(u64).range(0..=60_000))]
         linger: u64,
     },
     /// Replay a candump log, keeping its relative timing.
@@ -84,16 +84,42 @@ enum Cmd {
         file: PathBuf,
         /// `vbus:NAME` or a SocketCAN interface.
         iface: String,
-        /// Time scale: 2 replays twice as fast.
-        #[arg(long, default_value_t = 1.0)]
+        /// Time scale: 2 replays twice as fast; 0.001 to 1000.
+        #[arg(long, default_value_t = 1.0, value_parser = speed)]
         speed: f64,
-        /// Milliseconds to stay on the bus after the last frame (see LINGER).
-        #[arg(long, default_value_t = LINGER_MS)]
+        /// Milliseconds to stay on the bus after the last frame (see LINGER); 0 to 60000.
+        #[arg(long, default_value_t = LINGER_MS, value_parser = clap::value_parser!(u64).range(0..=60_000))]
         linger: u64,
     },
 }
 
+/// `--timeout`: finite seconds in a range a dump can wait (a year at most; a millisecond at
+/// least, as less would end before the first frame could arrive).
+fn seconds(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(s) if s.is_finite() && (0.001..=31_536_000.0).contains(&s) => Ok(s),
+        _ => Err("give seconds, 0.001 to 31536000".into()),
+    }
+}
+
+/// `--speed`: a finite time scale whose replay can be timed (1000 times faster or slower at most).
+fn speed(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(s) if s.is_finite() && (0.001..=1000.0).contains(&s) => Ok(s),
+        _ => Err("give a time scale, 0.001 to 1000 (2 replays twice as fast)".into()),
+    }
+}
+
 fn open_bus(iface: &str, bitrate: u32) -> Result<Box<dyn Bus>, String> {
+    if iface.trim().is_empty()
+        || iface
+            .strip_prefix("vbus:")
+            .is_some_and(|n| n.trim().is_empty())
+    {
+        return Err(format!(
+            "bus `{iface}`: the name is empty; give vbus:NAME or a SocketCAN interface such as can0"
+        ));
+    }
     if let Some(name) = iface.strip_prefix("vbus:") {
         return ShmBus::open(name, bitrate)
             .map(|b| Box::new(b) as Box<dyn Bus>)
@@ -215,9 +241,9 @@ fn dump(
         Some(w) => Some(PcapWriter::new(w).map_err(|e| format!("writing pcap: {e}"))?),
         None => None,
     };
+    // In range (the parser checked it): the conversion cannot overflow.
     let end = match timeout {
-        Some(s) if s.is_finite() && s >= 0.0 => monotonic_now() + Duration::from_secs_f64(s),
-        Some(s) => return Err(format!("--timeout {s} is not a number of seconds")),
+        Some(s) => monotonic_now() + Duration::from_secs_f64(s),
         None => Instant::MAX,
     };
     let mut out = DumpOutput {
@@ -344,9 +370,6 @@ fn replay(
     speed: f64,
     linger: u64,
 ) -> Result<(), String> {
-    if !(speed.is_finite() && speed > 0.0) {
-        return Err(format!("--speed {speed} must be a positive number"));
-    }
     let input = File::open(file).map_err(|e| format!("cannot open {}: {e}", file.display()))?;
     let records =
         candump::read_log(BufReader::new(input)).map_err(|e| format!("{}: {e}", file.display()))?;

@@ -8,7 +8,7 @@ use shm_api::cli::{self, exit};
 #[command(name = "motion-top", about = "A live view of the motion coordinator")]
 struct TopArgs {
     /// The coordinator's service prefix.
-    #[arg(long, default_value = shm_api::DEFAULT_PREFIX)]
+    #[arg(long, default_value = shm_api::DEFAULT_PREFIX, value_parser = shm_api::names::check_prefix)]
     prefix: String,
 }
 

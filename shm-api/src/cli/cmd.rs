@@ -27,10 +27,10 @@ use crate::contract::{
 )]
 pub struct CmdArgs {
     /// The coordinator's service prefix.
-    #[arg(long, global = true, default_value = crate::DEFAULT_PREFIX)]
+    #[arg(long, global = true, default_value = crate::DEFAULT_PREFIX, value_parser = crate::names::check_prefix)]
     pub prefix: String,
-    /// How long to wait for the state, the reply and a parameter's value, ms.
-    #[arg(long, global = true, default_value_t = 2000)]
+    /// How long to wait for the state, the reply and a parameter's value, ms (1 to 3600000).
+    #[arg(long, global = true, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
     pub timeout_ms: u64,
     /// The command.
     #[command(subcommand)]
@@ -104,7 +104,7 @@ pub enum Command {
         /// The axis.
         #[arg(long)]
         axis: String,
-        /// Signed ‰ of the velocity limit.
+        /// Signed ‰ of the velocity limit (-1000 to 1000).
         #[arg(long, allow_negative_numbers = true)]
         permille: i16,
     },
@@ -114,9 +114,9 @@ pub enum Command {
         #[command(flatten)]
         target: MoveTarget,
         /// Target(s) in user units, comma-separated for a group ("100,50").
-        #[arg(long, allow_hyphen_values = true)]
+        #[arg(long, allow_hyphen_values = true, value_parser = positions)]
         to: String,
-        /// Share of the limits, %.
+        /// Share of the limits, % (1 to 100).
         #[arg(long, default_value_t = 100)]
         percent: u8,
         /// If a move runs already, start this one when it has arrived (PLCopen Buffered);
@@ -139,7 +139,7 @@ pub enum Command {
         /// What it applies to.
         #[command(flatten)]
         target: TargetArgs,
-        /// Override, % (0..=200).
+        /// Override, % (0 to 200).
         #[arg(long)]
         percent: u16,
     },
@@ -192,6 +192,14 @@ pub enum Command {
         #[arg(long, value_parser = parse_level, action = clap::ArgAction::Set)]
         value: bool,
     },
+}
+
+/// `--to`: decimals in user units, checked before anything connects (the axis's scale, known
+/// once connected, then converts them exactly).
+fn positions(text: &str) -> Result<String, String> {
+    super::resolve::parse_micro_list(text)
+        .map(|_| text.to_owned())
+        .map_err(|e| e.to_string())
 }
 
 fn parse_level(s: &str) -> Result<bool, String> {

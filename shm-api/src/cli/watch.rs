@@ -17,13 +17,13 @@ use crate::contract::MachineState;
 )]
 pub struct WatchArgs {
     /// The coordinator's service prefix.
-    #[arg(long, default_value = crate::DEFAULT_PREFIX)]
+    #[arg(long, default_value = crate::DEFAULT_PREFIX, value_parser = crate::names::check_prefix)]
     pub prefix: String,
     /// The axes to print, by name or index (default: all).
     #[arg(long, value_delimiter = ',')]
     pub axes: Vec<String>,
-    /// Lines per second.
-    #[arg(long, conflicts_with = "every_cycle", default_value_t = 10.0)]
+    /// Lines per second (0.01 to 1000000).
+    #[arg(long, conflicts_with = "every_cycle", default_value_t = 10.0, value_parser = rate)]
     pub rate: f64,
     /// One line per cycle (every state published; gaps are reported on stderr).
     #[arg(long)]
@@ -32,18 +32,26 @@ pub struct WatchArgs {
     /// position, setpoint, velocity (user units) and state (its name).
     #[arg(long)]
     pub csv: bool,
-    /// Exit 0 after this many lines (the header not counted).
-    #[arg(long)]
+    /// Exit 0 after this many lines (the header not counted; at least 1).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1_000_000_000))]
     pub count: Option<u64>,
-    /// How long without a new state before giving up, ms.
-    #[arg(long, default_value_t = 2000)]
+    /// How long without a new state before giving up, ms (1 to 3600000).
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
     pub timeout_ms: u64,
+}
+
+/// `--rate`: finite lines per second, checked before anything connects.
+fn rate(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(r) if r.is_finite() && (0.01..=1e6).contains(&r) => Ok(r),
+        _ => Err("give lines per second, 0.01 to 1000000".into()),
+    }
 }
 
 impl WatchArgs {
     /// The time between lines at `--rate` (a non-positive or absurd rate is refused).
     pub fn period(&self) -> Option<Duration> {
-        (self.rate.is_finite() && self.rate > 0.0 && self.rate <= 1e6)
+        (self.rate.is_finite() && self.rate >= 0.01 && self.rate <= 1e6)
             .then(|| Duration::from_secs_f64(1.0 / self.rate))
     }
 }
