@@ -989,6 +989,28 @@ impl Config {
         bus.cycle_us.unwrap_or(self.cycle_us)
     }
 
+    /// Resolves the host of every Modbus drive the coordinator would dial, as `run` will
+    /// (a numeric address resolves without asking anyone): a name that cannot be resolved is
+    /// refused before the machine starts. Kept out of [`Config::check`], which does no I/O;
+    /// `coordinator check` calls both.
+    pub fn resolve_addresses(&self) -> Vec<ConfigError> {
+        self.axes
+            .iter()
+            .enumerate()
+            .filter(|(_, a)| a.device == DeviceKind::CmmoSt && !a.simulated)
+            .filter_map(|(i, a)| {
+                let addr = a.modbus.as_ref().filter(|t| valid_host_port(t))?;
+                resolves(addr).err().map(|reason| ConfigError {
+                    key: format!("axes[{i}].modbus"),
+                    problem: Problem::ModbusResolve {
+                        addr: addr.clone(),
+                        reason,
+                    },
+                })
+            })
+            .collect()
+    }
+
     /// Validates everything and computes every bus's worst cycle; see [`Report`].
     pub fn check(&self) -> Report<'_> {
         let mut err = Errors(Vec::new());
@@ -1152,20 +1174,6 @@ impl Config {
                         format!("{key}.modbus"),
                         Problem::ModbusAddress(addr.clone()),
                     ),
-                    // Resolved here as `run` will (a numeric address resolves without asking
-                    // anyone), so a name that cannot be dialled is refused before the machine
-                    // starts rather than leaving an axis waiting forever.
-                    (Some(addr), false) => {
-                        if let Err(reason) = resolves(addr) {
-                            err.push(
-                                format!("{key}.modbus"),
-                                Problem::ModbusResolve {
-                                    addr: addr.clone(),
-                                    reason,
-                                },
-                            );
-                        }
-                    }
                     _ => {}
                 }
             } else {

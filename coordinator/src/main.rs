@@ -176,7 +176,8 @@ fn check(file: &std::path::Path) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let report = config.check();
+    let mut report = config.check();
+    report.errors.extend(config.resolve_addresses());
     print!("{report}");
     if report.is_ok() {
         ExitCode::SUCCESS

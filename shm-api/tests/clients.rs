@@ -314,7 +314,10 @@ fn watch_refuses_unknown_axes_bad_rates_and_no_state() {
     let err = WatchArgs::try_parse_from(["motion-watch", "--rate", "0"])
         .expect_err("a rate of 0 is refused")
         .to_string();
-    assert!(err.contains("--rate") && err.contains("0.01 to 1000000"), "{err}");
+    assert!(
+        err.contains("--rate") && err.contains("0.01 to 1000000"),
+        "{err}"
+    );
     let (code, _, _) = run_watch(&mut Fake::new([]), &[]);
     assert_eq!(code, exit::ERROR);
     assert!(WatchArgs::try_parse_from(["motion-watch", "--rate", "5", "--every-cycle"]).is_err());
@@ -466,7 +469,10 @@ fn bad_command_lines_are_refused() {
     let err = parse(&["move", "--axis", "x", "--to", "1.2345678"])
         .expect_err("7 decimals are refused")
         .to_string();
-    assert!(err.contains("--to") && err.contains("at most 6 decimals"), "{err}");
+    assert!(
+        err.contains("--to") && err.contains("at most 6 decimals"),
+        "{err}"
+    );
     assert!(request(&["start-chain", "--group", "ab", "--record", "1"]).is_err());
 }
 
