@@ -422,29 +422,46 @@ fn ready(a: &AxisState) -> bool {
     a.flags & f == f && a.mode == axis_mode::ON && a.state == axis_state::READY
 }
 
+/// The axis in words, for an error: statusword, state, mode, fault (the contract's numbers).
+fn axis_words(a: &AxisState) -> String {
+    format!(
+        "statusword {:04X}h, state {}, mode {}, fault {}{}",
+        a.status_bits,
+        a.state,
+        a.mode,
+        a.fault,
+        if a.fault != 0 {
+            " (faulted: a drive that misses three TPDOs in a row is faulted; on a busy host try a longer --cycle-us)"
+        } else {
+            ""
+        }
+    )
+}
+
 /// Waits until the axis stands ready, its statusword unchanged over 5 states; returns it.
 fn settle(c: &mut Client, within: Duration) -> Result<u16, String> {
     let end = now_ns() + within.as_nanos() as u64;
     let mut same = 0;
-    let mut last = None;
+    let mut last: Option<AxisState> = None;
     while now_ns() < end {
         if let Ok(s) = c.next(Duration::from_millis(200)) {
-            let a = &s.axes[0];
-            let ok = ready(a) && a.flags & axis_flags::MOTION_COMPLETE != 0;
-            same = if ok && last == Some(a.status_bits) {
+            let a = s.axes[0];
+            let ok = ready(&a) && a.flags & axis_flags::MOTION_COMPLETE != 0;
+            same = if ok && last.is_some_and(|l| l.status_bits == a.status_bits) {
                 same + 1
             } else {
                 0
             };
-            last = Some(a.status_bits);
+            last = Some(a);
             if same >= 5 {
                 return Ok(a.status_bits);
             }
         }
     }
     Err(format!(
-        "the axis was not ready and still within {} s",
-        within.as_secs()
+        "the axis was not ready and still within {} s; last seen: {}",
+        within.as_secs(),
+        last.as_ref().map_or("no state".into(), axis_words)
     ))
 }
 

@@ -5,7 +5,8 @@
 //! - `timing step --axes 8,128 [--profile fhpp|cia402|both] [--grouped|--single]`
 //! - `timing sim [--drives 8] [--period-us 1000] [--duration S] [--profile fhpp|cia402|both]`
 //! - `timing loop [--drives vbus|in-process|both] [--duration S | --samples N] [--cycle-us 2000]`
-//! - `timing all [--duration S]`: cycle, step, sim, shm-latency and loop into one folder
+//! - `timing all [--duration S] [--loop-cycle-us 2000]`: cycle, step, sim, shm-latency and loop
+//!   into one folder
 //! - `timing report DIR`, `timing compare DIR DIR`
 //! - `timing shm-latency [--samples N] [--period-us P] [--out DIR]`: the raw latencies (ns, one
 //!   per line) per phase and a table, as before.
@@ -188,6 +189,9 @@ enum Cmd {
         /// Machine sizes of the step run, axes (comma-separated).
         #[arg(long, value_delimiter = ',', default_values_t = [8usize, 128])]
         axes: Vec<usize>,
+        /// The loop run's SYNC period, µs (250..100000).
+        #[arg(long, default_value_t = 2000)]
+        loop_cycle_us: u32,
         #[command(flatten)]
         common: Common,
     },
@@ -336,6 +340,7 @@ fn main() -> ExitCode {
             duration,
             cycle,
             axes,
+            loop_cycle_us,
             common,
         } => (|| {
             let o = cycle_options(&cycle, duration);
@@ -356,6 +361,11 @@ fn main() -> ExitCode {
                 profiles: vec![Profile::Cia402],
             };
             sim.check()?;
+            let round_trip = LoopOptions {
+                cycle_us: loop_cycle_us,
+                ..loop_options(DrivesArg::Both, None, (duration / 10.0).max(2.0))
+            };
+            round_trip.check()?;
             let exe = own_exe()?;
             let mut s = Session::start(command_line(), common.load);
             s.add(timing::cycle::run(&o)?);
