@@ -39,7 +39,7 @@ use std::time::Duration;
 use drivers::can::Bus;
 use drivers::time::monotonic_now;
 use shm_api::client::{Client, reply_result};
-use shm_api::contract::{AxisState, CommandRequest, axis_flags, axis_mode, axis_state};
+use shm_api::contract::{AxisState, CommandRequest, axis_flags, axis_mode, axis_state, fault};
 
 use crate::progress::Progress;
 use crate::report::summary::Run;
@@ -425,27 +425,86 @@ fn ready(a: &AxisState) -> bool {
 /// The axis in words, for an error: statusword, state, mode, fault (the contract's numbers).
 fn axis_words(a: &AxisState) -> String {
     format!(
-        "statusword {:04X}h, state {}, mode {}, fault {}{}",
-        a.status_bits,
-        a.state,
-        a.mode,
-        a.fault,
-        if a.fault != 0 {
-            " (faulted: a drive that misses three TPDOs in a row is faulted; on a busy host try a longer --cycle-us)"
-        } else {
-            ""
-        }
+        "statusword {:04X}h, state {}, mode {}, fault {}",
+        a.status_bits, a.state, a.mode, a.fault
     )
 }
 
-/// Waits until the axis stands ready, its statusword unchanged over 5 states; returns it.
-fn settle(c: &mut Client, within: Duration) -> Result<u16, String> {
-    let end = now_ns() + within.as_nanos() as u64;
+/// Faults recovered at most in one machine's run: more means the host cannot keep the drive.
+pub const MAX_RECOVERIES: u32 = 10;
+
+/// What the client side met besides its samples.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Mishaps {
+    /// Faults (a drive's late TPDOs on a busy host, mostly) acknowledged, enabled and homed
+    /// again.
+    pub recovered: u32,
+    /// Samples whose reaction was a fault, not the move: discarded.
+    pub discarded: u32,
+}
+
+/// Brings a faulted axis back: waits until its drive is online again (the coordinator boots a
+/// drive it lost anew), acknowledges the fault, enables and homes it, retrying each step every
+/// half second for up to 30 s; [`settle`] then waits for the result.
+fn recover(c: &mut Client, m: &mut Mishaps, last: &AxisState) -> Result<(), String> {
+    use shm_api::request::Target;
+    m.recovered += 1;
+    if m.recovered > MAX_RECOVERIES {
+        return Err(format!(
+            "the axis faulted more than {MAX_RECOVERIES} times (last: {}): a drive that misses three TPDOs in a row is faulted; on a busy host try a longer --cycle-us",
+            axis_words(last)
+        ));
+    }
+    let reply = Duration::from_secs(5);
+    let end = now_ns() + 30_000_000_000;
+    let mut next_try = 0;
+    let mut said = String::from("no state");
+    while now_ns() < end {
+        let Ok(s) = c.next(Duration::from_millis(200)) else {
+            continue;
+        };
+        let a = s.axes[0];
+        said = axis_words(&a);
+        let online = a.flags & axis_flags::ONLINE != 0;
+        let enabled = a.flags & axis_flags::ENABLED != 0 && a.state == axis_state::READY;
+        if online && a.fault == fault::NONE && enabled && a.flags & axis_flags::HOMED != 0 {
+            return Ok(());
+        }
+        if !online || now_ns() < next_try {
+            continue;
+        }
+        next_try = now_ns() + 500_000_000;
+        let req = if a.fault != fault::NONE {
+            CommandRequest::acknowledge(Target::Axis(0))
+        } else if !enabled {
+            CommandRequest::enable(Target::Axis(0))
+        } else {
+            CommandRequest::home(Target::Axis(0))
+        };
+        // A refusal (still acknowledging, still homing) is retried at the next try.
+        let _ = c.command(&req, reply);
+    }
+    Err(format!(
+        "recovering from a fault: the axis was not ready again within 30 s; last seen: {said}"
+    ))
+}
+
+/// Waits until the axis stands ready, its statusword unchanged over 5 states; returns it. A
+/// fault is recovered from ([`recover`]) and the wait starts again.
+fn settle(c: &mut Client, within: Duration, m: &mut Mishaps) -> Result<u16, String> {
+    let mut end = now_ns() + within.as_nanos() as u64;
     let mut same = 0;
     let mut last: Option<AxisState> = None;
     while now_ns() < end {
         if let Ok(s) = c.next(Duration::from_millis(200)) {
             let a = s.axes[0];
+            if a.fault != fault::NONE || a.flags & axis_flags::ONLINE == 0 {
+                recover(c, m, &a)?;
+                end = now_ns() + within.as_nanos() as u64;
+                same = 0;
+                last = None;
+                continue;
+            }
             let ok = ready(&a) && a.flags & axis_flags::MOTION_COMPLETE != 0;
             same = if ok && last.is_some_and(|l| l.status_bits == a.status_bits) {
                 same + 1
@@ -470,7 +529,7 @@ fn drive_client(
     prefix: &str,
     o: &LoopOptions,
     progress: &mut Progress,
-) -> Result<Vec<Sent>, String> {
+) -> Result<(Vec<Sent>, Mishaps), String> {
     let mut c = Client::connect_timeout(prefix, Duration::from_secs(60))
         .map_err(|e| format!("no coordinator under {prefix}: {e}"))?;
     // The commands go from a thread of their own, with its own client, so the state is read
@@ -500,18 +559,18 @@ fn drive_client(
             }
         }
     });
-    let first = settle(&mut c, Duration::from_secs(60))
+    let mut m = Mishaps::default();
+    settle(&mut c, Duration::from_secs(60), &mut m)
         .map_err(|e| format!("waiting for the axis enabled and homed: {e}"))?;
-    let _ = first;
     let start = now_ns();
     let limit = start + (o.duration_s * 1e9) as u64;
     let mut sent = Vec::new();
     let cycle = Duration::from_micros(u64::from(o.cycle_us));
     for k in 0u64.. {
-        if o.samples.is_some_and(|n| k >= n) || now_ns() >= limit {
+        if o.samples.is_some_and(|n| sent.len() as u64 >= n) || now_ns() >= limit {
             break;
         }
-        let before = settle(&mut c, Duration::from_secs(10))?;
+        let before = settle(&mut c, Duration::from_secs(10), &mut m)?;
         // A varying phase against the cycle: 0 to 1 cycle, in 37 steps.
         std::thread::sleep(cycle * (k % 37) as u32 / 37);
         c.latest();
@@ -520,7 +579,8 @@ fn drive_client(
             .send(target)
             .map_err(|_| "the commanding client ended".to_string())?;
         let end = now_ns() + 5_000_000_000;
-        let (t4, status) = loop {
+        let mut seen = None;
+        while seen.is_none() && now_ns() < end {
             let got = if o.busy {
                 c.next_busy(Duration::from_millis(500))
             } else {
@@ -529,31 +589,39 @@ fn drive_client(
             if let Ok(s) = got
                 && s.axes[0].status_bits != before
             {
-                break (now_ns(), s.axes[0].status_bits);
+                seen = Some((now_ns(), s.axes[0]));
             }
-            if now_ns() > end {
+        }
+        let t0 = done_rx
+            .recv()
+            .map_err(|_| "the commanding client ended".to_string())?;
+        match (t0, seen) {
+            (Ok(t0), Some((t4, a))) if a.fault == fault::NONE => sent.push(Sent {
+                t0,
+                t4,
+                status: a.status_bits,
+            }),
+            // A fault came instead of the reaction, or the move was refused for one: the
+            // next settle recovers.
+            (Err(_), _) | (_, Some(_)) => m.discarded += 1,
+            (Ok(_), None) => {
                 return Err(format!(
                     "sample {k}: the axis's statusword stayed {before:04X}h for 5 s after the move"
                 ));
             }
-        };
-        let t0 = done_rx
-            .recv()
-            .map_err(|_| "the commanding client ended".to_string())?
-            .map_err(|e| format!("sample {k}: the move was refused: {e}"))?;
-        sent.push(Sent { t0, t4, status });
+        }
         progress.set(match o.samples {
-            Some(_) => k + 1,
+            Some(_) => sent.len() as u64,
             None => (now_ns() - start) / 1_000_000,
         });
     }
     drop(go_tx);
     let _ = commander.join();
-    Ok(sent)
+    Ok((sent, m))
 }
 
 /// Starts one machine, measures, stops it; the samples and the bus's frames.
-fn measure(kind: Drives, o: &LoopOptions) -> Result<(Vec<Sent>, Vec<Seen>), String> {
+fn measure(kind: Drives, o: &LoopOptions) -> Result<(Vec<Sent>, Mishaps, Vec<Seen>), String> {
     let coordinator = sibling("coordinator")?;
     let mut sc = Scene::new()?;
     let bus = unique("tloop");
@@ -591,7 +659,7 @@ fn measure(kind: Drives, o: &LoopOptions) -> Result<(Vec<Sent>, Vec<Seen>), Stri
     let mut progress = Progress::new(&format!("loop {}", kind.name()), total);
     let sent = drive_client(&prefix, o, &mut progress);
     progress.finish();
-    let sent = sent.map_err(|e| sc.failed(&e))?;
+    let (sent, mishaps) = sent.map_err(|e| sc.failed(&e))?;
     if !sc.alive(coord) {
         return Err(sc.failed("the coordinator ended during the run"));
     }
@@ -605,7 +673,7 @@ fn measure(kind: Drives, o: &LoopOptions) -> Result<(Vec<Sent>, Vec<Seen>), Stri
     let mut frames = frames;
     // A vbus delivers out of timestamp order.
     frames.sort_by_key(|f| f.t);
-    Ok((sent, frames))
+    Ok((sent, mishaps, frames))
 }
 
 /// The run of one machine from its samples and frames: the series, cycles, the goal, and the
@@ -702,8 +770,16 @@ pub fn run(o: &LoopOptions) -> Result<Vec<(Run, Vec<Series>)>, String> {
     o.check()?;
     let mut out = Vec::new();
     for &kind in &o.drives {
-        let (sent, frames) = measure(kind, o)?;
-        let r = build_run(kind, o, &sent, &frames);
+        let (sent, mishaps, frames) = measure(kind, o)?;
+        let mut r = build_run(kind, o, &sent, &frames);
+        r.0.set("faults_recovered", mishaps.recovered);
+        r.0.set("samples_discarded", mishaps.discarded);
+        if mishaps.recovered > 0 || mishaps.discarded > 0 {
+            r.0.notes.push(format!(
+                "the axis faulted {} time(s) (a drive's TPDOs late on a busy host) and was acknowledged, enabled and homed again; {} sample(s) met a fault and were left out",
+                mishaps.recovered, mishaps.discarded
+            ));
+        }
         if r.0.series.first().is_none_or(|s| s.figures.samples == 0) {
             return Err(format!(
                 "loop {}: no sample matched the bus ({}); {}",
