@@ -687,10 +687,10 @@ pub fn build_run(
     let mut run = Run::new(
         &format!("loop-{}", kind.name()),
         &format!(
-            "client command round trip, {} drive, cycle {} µs",
+            "client command round trip, {}, cycle {} µs",
             match kind {
-                Drives::Vbus => "drive-sim process on a vbus",
-                Drives::InProcess => "in-process simulated",
+                Drives::Vbus => "the drive a drive-sim process on a vbus",
+                Drives::InProcess => "the drive simulated in the coordinator",
             },
             o.cycle_us
         ),
