@@ -334,7 +334,17 @@ impl Drop for Scene {
 /// `Send`), collecting every frame with its completion time until stopped.
 struct Monitor {
     stop: Arc<AtomicBool>,
-    thread: std::thread::JoinHandle<Result<Vec<Seen>, String>>,
+    thread: Option<std::thread::JoinHandle<Result<Vec<Seen>, String>>>,
+}
+
+impl Drop for Monitor {
+    /// A run that failed early still ends the monitor's thread (and leaves the bus).
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 impl Monitor {
@@ -373,12 +383,17 @@ impl Monitor {
         ready_rx
             .recv()
             .map_err(|_| "the bus monitor ended before it joined".to_string())??;
-        Ok(Monitor { stop, thread })
+        Ok(Monitor {
+            stop,
+            thread: Some(thread),
+        })
     }
 
-    fn finish(self) -> Result<Vec<Seen>, String> {
+    fn finish(mut self) -> Result<Vec<Seen>, String> {
         self.stop.store(true, Ordering::Relaxed);
         self.thread
+            .take()
+            .ok_or("the bus monitor was already stopped")?
             .join()
             .map_err(|_| "the bus monitor panicked".to_string())?
     }
