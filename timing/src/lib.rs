@@ -8,6 +8,8 @@
 //!   drive sending its TPDOs on every SYNC;
 //! - [`shm_latency`]: publish-to-client latency over shared memory, the contract's publisher
 //!   and client beside a bare iceoryx2 pair of the same payload;
+//! - [`round_trip`]: `timing loop`, a client's command through RPDO, SYNC and TPDO back to the
+//!   state the client sees, stage by stage, with drive-sim processes and in-process drives;
 //! - the framework: [`stats`] (a histogram and timeline per series, the table's figures),
 //!   [`report`] (table, `summary.json`, histogram files, plots, reading a folder back),
 //!   [`machine`] (CPU, kernel, preemption, load, real-time settings granted), [`progress`]
@@ -38,6 +40,7 @@ pub mod load;
 pub mod machine;
 pub mod progress;
 pub mod report;
+pub mod round_trip;
 pub mod session;
 pub mod shm_latency;
 pub mod sim;

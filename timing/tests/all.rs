@@ -1,4 +1,4 @@
-//! `timing all --duration 2` as a user runs it (cycle, step, sim, shm-latency), into a folder: the folder's `summary.json` has
+//! `timing all --duration 2` as a user runs it (cycle, step, sim, shm-latency, loop), into a folder: the folder's `summary.json` has
 //! the structure the docs describe, every sample count matches the run and the histogram files,
 //! every ratio and goal is the quotient of figures in the same file; `timing report DIR`
 //! redraws the plots and the table; `timing compare DIR DIR` reads both.
@@ -39,9 +39,22 @@ fn ran() -> &'static Ran {
     RAN.get_or_init(|| {
         let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("timing-all");
         let _ = std::fs::remove_dir_all(&dir);
+        // The loop run starts the coordinator's binaries, next to `timing`.
+        let release = Path::new(env!("CARGO_BIN_EXE_timing"))
+            .parent()
+            .is_some_and(|d| d.ends_with("release"));
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut build = Command::new(cargo);
+        build.args(["build", "-q", "-p", "coordinator", "--bins"]);
+        if release {
+            build.arg("--release");
+        }
+        assert!(build.status().expect("cargo runs").success());
         let out = Command::new(env!("CARGO_BIN_EXE_timing"))
             .args(["all", "--duration", "2", "--axes", "8", "--out"])
             .arg(&dir)
+            // The loop's debug drive-sim on a shared host: 10 ms cycles (tests/loop.rs).
+            .args(["--loop-cycle-us", "10000"])
             .output()
             .expect("timing runs");
         Ran { dir, out }
@@ -108,7 +121,18 @@ fn all_writes_a_consistent_summary() {
     assert!(s["load"].is_null());
     let runs = s["runs"].as_array().unwrap();
     let names: Vec<&str> = runs.iter().map(|r| r["name"].as_str().unwrap()).collect();
-    assert_eq!(names, ["cycle", "step", "sim", "shm-latency"], "{ctx}");
+    assert_eq!(
+        names,
+        [
+            "cycle",
+            "step",
+            "sim",
+            "shm-latency",
+            "loop-vbus",
+            "loop-in-process"
+        ],
+        "{ctx}"
+    );
 
     for run in runs {
         let name = run["name"].as_str().unwrap();

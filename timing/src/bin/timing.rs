@@ -4,7 +4,9 @@
 //! - `timing cycle [--period-us 1000] [--priority 80] [--cpu N] [--duration S] [--window-s 1]`
 //! - `timing step --axes 8,128 [--profile fhpp|cia402|both] [--grouped|--single]`
 //! - `timing sim [--drives 8] [--period-us 1000] [--duration S] [--profile fhpp|cia402|both]`
-//! - `timing all [--duration S]`: cycle, step, sim and shm-latency into one folder
+//! - `timing loop [--drives vbus|in-process|both] [--duration S | --samples N] [--cycle-us 2000]`
+//! - `timing all [--duration S] [--loop-cycle-us 2000]`: cycle, step, sim, shm-latency and loop
+//!   into one folder
 //! - `timing report DIR`, `timing compare DIR DIR`
 //! - `timing shm-latency [--samples N] [--period-us P] [--out DIR]`: the raw latencies (ns, one
 //!   per line) per phase and a table, as before.
@@ -18,6 +20,7 @@ use std::time::Duration;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use timing::cycle::CycleOptions;
+use timing::round_trip::LoopOptions;
 use timing::session::{self, Session};
 use timing::sim::SimOptions;
 use timing::step::{Cache, Profile, StepOptions};
@@ -80,6 +83,13 @@ fn caches(c: CacheArg) -> Vec<Cache> {
         CacheArg::Hot => vec![Cache::Hot],
         CacheArg::Both => vec![Cache::Cold, Cache::Hot],
     }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DrivesArg {
+    Vbus,
+    InProcess,
+    Both,
 }
 
 #[derive(Args, Clone)]
@@ -146,10 +156,32 @@ enum Cmd {
         #[command(flatten)]
         common: Common,
     },
-    /// Cycle, step, sim and shm-latency into one folder.
+    /// A client's command round trip: RPDO, latched at the SYNC, TPDO, state seen.
+    Loop {
+        /// Where the drive runs: a drive-sim process on a vbus, simulated inside the
+        /// coordinator, or both in turn.
+        #[arg(long, value_enum, default_value = "both")]
+        drives: DrivesArg,
+        /// Stop after this many samples per machine (or at --duration, first reached).
+        #[arg(long)]
+        samples: Option<u64>,
+        /// Measuring time per machine, s (boot and homing come on top).
+        #[arg(long, default_value_t = 10.0)]
+        duration: f64,
+        /// The machine's SYNC period, µs (250..100000).
+        #[arg(long, default_value_t = 2000)]
+        cycle_us: u32,
+        /// Read the state busy (one CPU spinning) instead of polling every 200 µs.
+        #[arg(long)]
+        busy: bool,
+        #[command(flatten)]
+        common: Common,
+    },
+    /// Cycle, step, sim, shm-latency and loop into one folder.
     All {
         /// Length of the cycle run, s; the step gets an eighth of it per series (two machines,
-        /// cold and hot), sim a tenth (8 CiA 402 drives at 1 ms), shm-latency half of it.
+        /// cold and hot), sim a tenth (8 CiA 402 drives at 1 ms), shm-latency half of it, loop
+        /// a tenth per machine (at least 2 s).
         #[arg(long, default_value_t = 10.0)]
         duration: f64,
         #[command(flatten)]
@@ -157,6 +189,9 @@ enum Cmd {
         /// Machine sizes of the step run, axes (comma-separated).
         #[arg(long, value_delimiter = ',', default_values_t = [8usize, 128])]
         axes: Vec<usize>,
+        /// The loop run's SYNC period, µs (250..100000).
+        #[arg(long, default_value_t = 2000)]
+        loop_cycle_us: u32,
         #[command(flatten)]
         common: Common,
     },
@@ -212,6 +247,21 @@ fn cycle_options(c: &CycleArgs, duration: f64) -> CycleOptions {
         cpu: c.cpu,
         duration_s: duration,
         window_s: c.window_s,
+    }
+}
+
+fn loop_options(d: DrivesArg, samples: Option<u64>, duration: f64) -> LoopOptions {
+    use timing::round_trip::Drives;
+    LoopOptions {
+        drives: match d {
+            DrivesArg::Vbus => vec![Drives::Vbus],
+            DrivesArg::InProcess => vec![Drives::InProcess],
+            DrivesArg::Both => vec![Drives::Vbus, Drives::InProcess],
+        },
+        samples,
+        duration_s: duration,
+        cycle_us: 2000,
+        busy: false,
     }
 }
 
@@ -290,6 +340,7 @@ fn main() -> ExitCode {
             duration,
             cycle,
             axes,
+            loop_cycle_us,
             common,
         } => (|| {
             let o = cycle_options(&cycle, duration);
@@ -310,6 +361,11 @@ fn main() -> ExitCode {
                 profiles: vec![Profile::Cia402],
             };
             sim.check()?;
+            let round_trip = LoopOptions {
+                cycle_us: loop_cycle_us,
+                ..loop_options(DrivesArg::Both, None, (duration / 10.0).max(2.0))
+            };
+            round_trip.check()?;
             let exe = own_exe()?;
             let mut s = Session::start(command_line(), common.load);
             s.add(timing::cycle::run(&o)?);
@@ -319,6 +375,33 @@ fn main() -> ExitCode {
             let samples =
                 ((duration * 1e6 / 10.0 / cycle.period_us as f64) as usize).clamp(100, 1_000_000);
             s.add(session::shm_run(&exe, samples, cycle.period_us.max(100))?);
+            timing::round_trip::run(&loop_options(
+                DrivesArg::Both,
+                None,
+                (duration / 10.0).max(2.0),
+            ))?
+            .into_iter()
+            .for_each(|r| s.add(r));
+            finish(s, common.out)
+        })(),
+        Cmd::Loop {
+            drives,
+            samples,
+            duration,
+            cycle_us,
+            busy,
+            common,
+        } => (|| {
+            let o = LoopOptions {
+                cycle_us,
+                busy,
+                ..loop_options(drives, samples, duration)
+            };
+            o.check()?;
+            let mut s = Session::start(command_line(), common.load);
+            timing::round_trip::run(&o)?
+                .into_iter()
+                .for_each(|r| s.add(r));
             finish(s, common.out)
         })(),
         Cmd::Report { dir } => session::redraw(&dir).map(|t| print!("{t}")),
