@@ -74,6 +74,9 @@ struct RealIo {
     /// The cycle of the first event after the orderly end began (`u64::MAX` before): the
     /// printer says what was aborted from then on as the end's own stop.
     end_cycle: Arc<AtomicU64>,
+    /// The next cycle's deadline, ns of CLOCK_MONOTONIC: the command thread looks for
+    /// requests just before it (`shm::next_look`). One relaxed store a cycle.
+    next_deadline: Arc<AtomicU64>,
 }
 
 impl RealIo {
@@ -146,6 +149,12 @@ impl CycleIo for RealIo {
     fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
         let wake = self.next_wake(rx);
         self.now = wake.now;
+        let next = if self.producer {
+            self.ticker.next_deadline()
+        } else {
+            wake.now + self.period
+        };
+        self.next_deadline.store(next.as_nanos(), Ordering::Relaxed);
         wake
     }
 
@@ -210,6 +219,11 @@ impl CycleIo for RealIo {
 
 /// SCHED_FIFO priority of the cycle thread while it sets up, below the simulated drives' 70.
 const SETUP_PRIORITY: i32 = 60;
+
+/// The shared-memory command thread's SCHED_FIFO priority: below the cycle's (80), above the
+/// simulated drives' (70), so that its look just before each deadline is on time; its work
+/// there is a few microseconds.
+const COMMAND_PRIORITY: i32 = 75;
 
 /// What the cycle thread hands back when it ends.
 struct CycleResult {
@@ -369,6 +383,7 @@ pub fn run_real(
 
     // Client commands and events over shared memory, on their own thread.
     let info = StaticInfo::new(plan, false);
+    let next_deadline = Arc::new(AtomicU64::new(0));
     let shm_thread = match &opts.shm {
         Some(prefix) => {
             let _ = shm_api::publisher::cleanup_dead_nodes();
@@ -378,6 +393,8 @@ pub fn run_real(
                     info.clone(),
                     command_port,
                     shm_rx,
+                    next_deadline.clone(),
+                    Some(COMMAND_PRIORITY),
                 )
                 .map_err(|e| RunError::Io(e.to_string()))?,
             )
@@ -549,6 +566,7 @@ pub fn run_real(
                     now: start,
                     ending: false,
                     end_cycle: end_cycle_io,
+                    next_deadline,
                 };
                 while lp.iterate(&mut stepper, &mut io).is_some() {}
                 // The rest (summary, closing the ports and services) is no cycle work.

@@ -1011,16 +1011,34 @@ impl ServiceSide {
 /// applies it and answers with the latching cycle; the answer goes back to the client matched
 /// by tag. A request the queue cannot take is answered OVERLOADED at once. The thread also
 /// publishes the events it is sent, and ends when `events` closes.
+///
+/// Idle, the thread looks every [`COMMAND_POLL`], and once more [`COMMAND_LEAD`] before the
+/// cycle's next deadline (`next_deadline`, ns of CLOCK_MONOTONIC, stored by the cycle thread; 0
+/// while unknown): a request that arrived since the last look is then in the queue when the
+/// cycle starts, so a command waits at most one cycle plus the lead for its cycle, not a cycle
+/// plus the poll period. The thread runs at SCHED_FIFO `priority` (below the cycle's) where
+/// that is granted, with a timer slack of 1 ns, so that look is on time.
 pub fn spawn_command_thread(
     prefix: String,
     info: StaticInfo,
     mut port: crate::runtime::services::CommandPort,
     events: std::sync::mpsc::Receiver<Event>,
+    next_deadline: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    priority: Option<i32>,
 ) -> std::io::Result<std::thread::JoinHandle<Result<(), String>>> {
     std::thread::Builder::new()
         .name("shm-commands".into())
         .spawn(move || {
             let mut side = ServiceSide::create(&prefix, info)?;
+            // After the set-up (milliseconds of CPU in a debug build, which at SCHED_FIFO would
+            // keep the drives' threads off a CPU). A refusal leaves it on the normal scheduler.
+            let _ = crate::runtime::realtime_thread::enter_realtime(
+                &crate::runtime::realtime_thread::RealtimeSettings {
+                    priority,
+                    lock_memory: false,
+                    cpu: None,
+                },
+            );
             // Requests with the cycle, by the port's tag.
             let mut pending: Vec<(u64, PendingCommand)> = Vec::new();
             loop {
@@ -1063,16 +1081,54 @@ pub fn spawn_command_thread(
                     }
                 }
                 if idle {
-                    std::thread::sleep(std::time::Duration::from_micros(200));
+                    idle_wait(next_deadline.load(std::sync::atomic::Ordering::Relaxed));
                 }
             }
         })
+}
+
+/// How often the idle command thread looks for requests.
+pub const COMMAND_POLL: std::time::Duration = std::time::Duration::from_micros(200);
+
+/// How long before the cycle's deadline the command thread looks once more.
+pub const COMMAND_LEAD: std::time::Duration = std::time::Duration::from_micros(50);
+
+/// When the idle command thread looks next: at `next_deadline − COMMAND_LEAD` if that comes
+/// within one [`COMMAND_POLL`] (and is still ahead), else one poll from `now`. All ns of
+/// CLOCK_MONOTONIC; `next_deadline` 0 means unknown.
+pub fn next_look(now: u64, next_deadline: u64) -> u64 {
+    let poll = COMMAND_POLL.as_nanos() as u64;
+    let look = next_deadline.saturating_sub(COMMAND_LEAD.as_nanos() as u64);
+    if next_deadline != 0 && look > now && look - now <= poll {
+        look
+    } else {
+        now + poll
+    }
+}
+
+fn idle_wait(next_deadline: u64) {
+    let now = drivers::time::monotonic_now();
+    let at = next_look(now.as_nanos(), next_deadline);
+    crate::runtime::ticker::sleep_until(drivers::time::Instant::from_nanos(at));
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::config::{Config, EXAMPLE};
+
+    #[test]
+    fn the_idle_command_thread_looks_just_before_the_cycle() {
+        let us = 1_000u64;
+        // Far from the deadline: the plain poll.
+        assert_eq!(next_look(1_000 * us, 3_000 * us), 1_200 * us);
+        // The deadline's look comes within a poll: taken instead.
+        assert_eq!(next_look(2_800 * us, 3_000 * us), 2_950 * us);
+        // Past the look (inside the lead): the plain poll (the next cycle's look follows).
+        assert_eq!(next_look(2_960 * us, 3_000 * us), 3_160 * us);
+        // Deadline unknown.
+        assert_eq!(next_look(5 * us, 0), 205 * us);
+    }
     use crate::runtime::plan::plan;
 
     #[test]
