@@ -6,8 +6,9 @@
 //! - [`step`]: the cycle step's compute time on synthetic machines;
 //! - [`sim`]: the virtual-time simulation's speed, drive-seconds per wall second, with every
 //!   drive sending its TPDOs on every SYNC;
-//! - [`shm_latency`]: publish-to-client latency over shared memory, the contract's publisher
-//!   and client beside a bare iceoryx2 pair of the same payload;
+//! - [`publish`]: the real coordinator's state to a client process, busy-poll and
+//!   event-driven, beside a bare iceoryx2 pair of the same payload, and what the cycle thread's
+//!   notify costs;
 //! - the framework: [`stats`] (a histogram and timeline per series, the table's figures),
 //!   [`report`] (table, `summary.json`, histogram files, plots, reading a folder back),
 //!   [`machine`] (CPU, kernel, preemption, load, real-time settings granted), [`progress`]
@@ -37,9 +38,9 @@ pub mod cyclictest;
 pub mod load;
 pub mod machine;
 pub mod progress;
+pub mod publish;
 pub mod report;
 pub mod session;
-pub mod shm_latency;
 pub mod sim;
 pub mod stats;
 pub mod step;
