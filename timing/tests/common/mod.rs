@@ -26,7 +26,10 @@ pub fn shm_unusable() -> Option<String> {
         Ok(n) => n,
         Err(e) => return Some(e.to_string()),
     };
-    let name = format!("timing-test-probe-{}", std::process::id());
+    // Unique per call: the tests of one binary probe at the same time.
+    static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let name = format!("timing-test-probe-{}-{n}", std::process::id());
     let name: iceoryx2::prelude::ServiceName = match name.as_str().try_into() {
         Ok(n) => n,
         Err(e) => return Some(shm_api::words(e)),
