@@ -384,7 +384,7 @@ impl Client {
     }
 
     /// Like [`Client::next`], but sleeping on the `events` service until the coordinator's
-    /// relay signals a new state (event-driven: no polling, one wake-up per cycle).
+    /// cycle thread signals a new state (event-driven: no polling, one wake-up per cycle).
     pub fn next_event_driven(&mut self, timeout: Duration) -> Result<&MachineState, ClientError> {
         let deadline = Instant::now() + timeout;
         loop {

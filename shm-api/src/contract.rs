@@ -467,9 +467,8 @@ pub mod event_id {
     pub const PARAMETER: usize = 7;
     /// The coordinator is shutting down.
     pub const SHUTDOWN: usize = 8;
-    /// A new state was published (signalled by the coordinator's relay thread right after the
-    /// cycle thread published, never by the cycle thread itself; event-driven clients wait on
-    /// it). Not logged on `event-log`.
+    /// A new state was published (signalled by the coordinator's cycle thread right after it
+    /// sends the state; event-driven clients wait on it). Not logged on `event-log`.
     pub const STATE_PUBLISHED: usize = 9;
     /// The coordinator itself missed cycles (the host stalled it): `value` how long it was away
     /// in µs, `code` the cycles skipped (at most 65535). The drives are not blamed for them.

@@ -417,7 +417,7 @@ impl Drop for PendingCommand {
 }
 
 /// A notifier on `names.events`, opening or creating the service. Both of its notifiers (the
-/// event publisher's and the state relay's) come from here, so the service is always created
+/// event publisher's and the cycle thread's [`StateNotifier`]) come from here, so the service is always created
 /// with the same settings whichever opens it first.
 fn events_notifier(
     node: &Node<ipc::Service>,
@@ -427,7 +427,7 @@ fn events_notifier(
 ) -> Result<Notifier<ipc::Service>, ShmError> {
     node.service_builder(&service_name(&names.events)?)
         .event()
-        // The event publisher and the state relay.
+        // The event publisher and the cycle thread's state notifier.
         .max_notifiers(2)
         .max_listeners(settings.max_subscribers)
         .max_nodes(settings.max_nodes)
@@ -497,9 +497,12 @@ impl EventPublisher {
 }
 
 /// Signals [`crate::contract::event_id::STATE_PUBLISHED`] on `PREFIX/events`: what an
-/// event-driven client waits on. The coordinator's cycle thread never notifies (a syscall that
-/// can block); a relay thread that wakes just after each cycle's publication does, on seeing
-/// the published-cycle counter advance.
+/// event-driven client waits on. The coordinator's cycle thread calls [`StateNotifier::notify`]
+/// right after sending each state, so a waiting client wakes as soon as the state is out (a
+/// relay thread polling for the publication added its own wake-up lateness, 2x the bare pair's
+/// latency and worse under load). The notify allocates nothing; it writes the event id into
+/// the service's shared memory and wakes each listener (one `write` on each listener's
+/// socket), which does not block: a full socket drops the wake-up, never waits.
 pub struct StateNotifier {
     notifier: Notifier<ipc::Service>,
 }
@@ -521,143 +524,11 @@ impl StateNotifier {
         Ok(StateNotifier { notifier })
     }
 
-    /// Signals that a new state is out.
+    /// Signals that a new state is out. Allocates nothing and never waits (see the type).
     pub fn notify(&self) -> Result<(), ShmError> {
         self.notifier
             .notify_with_custom_event_id(EventId::new(crate::contract::event_id::STATE_PUBLISHED))
             .map(|_| ())
             .map_err(|e| ShmError::iox("notifying a new state", e))
     }
-}
-
-/// How long the relay spins for the publication after waking, at most, ns.
-const SPIN_NS: u64 = 100_000;
-
-/// The relay thread: wakes `offset` after every `period` deadline from `start` (ns of
-/// CLOCK_MONOTONIC), and when `published` (the cycle thread's count of published states,
-/// stored after each send) has advanced, signals [`StateNotifier::notify`]. When the state is not
-/// out yet it spins for up to 100 µs (an eighth of the period at most), then re-checks every
-/// 5 µs up to half a period. Ends when `stop` is set.
-pub fn spawn_state_relay(
-    prefix: String,
-    start_ns: u64,
-    period: core::time::Duration,
-    offset: core::time::Duration,
-    published: std::sync::Arc<std::sync::atomic::AtomicU64>,
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-) -> std::io::Result<std::thread::JoinHandle<Result<u64, ShmError>>> {
-    use std::sync::atomic::Ordering;
-    std::thread::Builder::new()
-        .name("state-relay".into())
-        .spawn(move || {
-            // Sleep to the microsecond, not the default 50 µs timer slack: the relay's lateness is
-            // the event-driven client's latency.
-            // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
-            unsafe {
-                libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong);
-            }
-            // The relay inherits its spawner's scheduling (SCHED_FIFO from the coordinator's
-            // cycle thread) for its loop only: creating and dropping the iceoryx2 node and
-            // notifier take milliseconds of CPU in a debug build, which at SCHED_FIFO keep the
-            // machine's lower-priority real-time threads (drives) off this CPU.
-            let inherited = Scheduling::current();
-            Scheduling::normal().apply();
-            let node = create_node()?;
-            let names = ServiceNames::new(&prefix);
-            let notifier = StateNotifier::create(&node, &names, &PublisherSettings::default())?;
-            inherited.apply();
-            let period_ns = period.as_nanos().max(1) as u64;
-            let mut seen = published.load(Ordering::Acquire);
-            let mut notified = 0u64;
-            let mut k = 1u64;
-            while !stop.load(Ordering::Relaxed) {
-                let wake = start_ns + k * period_ns + offset.as_nanos() as u64;
-                let now = monotonic_ns();
-                if wake > now {
-                    std::thread::sleep(core::time::Duration::from_nanos(wake - now));
-                } else {
-                    // Late: skip to the next period rather than firing a burst.
-                    k = (now - start_ns) / period_ns + 1;
-                    continue;
-                }
-                // Spin briefly (the publication normally follows the deadline by the step's few
-                // microseconds), then re-check every 5 µs up to half a period.
-                let woke = monotonic_ns();
-                let spin_until = woke + SPIN_NS.min(period_ns / 8);
-                let give_up = woke + period_ns / 2;
-                loop {
-                    let p = published.load(Ordering::Acquire);
-                    if p != seen {
-                        seen = p;
-                        notifier.notify()?;
-                        notified += 1;
-                        break;
-                    }
-                    let now = monotonic_ns();
-                    if now >= give_up || stop.load(Ordering::Relaxed) {
-                        break;
-                    }
-                    if now < spin_until {
-                        core::hint::spin_loop();
-                    } else {
-                        std::thread::sleep(core::time::Duration::from_micros(5));
-                    }
-                }
-                k += 1;
-            }
-            Scheduling::normal().apply();
-            Ok(notified)
-        })
-}
-
-/// A thread's scheduling policy and priority.
-#[derive(Clone, Copy)]
-struct Scheduling {
-    policy: libc::c_int,
-    priority: libc::c_int,
-}
-
-impl Scheduling {
-    /// The calling thread's.
-    fn current() -> Scheduling {
-        let mut param = libc::sched_param { sched_priority: 0 };
-        // SAFETY: pid 0 is the calling thread; both calls only read its settings, the second
-        // into the valid, exclusively borrowed `param`.
-        let policy = unsafe { libc::sched_getscheduler(0) };
-        let _ = unsafe { libc::sched_getparam(0, &mut param) };
-        Scheduling {
-            policy: policy.max(libc::SCHED_OTHER),
-            priority: param.sched_priority,
-        }
-    }
-
-    /// The normal scheduler.
-    fn normal() -> Scheduling {
-        Scheduling {
-            policy: libc::SCHED_OTHER,
-            priority: 0,
-        }
-    }
-
-    /// Puts the calling thread under this scheduling; a refusal leaves it as it is.
-    fn apply(self) {
-        let param = libc::sched_param {
-            sched_priority: self.priority,
-        };
-        // SAFETY: pid 0 is the calling thread; `param` is valid during the call.
-        let _ = unsafe { libc::sched_setscheduler(0, self.policy, &param) };
-    }
-}
-
-/// CLOCK_MONOTONIC, ns (the clock `MachineState::publish_time_ns` uses).
-pub fn monotonic_ns() -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: clock_gettime writes a timespec into the valid pointer it is given.
-    unsafe {
-        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
-    }
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }

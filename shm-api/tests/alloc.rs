@@ -110,3 +110,25 @@ fn publishing_allocates_only_iceoryx2s_loan_state_and_reading_nothing() {
     assert!(sum > 0);
     drop(server.receive());
 }
+
+#[test]
+fn notifying_a_new_state_allocates_nothing() {
+    // The coordinator's cycle thread notifies after every send: it must not allocate.
+    let p = format!("test-{}-{}", "alloc-notify", std::process::id());
+    let node = create_node().expect("node");
+    let names = ServiceNames::new(&p);
+    let settings = PublisherSettings::default();
+    let _server = shm_api::CommandServer::create(&node, &names, &settings).expect("server");
+    let _events = shm_api::EventPublisher::create(&node, &names, &settings).expect("events");
+    let _publisher = StatePublisher::create(&node, &names, &settings).expect("publisher");
+    let notifier = shm_api::StateNotifier::create(&node, &names, &settings).expect("notifier");
+    // A listening client: each notify writes to its socket (not read here; 100 wake-ups fit in
+    // the socket's queue).
+    let _client = Client::connect(&p).expect("client");
+    // The first notify connects to the listener (that allocates, once).
+    notifier.notify().expect("notify");
+    let (failed, allocations, _) =
+        counted(|| (0..100).filter(|_| notifier.notify().is_err()).count());
+    assert_eq!(failed, 0);
+    assert_eq!(allocations, 0, "100 notifies allocated {allocations} times");
+}

@@ -6,8 +6,9 @@
 //! - [`step`]: the cycle step's compute time on synthetic machines;
 //! - [`sim`]: the virtual-time simulation's speed, drive-seconds per wall second, with every
 //!   drive sending its TPDOs on every SYNC;
-//! - [`shm_latency`]: publish-to-client latency over shared memory, the contract's publisher
-//!   and client beside a bare iceoryx2 pair of the same payload;
+//! - [`publish`]: the real coordinator's state to a client process, busy-poll and
+//!   event-driven, beside a bare iceoryx2 pair of the same payload, and what the cycle thread's
+//!   notify costs;
 //! - [`round_trip`]: `timing loop`, a client's command through RPDO, SYNC and TPDO back to the
 //!   state the client sees, stage by stage, with drive-sim processes and in-process drives;
 //! - the framework: [`stats`] (a histogram and timeline per series, the table's figures),
@@ -39,10 +40,10 @@ pub mod cyclictest;
 pub mod load;
 pub mod machine;
 pub mod progress;
+pub mod publish;
 pub mod report;
 pub mod round_trip;
 pub mod session;
-pub mod shm_latency;
 pub mod sim;
 pub mod stats;
 pub mod step;

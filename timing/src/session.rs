@@ -3,14 +3,12 @@
 //! plots, `table.txt`) and the table for the terminal.
 
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 use crate::load::{self, Load};
 use crate::machine::Machine;
 use crate::report::Report;
 use crate::report::summary::{FORMAT, Run, Summary};
 use crate::report::table;
-use crate::shm_latency;
 use crate::stats::Series;
 
 /// The table's file name in a run's folder.
@@ -118,52 +116,6 @@ pub fn utc_stamp(secs: u64) -> String {
         rem % 3600 / 60,
         rem % 60
     )
-}
-
-/// The shared-memory latency run (`shm-latency`'s five phases, `samples` each) as a run of
-/// the report: one series per phase, the ratios of the contract's client to the bare iceoryx2
-/// pair. Sample times on the timeline are the sample's index times the period.
-pub fn shm_run(exe: &Path, samples: usize, period_us: u64) -> Result<(Run, Vec<Series>), String> {
-    if samples == 0 || samples > 10_000_000 {
-        return Err(format!("--samples {samples}: must be 1 to 10000000"));
-    }
-    if !(100..=100_000).contains(&period_us) {
-        return Err(format!("--period-us {period_us}: must be 100 to 100000 µs"));
-    }
-    let mut progress = crate::progress::Progress::new("shm-latency", 1);
-    let figures = shm_latency::run_with_publisher(exe, samples, Duration::from_micros(period_us));
-    progress.set(1);
-    progress.finish();
-    let figures = figures?;
-    let mut run = Run::new(
-        "shm-latency",
-        &format!("publish-to-client latency over shared memory, period {period_us} µs"),
-    );
-    run.set("samples_per_phase", samples as u64);
-    run.set("period_us", period_us);
-    let mut series = Vec::new();
-    let mut t = 0u64;
-    for f in &figures {
-        let mut s = Series::new(f.name);
-        for &v in &f.raw {
-            s.record(t, v);
-            t += period_us * 1000;
-        }
-        run.add(&s, Some(samples as u64));
-        series.push(s);
-    }
-    run.baselines.insert("bare iceoryx2".into(), "ran".into());
-    run.add_ratios(
-        "shm-api client, busy-poll",
-        "bare iceoryx2, busy-poll",
-        &["p50", "p99"],
-    );
-    run.add_ratios(
-        "shm-api client, event-driven (relay)",
-        "bare iceoryx2, event-driven (listener)",
-        &["p50", "p99"],
-    );
-    Ok((run, series))
 }
 
 #[cfg(test)]

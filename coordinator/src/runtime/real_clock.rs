@@ -230,6 +230,8 @@ struct CycleResult {
     summary: Summary,
     late: (u64, u64, u64),
     skipped: u64,
+    /// The cycle thread's state notify figures, where the machine is published.
+    notify: Option<String>,
 }
 
 /// A bus as the main thread opens it before the cycle starts.
@@ -525,25 +527,8 @@ pub fn run_real(
                 // Said now, before the first cycle (the printer waits for it).
                 let _ = rt_tx.send(report.to_string());
                 drop(rt_tx);
-                let relay_stop = Arc::new(AtomicBool::new(false));
-                let mut relay = None;
                 let start = monotonic_now() + period;
                 let producer = plan.cycle.sync_producer;
-                if let (Some(st), Some(prefix)) = (&state, &opts.shm)
-                    && producer
-                {
-                    // Event-driven clients: a relay wakes 5 µs after each deadline and
-                    // signals the new state; the cycle thread itself never notifies.
-                    relay = shm_api::publisher::spawn_state_relay(
-                        prefix.clone(),
-                        start.as_nanos(),
-                        period,
-                        Duration::from_micros(5),
-                        st.published.clone(),
-                        relay_stop.clone(),
-                    )
-                    .ok();
-                }
                 let mut stepper = Stepper::new(plan)?;
                 let mut lp = CycleLoop::new(
                     plan,
@@ -581,15 +566,12 @@ pub fn run_real(
                     ..Summary::default()
                 };
                 finish_summary(plan, &stepper.cycle, &lp.script, &mut summary);
-                relay_stop.store(true, Ordering::Relaxed);
-                if let Some(r) = relay {
-                    let _ = r.join();
-                }
                 summary.overruns = lp.overruns;
                 Ok(CycleResult {
                     summary,
                     late: lp.lateness(),
                     skipped: lp.skipped,
+                    notify: lp.state_side().map(|st| st.notify.to_string()),
                 })
             })
             .map_err(|e| RunError::Io(e.to_string()))?;
@@ -637,6 +619,9 @@ pub fn run_real(
         let mut r = cycle_thread
             .join()
             .map_err(|_| RunError::Io("the cycle thread panicked".into()))??;
+        if let Some(line) = &r.notify {
+            say(out, line);
+        }
         let secs = r.summary.machine_time.as_secs_f64().max(1e-9);
         r.summary.frames_on_bus = frames.iter().sum();
         r.summary.frame_hash = hash.value();

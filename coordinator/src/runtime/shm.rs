@@ -15,7 +15,7 @@ use iceoryx2::prelude::{Node, ipc};
 use shm_api::names::ServiceNames;
 use shm_api::publisher::{
     CommandServer, DescriptionPublisher, EventPublisher, PendingCommand, PublisherSettings,
-    StatePublisher, cleanup_dead_nodes_with, create_node,
+    StateNotifier, StatePublisher, cleanup_dead_nodes_with, create_node,
 };
 use shm_api::request::name_bytes;
 
@@ -834,20 +834,22 @@ pub fn to_record(e: &Event) -> EventRecord {
     r
 }
 
-/// The cycle thread's side: the state publisher. Created before the first SYNC; publishing
-/// loans a sample, writes it in place and sends it — no copy, no notification, no allocation.
+/// The cycle thread's side: the state publisher and the state notifier. Created before the
+/// first SYNC; publishing loans a sample, writes it in place, sends it and then notifies
+/// `STATE_PUBLISHED` on `PREFIX/events` for event-driven clients — no copy, no allocation, no
+/// lock; a failed notify is counted, never retried or waited for.
 pub struct StateSide {
     // The node must outlive its ports.
     _node: Node<ipc::Service>,
     state: StatePublisher,
+    notifier: StateNotifier,
     info: StaticInfo,
     /// Counters published with the state; the runtime updates them.
     pub counters: Counters,
     /// Samples that could not be loaned or sent (counted, never waited for).
     pub failed: u64,
-    /// States published, stored after each send: the relay thread reads it (an atomic store:
-    /// the cycle thread makes no syscall to signal clients).
-    pub published: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    /// How long each notify took, and how many failed.
+    pub notify: NotifyFigures,
 }
 
 impl std::fmt::Debug for StateSide {
@@ -859,23 +861,27 @@ impl std::fmt::Debug for StateSide {
 }
 
 impl StateSide {
-    /// Creates `PREFIX/state` for `plan`.
+    /// Creates `PREFIX/state` for `plan` and joins (or creates) `PREFIX/events`.
     pub fn create(prefix: &str, info: StaticInfo) -> Result<StateSide, String> {
         let node = create_node().map_err(|e| e.to_string())?;
         let names = ServiceNames::new(prefix);
-        let state = StatePublisher::create(&node, &names, &PublisherSettings::default())
+        let settings = PublisherSettings::default();
+        let state = StatePublisher::create(&node, &names, &settings)
             .map_err(|e| busy(prefix, &names.state, &e))?;
+        let notifier = StateNotifier::create(&node, &names, &settings)
+            .map_err(|e| busy(prefix, &names.events, &e))?;
         Ok(StateSide {
             _node: node,
             state,
+            notifier,
             info,
             counters: Counters::default(),
             failed: 0,
-            published: std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0)),
+            notify: NotifyFigures::new(),
         })
     }
 
-    /// Publishes the state of `c` after its step.
+    /// Publishes the state of `c` after its step, then wakes the event-driven clients.
     pub fn publish<const A: usize, const G: usize>(
         &mut self,
         c: &Cycle<'_, A, G>,
@@ -894,13 +900,102 @@ impl StateSide {
                 );
                 if s.send().is_err() {
                     self.failed += 1;
-                } else {
-                    self.published
-                        .fetch_add(1, std::sync::atomic::Ordering::Release);
+                    return;
                 }
             }
-            Err(_) => self.failed += 1,
+            Err(_) => {
+                self.failed += 1;
+                return;
+            }
         }
+        let t0 = drivers::time::monotonic_now().as_nanos();
+        let ok = self.notifier.notify().is_ok();
+        let t1 = drivers::time::monotonic_now().as_nanos();
+        self.notify.record(t1.saturating_sub(t0), ok);
+    }
+}
+
+/// How long the cycle thread's notify took: a fixed histogram (100 ns buckets up to 200 µs,
+/// one more for longer), filled without allocating, read after the run.
+#[derive(Debug, Clone)]
+pub struct NotifyFigures {
+    buckets: Box<[u64; NOTIFY_BUCKETS + 1]>,
+    /// Notifies made.
+    pub calls: u64,
+    /// Notifies iceoryx2 refused (counted; the cycle goes on).
+    pub failed: u64,
+    /// The longest, ns.
+    pub max_ns: u64,
+}
+
+/// Width of a [`NotifyFigures`] bucket, ns.
+const NOTIFY_BUCKET_NS: u64 = 100;
+/// Buckets below the overflow bucket (200 µs).
+const NOTIFY_BUCKETS: usize = 2000;
+
+impl Default for NotifyFigures {
+    fn default() -> Self {
+        NotifyFigures::new()
+    }
+}
+
+impl NotifyFigures {
+    /// Empty; allocates its buckets now, so recording never does.
+    pub fn new() -> NotifyFigures {
+        NotifyFigures {
+            buckets: Box::new([0; NOTIFY_BUCKETS + 1]),
+            calls: 0,
+            failed: 0,
+            max_ns: 0,
+        }
+    }
+
+    /// Counts one notify of `ns`, `ok` or refused.
+    pub fn record(&mut self, ns: u64, ok: bool) {
+        let b = ((ns / NOTIFY_BUCKET_NS) as usize).min(NOTIFY_BUCKETS);
+        self.buckets[b] += 1;
+        self.calls += 1;
+        self.failed += u64::from(!ok);
+        self.max_ns = self.max_ns.max(ns);
+    }
+
+    /// The `q` quantile (0..=1), ns: the upper edge of its bucket (the maximum beyond the
+    /// buckets); 0 before any notify.
+    pub fn quantile_ns(&self, q: f64) -> u64 {
+        if self.calls == 0 {
+            return 0;
+        }
+        let rank = ((q.clamp(0.0, 1.0) * self.calls as f64).ceil() as u64).max(1);
+        let mut seen = 0;
+        for (i, &n) in self.buckets.iter().enumerate() {
+            seen += n;
+            if seen >= rank {
+                return if i == NOTIFY_BUCKETS {
+                    self.max_ns
+                } else {
+                    ((i as u64 + 1) * NOTIFY_BUCKET_NS).min(self.max_ns)
+                };
+            }
+        }
+        self.max_ns
+    }
+}
+
+impl std::fmt::Display for NotifyFigures {
+    /// `state notify: N calls, F failed, median X µs, p99 Y µs, max Z µs` (the line `timing
+    /// publish` reads from the coordinator's output).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let us = |ns: u64| ns as f64 / 1000.0;
+        write!(
+            f,
+            "state notify: {} calls, {} failed, median {:.2} µs, p99 {:.2} µs, max {:.2} µs \
+             (the cycle thread's wake-up of event-driven clients, after each state)",
+            self.calls,
+            self.failed,
+            us(self.quantile_ns(0.5)),
+            us(self.quantile_ns(0.99)),
+            us(self.max_ns)
+        )
     }
 }
 
@@ -1336,6 +1431,25 @@ mod tests {
             "{shown}"
         );
         assert_eq!(shown.chars().filter(|&c| c == 'ä').count(), 38);
+    }
+
+    #[test]
+    fn notify_figures_read_their_quantiles_from_the_buckets() {
+        let mut f = NotifyFigures::new();
+        assert_eq!(f.quantile_ns(0.5), 0);
+        for ns in 1..=100u64 {
+            f.record(ns * 1000, ns != 7);
+        }
+        f.record(1_000_000, true);
+        assert_eq!((f.calls, f.failed, f.max_ns), (101, 1, 1_000_000));
+        // The 51st of 101 is 51 µs, in the bucket ending at 51.1 µs.
+        assert_eq!(f.quantile_ns(0.5), 51_100);
+        assert_eq!(f.quantile_ns(1.0), 1_000_000);
+        let line = f.to_string();
+        assert!(
+            line.starts_with("state notify: 101 calls, 1 failed, median 51.10 µs"),
+            "{line}"
+        );
     }
 
     #[test]

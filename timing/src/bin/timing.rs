@@ -4,12 +4,12 @@
 //! - `timing cycle [--period-us 1000] [--priority 80] [--cpu N] [--duration S] [--window-s 1]`
 //! - `timing step --axes 8,128 [--profile fhpp|cia402|both] [--grouped|--single]`
 //! - `timing sim [--drives 8] [--period-us 1000] [--duration S] [--profile fhpp|cia402|both]`
+//! - `timing publish [--duration S] [--window-s 0.5]`: the real coordinator's state to a
+//!   client process beside a bare iceoryx2 pair
 //! - `timing loop [--drives vbus|in-process|both] [--duration S | --samples N] [--cycle-us 2000]`
-//! - `timing all [--duration S] [--loop-cycle-us 2000]`: cycle, step, sim, shm-latency and loop
+//! - `timing all [--duration S] [--loop-cycle-us 2000]`: cycle, step, sim, publish and loop
 //!   into one folder
 //! - `timing report DIR`, `timing compare DIR DIR`
-//! - `timing shm-latency [--samples N] [--period-us P] [--out DIR]`: the raw latencies (ns, one
-//!   per line) per phase and a table, as before.
 //!
 //! Every measuring subcommand takes `--out DIR` (default `timing/results/run-DATE`) and
 //! `--load` (a documented background load, see `timing::load`).
@@ -20,6 +20,7 @@ use std::time::Duration;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use timing::cycle::CycleOptions;
+use timing::publish::PublishOptions;
 use timing::round_trip::LoopOptions;
 use timing::session::{self, Session};
 use timing::sim::SimOptions;
@@ -156,6 +157,19 @@ enum Cmd {
         #[command(flatten)]
         common: Common,
     },
+    /// The real coordinator's state to a client process, busy-poll and event-driven, beside a
+    /// bare iceoryx2 pair of the same payload at the same period (the default machine's: the
+    /// coordinator has no period option), in alternating windows; and the notify's cost.
+    Publish {
+        /// Measuring time, s (the coordinator's boot comes on top).
+        #[arg(long, default_value_t = 10.0)]
+        duration: f64,
+        /// One window of one client kind, s.
+        #[arg(long, default_value_t = 0.5)]
+        window_s: f64,
+        #[command(flatten)]
+        common: Common,
+    },
     /// A client's command round trip: RPDO, latched at the SYNC, TPDO, state seen.
     Loop {
         /// Where the drive runs: a drive-sim process on a vbus, simulated inside the
@@ -177,10 +191,10 @@ enum Cmd {
         #[command(flatten)]
         common: Common,
     },
-    /// Cycle, step, sim, shm-latency and loop into one folder.
+    /// Cycle, step, sim, publish and loop into one folder.
     All {
         /// Length of the cycle run, s; the step gets an eighth of it per series (two machines,
-        /// cold and hot), sim a tenth (8 CiA 402 drives at 1 ms), shm-latency half of it, loop
+        /// cold and hot), sim a tenth (8 CiA 402 drives at 1 ms), publish half of it, loop
         /// a tenth per machine (at least 2 s).
         #[arg(long, default_value_t = 10.0)]
         duration: f64,
@@ -207,28 +221,16 @@ enum Cmd {
         /// The second folder (B).
         b: PathBuf,
     },
-    /// Publish-to-client latency: the contract's client beside a bare iceoryx2 pair.
-    ShmLatency {
-        /// Samples per phase.
-        #[arg(long, default_value_t = 5000)]
-        samples: usize,
-        /// Publishing period, µs.
-        #[arg(long, default_value_t = 1000)]
-        period_us: u64,
-        /// Where to write the raw latencies.
-        #[arg(long, default_value = timing::RESULTS_DIR)]
-        out: PathBuf,
-    },
-    /// (internal) The publisher process of `shm-latency`.
+    /// (internal) The bare iceoryx2 publisher of `publish`.
     #[command(hide = true)]
-    ShmPublisher {
+    BarePublisher {
         /// Service prefix.
         #[arg(long)]
         prefix: String,
-        /// Period, µs.
+        /// Period, ns.
         #[arg(long)]
-        period_us: u64,
-        /// Periods to publish.
+        period_ns: u64,
+        /// Periods to publish at most.
         #[arg(long)]
         count: u64,
     },
@@ -366,22 +368,20 @@ fn main() -> ExitCode {
                 ..loop_options(DrivesArg::Both, None, (duration / 10.0).max(2.0))
             };
             round_trip.check()?;
+            let publish = PublishOptions {
+                duration_s: duration / 2.0,
+                window_s: (duration / 40.0).clamp(0.05, 0.5),
+            };
+            publish.check()?;
             let exe = own_exe()?;
             let mut s = Session::start(command_line(), common.load);
             s.add(timing::cycle::run(&o)?);
             s.add(timing::step::run(&step)?);
             s.add(timing::sim::run(&sim)?);
-            // Five phases of a tenth of the run each (at least 100 samples).
-            let samples =
-                ((duration * 1e6 / 10.0 / cycle.period_us as f64) as usize).clamp(100, 1_000_000);
-            s.add(session::shm_run(&exe, samples, cycle.period_us.max(100))?);
-            timing::round_trip::run(&loop_options(
-                DrivesArg::Both,
-                None,
-                (duration / 10.0).max(2.0),
-            ))?
-            .into_iter()
-            .for_each(|r| s.add(r));
+            s.add(timing::publish::run(&exe, &publish)?);
+            timing::round_trip::run(&round_trip)?
+                .into_iter()
+                .for_each(|r| s.add(r));
             finish(s, common.out)
         })(),
         Cmd::Loop {
@@ -419,37 +419,35 @@ fn main() -> ExitCode {
             );
             Ok(())
         })(),
-        Cmd::ShmPublisher {
-            prefix,
-            period_us,
-            count,
-        } => timing::shm_latency::publish(&prefix, Duration::from_micros(period_us), count),
-        Cmd::ShmLatency {
-            samples,
-            period_us,
-            out,
+        Cmd::Publish {
+            duration,
+            window_s,
+            common,
         } => (|| {
-            if samples == 0 || !(100..=100_000).contains(&period_us) {
-                return Err(format!(
-                    "--samples {samples} --period-us {period_us}: need at least 1 sample and a period of 100 to 100000 µs"
-                ));
-            }
-            eprintln!("measuring {samples} samples per phase at {period_us} µs...");
-            let f = timing::shm_latency::run_with_publisher(
-                &own_exe()?,
-                samples,
-                Duration::from_micros(period_us),
-            )?;
-            print!("{}", timing::shm_latency::table(&f));
-            std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
-            for x in &f {
-                let file = x.name.replace([' ', ',', '(', ')'], "-").replace("--", "-");
-                let body: String = x.raw.iter().map(|v| format!("{v}\n")).collect();
-                let path = out.join(format!("shm-latency-{file}.txt"));
-                std::fs::write(&path, body).map_err(|e| format!("{}: {e}", path.display()))?;
-            }
-            Ok(())
+            let o = PublishOptions {
+                duration_s: duration,
+                window_s,
+            };
+            o.check()?;
+            let exe = own_exe()?;
+            timing::publish::coordinator_path(&exe)?;
+            let mut s = Session::start(command_line(), common.load);
+            s.add(timing::publish::run(&exe, &o)?);
+            finish(s, common.out)
         })(),
+        Cmd::BarePublisher {
+            prefix,
+            period_ns,
+            count,
+        } => {
+            if !(10_000..=1_000_000_000).contains(&period_ns) {
+                Err(format!(
+                    "--period-ns {period_ns}: must be 10000 to 1000000000 ns"
+                ))
+            } else {
+                timing::publish::bare_publisher(&prefix, Duration::from_nanos(period_ns), count)
+            }
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

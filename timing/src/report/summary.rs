@@ -29,7 +29,7 @@ pub struct Summary {
     pub runs: Vec<Run>,
 }
 
-/// One run (`cycle`, `step`, `shm-latency`).
+/// One run (`cycle`, `step`, `sim`, `publish`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Run {
     /// Its name, as the subcommand.
