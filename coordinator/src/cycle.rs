@@ -286,8 +286,6 @@ struct AxisRt {
     fault: FaultReason,
     /// The drive's own fault already turned into `fault`, so it is raised once.
     drive_fault_seen: bool,
-    /// A single-axis move or jog.
-    solo: Option<Solo>,
     /// Feed override of the axis's own moves and jogs, % (its group's override sets it too).
     override_percent: u16,
     group: Option<GroupId>,
@@ -344,6 +342,65 @@ struct Solo {
     next: Option<SoloKind>,
     /// The highest override under which the plan keeps the limits.
     max_override: u16,
+}
+
+/// The axes' single-axis motions, kept out of [`AxisRt`]: a planned path is most of an axis's
+/// bytes and rarely runs, while the step sweeps every axis every cycle (from memory, after the
+/// cycle thread slept). So the sweep reads one flag per axis and a motion's bytes only while it
+/// runs; a cleared slot keeps its stale bytes and is never read.
+#[derive(Clone, Debug)]
+struct Solos<const A: usize> {
+    /// Axis index → a motion runs (its slot holds it).
+    running: [bool; A],
+    slots: Vec<Option<Solo>, A>,
+}
+
+impl<const A: usize> Solos<A> {
+    fn new() -> Self {
+        Solos {
+            running: [false; A],
+            slots: Vec::new(),
+        }
+    }
+
+    /// A slot for the next axis.
+    fn push(&mut self) -> Result<(), ()> {
+        self.slots.push(None).map_err(|_| ())
+    }
+
+    fn get(&self, i: usize) -> Option<&Solo> {
+        if *self.running.get(i)? {
+            self.slots.get(i)?.as_ref()
+        } else {
+            None
+        }
+    }
+
+    fn get_mut(&mut self, i: usize) -> Option<&mut Solo> {
+        if *self.running.get(i)? {
+            self.slots.get_mut(i)?.as_mut()
+        } else {
+            None
+        }
+    }
+
+    fn is_some(&self, i: usize) -> bool {
+        self.running.get(i).copied().unwrap_or(false)
+    }
+
+    fn set(&mut self, i: usize, solo: Option<Solo>) {
+        if let (Some(r), Some(slot)) = (self.running.get_mut(i), self.slots.get_mut(i)) {
+            *r = solo.is_some();
+            *slot = solo;
+        }
+    }
+
+    /// Ends axis `i`'s motion without touching its bytes.
+    fn clear(&mut self, i: usize) {
+        if let Some(r) = self.running.get_mut(i) {
+            *r = false;
+        }
+    }
 }
 
 /// A group move to start later (aborting: once the running one has stopped; buffered: once it
@@ -428,6 +485,8 @@ pub struct GroupStatus {
 pub struct Cycle<'t, const A: usize, const G: usize> {
     setup: CycleSetup,
     axes: Vec<AxisRt, A>,
+    /// The axes' single-axis moves and jogs, by axis index.
+    solos: Solos<A>,
     groups: Vec<GroupRt<'t>, G>,
     buses: Vec<BusRt<A>, MAX_BUSES>,
     events: Deque<Event, EVENT_CAPACITY>,
@@ -454,6 +513,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let mut c = Cycle {
             setup,
             axes: Vec::new(),
+            solos: Solos::new(),
             groups: Vec::new(),
             buses: Vec::new(),
             events: Deque::new(),
@@ -496,7 +556,6 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     following: false,
                     fault: FaultReason::None,
                     drive_fault_seen: false,
-                    solo: None,
                     override_percent: 100,
                     group: None,
                     special: None,
@@ -512,6 +571,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     out: Image::default(),
                 })
                 .map_err(|_| SetupError::Capacity(A))?;
+            c.solos.push().map_err(|_| SetupError::Capacity(A))?;
         }
         for (gi, (g, table)) in groups.iter().enumerate() {
             let gid = gi as GroupId;
@@ -561,7 +621,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     /// The published state of an axis.
     pub fn axis_status(&self, axis: AxisId) -> Option<AxisStatus> {
         let a = self.axes.get(usize::from(axis))?;
-        let mode = match (a.mode, a.solo.as_ref().map(|s| s.kind)) {
+        let mode = match (a.mode, self.solos.get(usize::from(axis)).map(|s| s.kind)) {
             (AxisMode::On, Some(SoloKind::Jog { permille })) => AxisMode::Jog {
                 positive: permille > 0,
                 velocity: jog_velocity(&a.setup.limits, permille),
@@ -697,7 +757,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         a.online = false;
         a.missed = 0;
         a.following = false;
-        a.solo = None;
+        self.solos.clear(usize::from(axis));
         if let Transport::Can { bus, node: n } = a.setup.transport
             && let Some(id) = node(n)
             && let Some(b) = self.buses.get_mut(usize::from(bus))
@@ -765,7 +825,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             AxisMode::Homing => return AxisActivity::Homing,
             AxisMode::On | AxisMode::Jog { .. } | AxisMode::Acknowledging { .. } => {}
         }
-        if let Some(s) = &a.solo {
+        if let Some(s) = self.solos.get(i) {
             return match (s.end, s.kind) {
                 (SoloEnd::Stop, _) => AxisActivity::Stopping,
                 (_, SoloKind::Jog { .. }) if s.next.is_none() && s.end != SoloEnd::Halt => {
@@ -896,9 +956,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     g.halt = GroupHalt::None;
                 }
                 for a in self.admit_axes(t, AxisVerb::Disable)? {
+                    self.solos.clear(usize::from(a));
                     let a = &mut self.axes[usize::from(a)];
                     a.mode = AxisMode::Off;
-                    a.solo = None;
                     a.following = false;
                 }
                 Ok(())
@@ -918,7 +978,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 // Only faulted axes: nothing else stops, aborts or changes.
                 for a in self.admit_axes(t, AxisVerb::Acknowledge)? {
-                    let a = &mut self.axes[usize::from(a)];
+                    let i = usize::from(a);
+                    let a = &mut self.axes[i];
                     if matches!(a.mode, AxisMode::Acknowledging { .. }) {
                         continue;
                     }
@@ -926,17 +987,17 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     a.fault = FaultReason::None;
                     a.drive_fault_seen = false;
                     a.missed = 0;
-                    a.solo = None;
                     a.following = false;
                     a.mode = AxisMode::Acknowledging { enable_after };
+                    self.solos.clear(i);
                 }
                 Ok(())
             }
             Command::Home(t) => {
                 for a in self.admit_axes(t, AxisVerb::Home)? {
+                    self.solos.clear(usize::from(a));
                     let a = &mut self.axes[usize::from(a)];
                     a.mode = AxisMode::Homing;
-                    a.solo = None;
                 }
                 Ok(())
             }
@@ -951,7 +1012,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 if permille == 0 {
                     for a in self.admit_axes(Target::Axis(axis), AxisVerb::JogStop)? {
-                        if let Some(s) = &mut self.axes[usize::from(a)].solo {
+                        if let Some(s) = self.solos.get_mut(usize::from(a)) {
                             s.motion.hold();
                             s.end = SoloEnd::Halt;
                             s.next = None;
@@ -1051,7 +1112,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     }
                 }
                 for a in axes {
-                    if let Some(s) = &mut self.axes[usize::from(a)].solo
+                    if let Some(s) = self.solos.get_mut(usize::from(a))
                         && s.end == SoloEnd::Arrive
                     {
                         s.motion.hold();
@@ -1069,7 +1130,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     self.groups[usize::from(gi)].halt = GroupHalt::None;
                 }
                 for a in axes {
-                    if let Some(s) = &mut self.axes[usize::from(a)].solo
+                    if let Some(s) = self.solos.get_mut(usize::from(a))
                         && s.end == SoloEnd::Held
                     {
                         s.end = SoloEnd::Arrive;
@@ -1098,8 +1159,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     }
                 }
                 for a in axes {
-                    let a = &mut self.axes[usize::from(a)];
-                    if let Some(s) = &mut a.solo {
+                    let i = usize::from(a);
+                    let a = &mut self.axes[i];
+                    if let Some(s) = self.solos.get_mut(i) {
                         s.motion.hold();
                         s.end = SoloEnd::Stop;
                         s.next = None;
@@ -1124,8 +1186,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     g.halt = GroupHalt::None;
                 }
                 for a in axes {
+                    self.solos.clear(usize::from(a));
                     let a = &mut self.axes[usize::from(a)];
-                    a.solo = None;
                     a.following = false;
                     a.mode = AxisMode::QuickStopped;
                 }
@@ -1155,9 +1217,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     }
                 }
                 for a in self.target_axes(target)? {
-                    let a = &mut self.axes[usize::from(a)];
-                    a.override_percent = percent;
-                    if let Some(s) = &mut a.solo {
+                    let i = usize::from(a);
+                    self.axes[i].override_percent = percent;
+                    if let Some(s) = self.solos.get_mut(i) {
                         let _ = s.motion.set_override(percent.min(s.max_override));
                     }
                 }
@@ -1219,7 +1281,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     fn start_solo(&mut self, i: usize, kind: SoloKind, buffer: BufferMode) -> Result<(), Rejected> {
         let cycle_ns = self.setup.cycle_ns;
         let a = &mut self.axes[i];
-        if let Some(s) = &mut a.solo {
+        if let Some(s) = self.solos.get_mut(i) {
             // Checked now, so that a refusal comes with the command, not later.
             plan_solo(&a.setup, a.setpoint, kind, a.override_percent, cycle_ns)?;
             if buffer == BufferMode::Aborting {
@@ -1229,13 +1291,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             s.next = Some(kind);
             return Ok(());
         }
-        a.solo = Some(plan_solo(
-            &a.setup,
-            a.setpoint,
-            kind,
-            a.override_percent,
-            cycle_ns,
-        )?);
+        let solo = plan_solo(&a.setup, a.setpoint, kind, a.override_percent, cycle_ns)?;
+        self.solos.set(i, Some(solo));
         Ok(())
     }
 
@@ -1292,7 +1349,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             if a.fault != FaultReason::None {
                 return Err(Rejected::Faulted);
             }
-            if a.mode != AxisMode::On || a.solo.is_some() {
+            if a.mode != AxisMode::On || self.solos.is_some(usize::from(m)) {
                 return Err(Rejected::WrongState("axis not enabled and standing"));
             }
             start[i] = a.setpoint;
@@ -1464,12 +1521,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             return;
         }
         a.fault = reason;
-        a.solo = None;
         a.following = false;
         if !matches!(a.mode, AxisMode::Off) {
             a.mode = AxisMode::QuickStopped;
         }
         let group = a.group;
+        self.solos.clear(usize::from(axis));
         let cycle = self.cycle;
         self.emit(Event::Fault {
             cycle,
@@ -1490,8 +1547,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 gr.halt = GroupHalt::None;
                 let members = gr.setup.axes.clone();
                 for m in members {
+                    self.solos.clear(usize::from(m));
                     let a = &mut self.axes[usize::from(m)];
-                    a.solo = None;
                     a.following = false;
                     if !matches!(a.mode, AxisMode::Off) {
                         a.mode = AxisMode::QuickStopped;
@@ -1708,7 +1765,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 (RecordMode::Position, _) => None,
             };
             a.following = false;
-            a.solo = None;
+            self.solos.clear(usize::from(m));
         }
     }
 
@@ -1752,7 +1809,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         for i in 0..self.axes.len() {
             let cycle_ns = self.setup.cycle_ns;
             let a = &mut self.axes[i];
-            if let Some(s) = &mut a.solo {
+            if let Some(s) = self.solos.get_mut(i) {
                 let mut smp = [(0i64, 0i64)];
                 s.motion.step_positions(&mut smp);
                 (a.setpoint, a.setpoint_velocity) = smp[0];
@@ -1774,9 +1831,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 };
                 if over {
                     let next = s.next;
-                    a.solo = next.and_then(|k| {
+                    let solo = next.and_then(|k| {
                         plan_solo(&a.setup, a.setpoint, k, a.override_percent, cycle_ns).ok()
                     });
+                    self.solos.set(i, solo);
                 }
             }
             // A velocity or force record stands while its group is held or stopping.
@@ -1835,7 +1893,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 _ => {}
             }
             let a = &mut self.axes[i];
-            if a.solo.is_none()
+            if !self.solos.is_some(i)
                 && a.group
                     .is_none_or(|g| self.groups[usize::from(g)].motion.is_none())
             {

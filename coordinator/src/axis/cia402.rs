@@ -49,6 +49,7 @@ use drivers::cia402::statusword::Statusword;
 use drivers::cia402::{DeviceProfile, MTR_DCI, TLC5XX};
 
 use super::{AxisError, AxisState, Demand, Feedback, IMAGE_BYTES, Image};
+use crate::profile::fixed_point::div_i128;
 
 /// The fewest cycles a streamed set-point is placed ahead of the path.
 pub const MIN_LEAD_CYCLES: u32 = 2;
@@ -597,7 +598,7 @@ impl Cia402Axis {
     /// `position` moved on by `lead` cycles at `velocity`.
     fn ahead(&self, position: i64, velocity: i64, lead: u32) -> i32 {
         let ns = i128::from(lead) * i128::from(self.cycle_ns);
-        let p = i128::from(position) + i128::from(velocity) * ns / 1_000_000_000;
+        let p = i128::from(position) + div_i128(i128::from(velocity) * ns, 1_000_000_000);
         p.clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i32
     }
 
@@ -611,7 +612,7 @@ impl Cia402Axis {
             nano += i128::from(velocity) * i128::from(self.cycle_ns);
         }
         self.jog_nano = Some(nano);
-        let here = (nano / 1_000_000_000) as i64;
+        let here = div_i128(nano, 1_000_000_000) as i64;
         self.stream(fresh, here, velocity, None);
         if self.acked.is_some() {
             self.step = Step::Done;

@@ -43,6 +43,7 @@ use drivers::fhpp::status::{InputImage, InputPayload, Scon, Spos};
 use drivers::fhpp::{ByteOrder, ControlMode, Opm, Variant};
 
 use super::{AxisError, AxisState, Demand, Feedback, Image};
+use crate::profile::fixed_point::div_i128;
 
 /// Images without a position change after which the axis counts as standing (velocity 0).
 const STILL_CYCLES: u32 = 8;
@@ -680,10 +681,13 @@ impl FhppAxis {
         self.since_raise = self.since_raise.saturating_add(1);
         let lead = self.since_raise.clamp(MIN_LEAD_CYCLES, MAX_LEAD_CYCLES);
         let v = i128::from(velocity);
-        let mut ahead = v * i128::from(lead) * i128::from(self.cycle_ns) / 1_000_000_000;
+        let mut ahead = div_i128(
+            v * i128::from(lead) * i128::from(self.cycle_ns),
+            1_000_000_000,
+        );
         if self.settings.deceleration > 0 {
             // The drive's braking distance at the path's speed, in the direction of travel.
-            ahead += v * v.abs() / (2 * i128::from(self.settings.deceleration));
+            ahead += div_i128(v * v.abs(), 2 * i128::from(self.settings.deceleration));
         }
         let mut target = clamp_i32(
             (i128::from(position) + ahead).clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i64,

@@ -166,7 +166,7 @@ impl PathRate {
         let mut r = ((delta.unsigned_abs() as u128).saturating_mul(self.0.unsigned_abs() >> 16))
             >> PathPos::BITS;
         for _ in 0..power {
-            r = r.saturating_mul(NS_PER_S) / cycle_ns as u128;
+            r = div_u128(r.saturating_mul(NS_PER_S), u64::from(cycle_ns));
         }
         let r = (r >> 16).min(i64::MAX as u128) as i64;
         if neg { -r } else { r }
@@ -198,7 +198,29 @@ impl Neg for PathRate {
 impl Div<i128> for PathRate {
     type Output = PathRate;
     fn div(self, d: i128) -> PathRate {
-        PathRate(self.0 / d)
+        PathRate(div_i128(self.0, d))
+    }
+}
+
+/// `n / d` (truncated towards zero), with one 64-bit division when both fit in `i64`, as they
+/// nearly always do: a 128-bit division is a library call many times slower, and the cycle
+/// does several per axis. The quotient is the same either way (`i64::MIN / -1` excepted from
+/// the fast path); `d` = 0 panics as `/` does.
+#[inline]
+pub fn div_i128(n: i128, d: i128) -> i128 {
+    match (i64::try_from(n), i64::try_from(d)) {
+        (Ok(n), Ok(d)) if d != -1 => i128::from(n / d),
+        _ => n / d,
+    }
+}
+
+/// `n / d` for an unsigned dividend, with one 64-bit division when `n` fits in `u64` (see
+/// [`div_i128`]).
+#[inline]
+pub fn div_u128(n: u128, d: u64) -> u128 {
+    match u64::try_from(n) {
+        Ok(n) => u128::from(n / d),
+        Err(_) => n / u128::from(d),
     }
 }
 
@@ -238,6 +260,47 @@ mod tests {
         assert_eq!((mid.of(3), mid.of(-3)), (2, -1));
         assert_eq!(PathPos::END.of(-1_000), -1_000);
         assert_eq!(PathRate::from_raw(-7) / 2, PathRate::from_raw(-3));
+    }
+
+    #[test]
+    fn the_divisions_give_the_quotients_of_128_bit_division() {
+        let big = i128::from(i64::MAX) * 3 + 7;
+        for n in [
+            0,
+            1,
+            -1,
+            7,
+            -7,
+            i128::from(i64::MIN),
+            i128::from(i64::MAX),
+            big,
+            -big,
+        ] {
+            for d in [
+                1,
+                -1,
+                2,
+                -2,
+                6,
+                1_000_000_000,
+                i128::from(i64::MAX),
+                big,
+                -big,
+            ] {
+                assert_eq!(div_i128(n, d), n / d, "{n} / {d}");
+            }
+        }
+        for n in [
+            0u128,
+            5,
+            u128::from(u64::MAX),
+            u128::from(u64::MAX) + 1,
+            u128::MAX,
+        ] {
+            for d in [1u64, 3, 1_000_000, u64::MAX] {
+                assert_eq!(div_u128(n, d), n / u128::from(d), "{n} / {d}");
+            }
+        }
     }
 
     #[test]
