@@ -582,22 +582,30 @@ impl FestoNode {
             let pos = app.drive.axis().status().position as i32;
             let record = cia.record;
             let inputs = (sw.0, mode, pos, record);
-            if self
+            // While the dictionary is as the last mirror left it, a value equal to the one
+            // written then would change nothing: only the others are written.
+            let last = self
                 .cia_mirror
-                .is_some_and(|m| m.inputs == inputs && m.generation == self.dev.od().generation())
-            {
-                return;
-            }
+                .filter(|m| m.generation == self.dev.od().generation())
+                .map(|m| m.inputs);
             let od = self.dev.od_mut();
-            let _ = od.set_u16(STATUSWORD, sw.0);
-            let _ = od.set_i8(MODE_DISPLAY, mode);
-            // TPDO1 is re-sent only when the position moved by more than 1 inc (§7.4).
-            let sent = od.get_i32(POSITION_ACTUAL).unwrap_or(pos);
-            if (i64::from(pos) - i64::from(sent)).abs() > 1 {
-                let _ = od.set_i32(POSITION_ACTUAL, pos);
+            if last.is_none_or(|l| l.0 != sw.0) {
+                let _ = od.set_u16(STATUSWORD, sw.0);
             }
-            let _ = od.set_i32(Address::new(0x6063, 0), pos);
-            let _ = od.set_u8(RECORD_NUMBER, record);
+            if last.is_none_or(|l| l.1 != mode) {
+                let _ = od.set_i8(MODE_DISPLAY, mode);
+            }
+            if last.is_none_or(|l| l.2 != pos) {
+                // TPDO1 is re-sent only when the position moved by more than 1 inc (§7.4).
+                let sent = od.get_i32(POSITION_ACTUAL).unwrap_or(pos);
+                if (i64::from(pos) - i64::from(sent)).abs() > 1 {
+                    let _ = od.set_i32(POSITION_ACTUAL, pos);
+                }
+                let _ = od.set_i32(Address::new(0x6063, 0), pos);
+            }
+            if last.is_none_or(|l| l.3 != record) {
+                let _ = od.set_u8(RECORD_NUMBER, record);
+            }
             self.cia_mirror = Some(CiaMirror {
                 inputs,
                 generation: od.generation(),
