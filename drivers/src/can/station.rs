@@ -56,8 +56,14 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
     /// One exchange at the bus's current time: deliver every received frame, run due timers,
     /// send what the endpoint has. Returns how many frames moved either way.
     pub fn step(&mut self) -> usize {
-        let mut moved = 0;
         let now = self.bus.now();
+        self.step_at(now)
+    }
+
+    /// [`Station::step`] at `now`, the bus's current time as the caller already knows it (a
+    /// virtual-time loop: asking the bus again costs its lock).
+    pub fn step_at(&mut self, now: Instant) -> usize {
+        let mut moved = 0;
         loop {
             match self.bus.try_recv() {
                 Ok(Some(f)) => {
@@ -108,6 +114,11 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
 pub trait Steppable {
     /// See [`Station::step`].
     fn step(&mut self) -> usize;
+    /// See [`Station::step_at`]; by default [`Steppable::step`], which asks the bus the time.
+    fn step_at(&mut self, now: Instant) -> usize {
+        let _ = now;
+        self.step()
+    }
     /// See [`Station::next_deadline`].
     fn next_deadline(&self) -> Option<Instant>;
 }
@@ -115,6 +126,9 @@ pub trait Steppable {
 impl<B: Bus, E: Endpoint> Steppable for Station<B, E> {
     fn step(&mut self) -> usize {
         Station::step(self)
+    }
+    fn step_at(&mut self, now: Instant) -> usize {
+        Station::step_at(self, now)
     }
     fn next_deadline(&self) -> Option<Instant> {
         Station::next_deadline(self)
@@ -140,7 +154,16 @@ pub fn settle(stations: &mut [&mut dyn Steppable]) -> usize {
 /// timer, but no later than `until`. Always after the bus's current time, so a loop of
 /// [`settle`] and `bus.advance_to(next_event(..))` makes progress.
 pub fn next_event(bus: &VirtualBus, stations: &[&mut dyn Steppable], until: Instant) -> Instant {
-    let now = bus.now();
+    next_event_from(bus.now(), bus, stations, until)
+}
+
+/// [`next_event`] with the bus's current time given.
+fn next_event_from(
+    now: Instant,
+    bus: &VirtualBus,
+    stations: &[&mut dyn Steppable],
+    until: Instant,
+) -> Instant {
     let mut next = until;
     if let Some(t) = bus.next_event_time() {
         next = next.min(t);
@@ -159,13 +182,44 @@ pub fn next_event(bus: &VirtualBus, stations: &[&mut dyn Steppable], until: Inst
     }
 }
 
-/// Runs `stations` on a virtual-time `bus` until `until`, event by event.
+/// [`settle`] on a virtual-time bus: after the first round, only stations with a timer still
+/// due are stepped again. A frame sent at the bus's current time completes, and is delivered,
+/// only after it, and an endpoint that had nothing more to send has nothing more at the same
+/// instant without a frame or a timer: the other stations' steps would move nothing (they
+/// would only take the bus's lock to find that out).
+fn settle_virtual(now: Instant, stations: &mut [&mut dyn Steppable]) {
+    let mut moved: usize = stations.iter_mut().map(|s| s.step_at(now)).sum();
+    for _ in 1..10_000 {
+        if moved == 0 {
+            break;
+        }
+        moved = stations
+            .iter_mut()
+            .filter(|s| s.next_deadline().is_some_and(|t| t <= now))
+            .map(|s| s.step_at(now))
+            .sum();
+    }
+}
+
+/// Runs `stations` (every one attached to `bus`) on a virtual-time `bus` until `until`, event
+/// by event.
 pub fn run_until(bus: &VirtualBus, stations: &mut [&mut dyn Steppable], until: Instant) {
+    if bus.config().clock != super::ClockMode::Virtual {
+        loop {
+            settle(stations);
+            if bus.now() >= until {
+                return;
+            }
+            bus.advance_to(next_event(bus, stations, until));
+        }
+    }
     loop {
-        settle(stations);
-        if bus.now() >= until {
+        // Virtual time moves only with `advance_to`: one reading per event.
+        let now = bus.now();
+        settle_virtual(now, stations);
+        if now >= until {
             return;
         }
-        bus.advance_to(next_event(bus, stations, until));
+        bus.advance_to(next_event_from(now, bus, stations, until));
     }
 }

@@ -265,6 +265,14 @@ impl Table {
         self.specific.iter().chain(self.common.iter())
     }
 
+    /// The `i`-th of [`Table::entries`].
+    fn entry(&self, i: usize) -> Option<&'static ParamDef> {
+        match self.specific.get(i) {
+            Some(d) => Some(d),
+            None => self.common.get(i - self.specific.len()),
+        }
+    }
+
     /// The entry for `param`. On the EFPC devices sub-index 0 of a simple variable means 1.
     pub fn lookup(&self, param: Param) -> Result<&'static ParamDef, ParamError> {
         let in_specific = self.specific.iter().any(|d| d.pnu == param.pnu);
@@ -345,6 +353,16 @@ pub struct CapacityError {
     pub capacity: usize,
 }
 
+/// One (PNU, sub-index) of a [`ParamStore`]: its table entry (in [`Table::entries`] order) and
+/// its value's place.
+#[derive(Debug, Clone, Copy)]
+struct Key {
+    pnu: u16,
+    sub: u8,
+    def: u16,
+    value: u16,
+}
+
 /// A device's parameter values: one `i64` per (PNU, sub-index) of its [`Table`], starting at
 /// the defaults; [`fpc::Parameters`](super::fpc::Parameters) for the FPC [`Server`](super::fpc::Server) with the access, type,
 /// range, rw2 and device-control checks. `N` must be at least [`Table::value_count`].
@@ -352,6 +370,8 @@ pub struct CapacityError {
 pub struct ParamStore<const N: usize> {
     table: Table,
     values: heapless::Vec<i64, N>,
+    /// Where each (PNU, sub-index) of the table keeps its value, sorted by PNU and sub-index.
+    keys: heapless::Vec<Key, N>,
     /// The output stage is on: rw2 writes are refused.
     pub stage_on: bool,
     /// The fieldbus holds device control: without it writes are refused ("no control").
@@ -371,12 +391,33 @@ impl<const N: usize> ParamStore<N> {
                 })?;
             }
         }
-        Ok(ParamStore {
+        let mut store = ParamStore {
             table,
             values,
+            keys: heapless::Vec::new(),
             stage_on: false,
             fieldbus_control: true,
-        })
+        };
+        // Every (PNU, sub-index) the table resolves to one of its values, sorted.
+        for (def, d) in table.entries().enumerate() {
+            for sub in d.first_sub..=d.last_sub {
+                let param = Param::new(d.pnu, sub);
+                if let Ok((found, value)) = store.index_by_scan(param)
+                    && core::ptr::eq(found, d)
+                    && let (Ok(def), Ok(value)) = (u16::try_from(def), u16::try_from(value))
+                {
+                    // At most one key per value: the capacity is the values'.
+                    let _ = store.keys.push(Key {
+                        pnu: d.pnu,
+                        sub,
+                        def,
+                        value,
+                    });
+                }
+            }
+        }
+        store.keys.sort_unstable_by_key(|k| (k.pnu, k.sub));
+        Ok(store)
     }
 
     /// The table.
@@ -385,6 +426,21 @@ impl<const N: usize> ParamStore<N> {
     }
 
     fn index(&self, param: Param) -> Result<(&'static ParamDef, usize), ParamError> {
+        // The simulated drives read and write tens of values every control cycle: a binary
+        // search of the sorted keys instead of two scans of the table. What the keys do not
+        // hold exactly (sub-index 0 of a simple EFPC variable, errors) takes the scans.
+        if let Ok(k) = self
+            .keys
+            .binary_search_by(|k| (k.pnu, k.sub).cmp(&(param.pnu, param.sub)))
+            && let Some(d) = self.table.entry(usize::from(self.keys[k].def))
+        {
+            return Ok((d, usize::from(self.keys[k].value)));
+        }
+        self.index_by_scan(param)
+    }
+
+    /// [`ParamStore::index`] by scanning the table: the definition of what the keys hold.
+    fn index_by_scan(&self, param: Param) -> Result<(&'static ParamDef, usize), ParamError> {
         let d = self.table.lookup(param)?;
         let mut offset = 0usize;
         for e in self.table.entries() {

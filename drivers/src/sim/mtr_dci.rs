@@ -475,12 +475,23 @@ impl DeviceHooks for FestoApp {
 /// EMCY codes raised and not yet reset, to clear them all on the drive's acknowledge.
 const ACTIVE_EMCY: usize = 8;
 
+/// The CiA 402 values [`FestoNode::mirror`] wrote (statusword, mode display, position, record
+/// number) and the dictionary's generation right after.
+#[derive(Debug, Clone, Copy)]
+struct CiaMirror {
+    inputs: (u16, i8, i32, u8),
+    generation: u32,
+}
+
 /// A Festo FHPP drive on CANopen: the [`Device`] and the drive core, as one [`Endpoint`].
 #[derive(Debug)]
 pub struct FestoNode {
     dev: FestoDevice,
     input_mirror: Option<[u8; 8]>,
     reply_mirror: Option<[u8; 8]>,
+    /// CiA 402 face: what [`FestoNode::mirror`] last wrote and the dictionary's generation
+    /// after it. While neither changed, writing again would change nothing.
+    cia_mirror: Option<CiaMirror>,
     emcy_active: heapless::Vec<u16, ACTIVE_EMCY>,
 }
 
@@ -520,6 +531,7 @@ impl FestoNode {
             dev,
             input_mirror: None,
             reply_mirror: None,
+            cia_mirror: None,
             emcy_active: heapless::Vec::new(),
         };
         n.advance(now);
@@ -569,16 +581,35 @@ impl FestoNode {
             let mode = cia.modes.active().code();
             let pos = app.drive.axis().status().position as i32;
             let record = cia.record;
+            let inputs = (sw.0, mode, pos, record);
+            // While the dictionary is as the last mirror left it, a value equal to the one
+            // written then would change nothing: only the others are written.
+            let last = self
+                .cia_mirror
+                .filter(|m| m.generation == self.dev.od().generation())
+                .map(|m| m.inputs);
             let od = self.dev.od_mut();
-            let _ = od.set_u16(STATUSWORD, sw.0);
-            let _ = od.set_i8(MODE_DISPLAY, mode);
-            // TPDO1 is re-sent only when the position moved by more than 1 inc (§7.4).
-            let sent = od.get_i32(POSITION_ACTUAL).unwrap_or(pos);
-            if (i64::from(pos) - i64::from(sent)).abs() > 1 {
-                let _ = od.set_i32(POSITION_ACTUAL, pos);
+            if last.is_none_or(|l| l.0 != sw.0) {
+                let _ = od.set_u16(STATUSWORD, sw.0);
             }
-            let _ = od.set_i32(Address::new(0x6063, 0), pos);
-            let _ = od.set_u8(RECORD_NUMBER, record);
+            if last.is_none_or(|l| l.1 != mode) {
+                let _ = od.set_i8(MODE_DISPLAY, mode);
+            }
+            if last.is_none_or(|l| l.2 != pos) {
+                // TPDO1 is re-sent only when the position moved by more than 1 inc (§7.4).
+                let sent = od.get_i32(POSITION_ACTUAL).unwrap_or(pos);
+                if (i64::from(pos) - i64::from(sent)).abs() > 1 {
+                    let _ = od.set_i32(POSITION_ACTUAL, pos);
+                }
+                let _ = od.set_i32(Address::new(0x6063, 0), pos);
+            }
+            if last.is_none_or(|l| l.3 != record) {
+                let _ = od.set_u8(RECORD_NUMBER, record);
+            }
+            self.cia_mirror = Some(CiaMirror {
+                inputs,
+                generation: od.generation(),
+            });
             return;
         }
         let input = app.drive.input();
@@ -662,6 +693,7 @@ impl FestoNode {
         }
         self.input_mirror = None;
         self.reply_mirror = None;
+        self.cia_mirror = None;
         self.mirror();
     }
 
