@@ -284,7 +284,7 @@ typedef struct MotionMachineState {
     uint32_t layout_hash;     /* MOTION_LAYOUT_HASH */
     uint64_t cycle;
     uint64_t sync_time_ns;    /* the cycle's SYNC time, CLOCK_MONOTONIC (or virtual) ns */
-    uint64_t publish_time_ns; /* when the sample was written, CLOCK_MONOTONIC ns */
+    uint64_t publish_time_ns; /* when the sample was sent, CLOCK_MONOTONIC ns */
     uint32_t cycle_ns;
     uint16_t axis_count;      /* valid entries in axes */
     uint16_t group_count;     /* valid entries in groups */

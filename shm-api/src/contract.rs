@@ -290,7 +290,8 @@ pub struct MachineState {
     pub cycle: u64,
     /// The cycle's SYNC time, ns of CLOCK_MONOTONIC (or of virtual time).
     pub sync_time_ns: u64,
-    /// When the sample was written, ns of CLOCK_MONOTONIC (for latency measurements).
+    /// When the sample was sent (stamped after it was written, just before the send), ns of
+    /// CLOCK_MONOTONIC (for latency measurements).
     pub publish_time_ns: u64,
     /// Cycle period, ns.
     pub cycle_ns: u32,

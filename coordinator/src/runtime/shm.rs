@@ -887,17 +887,12 @@ impl StateSide {
         c: &Cycle<'_, A, G>,
         sync_time_ns: u64,
     ) {
-        let publish_ns = drivers::time::monotonic_now().as_nanos();
         match self.state.loan() {
             Ok(mut s) => {
-                fill_state(
-                    &mut s,
-                    &self.info,
-                    c,
-                    sync_time_ns,
-                    publish_ns,
-                    &self.counters,
-                );
+                fill_state(&mut s, &self.info, c, sync_time_ns, 0, &self.counters);
+                // Stamped as it goes out, after the sample is written: the time a client
+                // measures from is the publication's, as a bare publisher's is.
+                s.publish_time_ns = drivers::time::monotonic_now().as_nanos();
                 if s.send().is_err() {
                     self.failed += 1;
                     return;
