@@ -64,32 +64,6 @@ const FIGURES: [&str; 8] = [
     "min", "p50", "p90", "p99", "p99_9", "p99_99", "max", "samples",
 ];
 
-fn figure(run: &Value, series: &str, f: &str) -> u64 {
-    run["series"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|s| s["name"] == series)
-        .unwrap_or_else(|| panic!("no series {series:?}"))["figures"][f]
-        .as_u64()
-        .unwrap()
-}
-
-/// Samples in a series' `.hdr` file and in its timeline.
-fn samples_in_files(dir: &Path, file: &str) -> (u64, u64) {
-    let bytes = std::fs::read(dir.join(format!("{file}.hdr"))).unwrap();
-    let h: hdrhistogram::Histogram<u64> = hdrhistogram::serialization::Deserializer::new()
-        .deserialize(&mut bytes.as_slice())
-        .unwrap();
-    let csv = std::fs::read_to_string(dir.join(format!("{file}.timeline.csv"))).unwrap();
-    let timeline: u64 = csv
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').nth(1).unwrap().parse::<u64>().unwrap())
-        .sum();
-    (h.len(), timeline)
-}
-
 #[test]
 fn all_writes_a_consistent_summary() {
     // `timing all` runs `publish`, which needs iceoryx2's shared memory.
@@ -149,17 +123,17 @@ fn all_writes_a_consistent_summary() {
             if name != "publish" {
                 assert_eq!(Some(samples), x["planned_samples"].as_u64(), "{name}: {x}");
             }
-            let (hdr, timeline) = samples_in_files(&r.dir, x["file"].as_str().unwrap());
+            let (hdr, timeline) = common::samples_in_files(&r.dir, x["file"].as_str().unwrap());
             assert_eq!((hdr, timeline), (samples, samples), "{name}: {x}");
         }
         // Every ratio is the quotient of two figures of this file.
         for q in run["ratios"].as_array().unwrap() {
-            let a = figure(
+            let a = common::figure(
                 run,
                 q["numerator"]["series"].as_str().unwrap(),
                 q["numerator"]["figure"].as_str().unwrap(),
             );
-            let b = figure(
+            let b = common::figure(
                 run,
                 q["denominator"]["series"].as_str().unwrap(),
                 q["denominator"]["figure"].as_str().unwrap(),
@@ -181,7 +155,7 @@ fn all_writes_a_consistent_summary() {
     let st = &cycle["settings"];
     let loops = st["loops_per_window"].as_u64().unwrap();
     assert_eq!(
-        figure(cycle, "ours", "samples"),
+        common::figure(cycle, "ours", "samples"),
         st["windows_ours"].as_u64().unwrap() * loops
     );
     let granted = &cycle["realtime"];
@@ -202,7 +176,7 @@ fn all_writes_a_consistent_summary() {
     if cyclictest_installed() {
         assert_eq!(state, "ran", "{ctx}");
         assert_eq!(
-            figure(cycle, "cyclictest", "samples"),
+            common::figure(cycle, "cyclictest", "samples"),
             st["windows_cyclictest"].as_u64().unwrap() * loops
         );
         let p99 = cycle["ratios"]
@@ -248,7 +222,7 @@ fn all_writes_a_consistent_summary() {
     assert_eq!(m["can_drives"], 8, "{m}");
     let series = m["series"].as_str().unwrap();
     assert_eq!(
-        figure(sim, series, "samples"),
+        common::figure(sim, series, "samples"),
         m["cycles"].as_u64().unwrap()
     );
     // Drive-seconds per wall second from the file's own figures.

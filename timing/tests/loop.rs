@@ -7,28 +7,13 @@
 //!
 //! A `timing` whose sibling binaries are missing says which one and the cargo command.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
 use timing::round_trip::{GOAL, SERIES};
-
-/// The coordinator's binaries, next to `timing` (the profile of this test).
-fn build_siblings() {
-    let release = Path::new(env!("CARGO_BIN_EXE_timing"))
-        .parent()
-        .is_some_and(|d| d.ends_with("release"));
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let mut cmd = Command::new(cargo);
-    cmd.args(["build", "-q", "-p", "coordinator", "--bins"]);
-    if release {
-        cmd.arg("--release");
-    }
-    assert!(
-        cmd.status().expect("cargo runs").success(),
-        "building coordinator's binaries"
-    );
-}
 
 fn folder(name: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
@@ -42,7 +27,7 @@ fn u(v: &Value) -> u64 {
 
 #[test]
 fn a_short_loop_on_both_machines_writes_a_consistent_folder() {
-    build_siblings();
+    common::build_coordinator();
     let dir = folder("timing-loop");
     // 10 ms cycles: the debug drive-sim and coordinator share two CPUs with other work, and a
     // drive is faulted after three cycles without its TPDO.

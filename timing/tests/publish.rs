@@ -12,32 +12,6 @@ use std::process::Command;
 
 use serde_json::Value;
 
-fn figure(run: &Value, series: &str, f: &str) -> u64 {
-    run["series"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|s| s["name"] == series)
-        .unwrap_or_else(|| panic!("no series {series}"))["figures"][f]
-        .as_u64()
-        .unwrap()
-}
-
-/// Samples in a series' `.hdr` file and in its timeline.
-fn samples_in_files(dir: &Path, file: &str) -> (u64, u64) {
-    let bytes = std::fs::read(dir.join(format!("{file}.hdr"))).unwrap();
-    let h: hdrhistogram::Histogram<u64> = hdrhistogram::serialization::Deserializer::new()
-        .deserialize(&mut bytes.as_slice())
-        .unwrap();
-    let csv = std::fs::read_to_string(dir.join(format!("{file}.timeline.csv"))).unwrap();
-    let timeline: u64 = csv
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').nth(1).unwrap().parse::<u64>().unwrap())
-        .sum();
-    (h.len(), timeline)
-}
-
 #[test]
 fn publish_writes_a_consistent_summary() {
     if let Some(why) = common::shm_unusable() {
@@ -90,7 +64,7 @@ fn publish_writes_a_consistent_summary() {
     for x in run["series"].as_array().unwrap() {
         let samples = x["figures"]["samples"].as_u64().unwrap();
         assert!(samples > 0, "every kind had its windows: {x}");
-        let (hdr, timeline) = samples_in_files(&dir, x["file"].as_str().unwrap());
+        let (hdr, timeline) = common::samples_in_files(&dir, x["file"].as_str().unwrap());
         assert_eq!((hdr, timeline), (samples, samples), "{x}");
     }
 
@@ -106,7 +80,7 @@ fn publish_writes_a_consistent_summary() {
         );
         let f = q["numerator"]["figure"].as_str().unwrap();
         assert_eq!(q["denominator"]["figure"], f);
-        let (a, b) = (figure(run, num, f), figure(run, den, f));
+        let (a, b) = (common::figure(run, num, f), common::figure(run, den, f));
         let v = q["value"].as_f64().expect("a ratio of non-zero figures");
         assert!((v - a as f64 / b as f64).abs() <= 1e-12 * v.abs(), "{q}");
     }

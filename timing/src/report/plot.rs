@@ -13,6 +13,14 @@ use crate::stats::Series;
 
 const SIZE: (u32, u32) = (1000, 600);
 
+/// The caption's font size: 22 px, smaller for a long title so that it fits the width (the
+/// font is monospaced, about 0.6 em a character).
+fn caption_size(title: &str) -> u32 {
+    let chars = title.chars().count().max(1) as u32;
+    let fits = (SIZE.0 - 40) * 10 / (6 * chars);
+    fits.clamp(11, 22)
+}
+
 fn register_font() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
@@ -100,7 +108,7 @@ fn histogram(path: &Path, title: &str, series: &[Series]) -> PlotResult {
         lines.push((s.name.clone(), pts));
     }
     let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 22))
+        .caption(title, ("sans-serif", caption_size(title)))
         .margin(15)
         .x_label_area_size(50)
         .y_label_area_size(80)
@@ -153,7 +161,7 @@ fn percentiles(path: &Path, title: &str, series: &[Series]) -> PlotResult {
     // 1/(1-q) up to the resolution the samples allow.
     let right = (most as f64).max(10.0);
     let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 22))
+        .caption(title, ("sans-serif", caption_size(title)))
         .margin(15)
         .x_label_area_size(50)
         .y_label_area_size(80)
@@ -212,7 +220,7 @@ fn over_time(path: &Path, title: &str, series: &[Series]) -> PlotResult {
         / 1e9;
     let end = end.max(0.01) * 1.02;
     let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 22))
+        .caption(title, ("sans-serif", caption_size(title)))
         .margin(15)
         .x_label_area_size(50)
         .y_label_area_size(80)

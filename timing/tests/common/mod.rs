@@ -1,10 +1,13 @@
 //! What the tests that start `timing publish` need: the coordinator binary beside `timing`, and
 //! whether iceoryx2's shared memory works here at all.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
 
 /// Builds the coordinator's binaries (coordinator, drive-sim) into the target folder `timing` runs from (`timing publish`
 /// looks for it there), with the test's profile; a no-op when it is fresh.
+#[allow(dead_code)] // not every test binary that includes this module uses each helper
 pub fn build_coordinator() -> PathBuf {
     let timing = PathBuf::from(env!("CARGO_BIN_EXE_timing"));
     let dir = timing.parent().expect("target/<profile>").to_path_buf();
@@ -21,6 +24,7 @@ pub fn build_coordinator() -> PathBuf {
 
 /// Why iceoryx2's shared memory cannot be used here (no /dev/shm, no permission), if it
 /// cannot: a service is created and dropped under a unique name.
+#[allow(dead_code)] // as above
 pub fn shm_unusable() -> Option<String> {
     let node = match shm_api::create_node() {
         Ok(n) => n,
@@ -45,4 +49,33 @@ pub fn shm_unusable() -> Option<String> {
         },
         Err(e) => Some(shm_api::words(e)),
     }
+}
+
+/// A figure of a series in a run of `summary.json`.
+#[allow(dead_code)] // not every test binary that includes this module reads figures
+pub fn figure(run: &Value, series: &str, f: &str) -> u64 {
+    run["series"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == series)
+        .unwrap_or_else(|| panic!("no series {series}"))["figures"][f]
+        .as_u64()
+        .unwrap()
+}
+
+/// Samples in a series' `.hdr` file and in its timeline.
+#[allow(dead_code)] // as above
+pub fn samples_in_files(dir: &Path, file: &str) -> (u64, u64) {
+    let bytes = std::fs::read(dir.join(format!("{file}.hdr"))).unwrap();
+    let h: hdrhistogram::Histogram<u64> = hdrhistogram::serialization::Deserializer::new()
+        .deserialize(&mut bytes.as_slice())
+        .unwrap();
+    let csv = std::fs::read_to_string(dir.join(format!("{file}.timeline.csv"))).unwrap();
+    let timeline: u64 = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap().parse::<u64>().unwrap())
+        .sum();
+    (h.len(), timeline)
 }
