@@ -28,6 +28,11 @@ fn example() -> String {
 fn check(name: &str, text: &str) -> (bool, String) {
     let path = file(name, text);
     let out = coordinator(&["check", path.to_str().unwrap()]);
+    // The file, and the folder once the last test's file is gone.
+    let _ = std::fs::remove_file(&path);
+    if let Some(dir) = path.parent() {
+        let _ = std::fs::remove_dir(dir);
+    }
     let mut s = String::from_utf8(out.stdout).unwrap();
     s.push_str(&String::from_utf8(out.stderr).unwrap());
     (out.status.success(), s)

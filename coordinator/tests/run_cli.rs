@@ -128,6 +128,7 @@ fn a_bad_configuration_is_refused_with_its_key() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("axes[2].node"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A `socketcan` bus goes through the same cycle as a `vbus` one. On a kernel with vcan (and
@@ -179,6 +180,7 @@ fn a_socketcan_bus_runs_on_vcan0_or_is_refused_naming_the_interface() {
              this kernel has no vcan0 (the refusal was checked)"
             );
         }
+        let _ = std::fs::remove_dir_all(&dir);
         return;
     }
     // The drives are absent: the coordinator waits for them, but its SYNCs are on the wire.
@@ -191,6 +193,7 @@ fn a_socketcan_bus_runs_on_vcan0_or_is_refused_naming_the_interface() {
         log.lines().filter(|l| l.contains(" 080#")).count() > 100,
         "{log}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `--capture DIR`: one candump log and one pcap per bus, in timestamp order, that the
