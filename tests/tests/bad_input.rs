@@ -770,6 +770,66 @@ fn cases(dir: &Path, example: &str) -> Vec<Case> {
             &["report", "/nonexistent-dir"],
             &["/nonexistent-dir/summary.json"],
         ),
+        case(
+            "timing",
+            "timing",
+            &["step", "--duration", "1e30"],
+            &["--duration 1e30", "0.01 to 86400"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["publish", "--duration", "NaN"],
+            &["--duration NaN", "0.4 to 86400"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["publish", "--window-s", "0"],
+            &["--window-s 0", "0.05 to 60"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["loop", "--duration", "1e-300"],
+            &["--duration 1e-300", "0.5 to 86400"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["loop", "--cycle-us", "0"],
+            &["--cycle-us 0", "250 to 100000"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["loop", "--samples", "0"],
+            &["--samples 0", "1 to 1000000"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["loop", "--drives", "nowhere"],
+            &["nowhere", "vbus, in-process, both"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["all", "--duration", "0.5"],
+            &["--duration 0.5", "0.8 to 86400"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["all", "--loop-cycle-us", "1"],
+            &["--loop-cycle-us 1", "250 to 100000"],
+        ),
+        case(
+            "timing",
+            "timing",
+            &["compare", "/nonexistent-a", "/nonexistent-b"],
+            &["/nonexistent-a/summary.json"],
+        ),
     ];
     // The configuration: each a variant of the example, refused by `check` and by `run`, naming
     // the key.

@@ -107,9 +107,19 @@ impl CycleOptions {
 /// Refuses a number of seconds that is not finite or out of `lo..=hi`.
 pub fn check_seconds(flag: &str, v: f64, lo: f64, hi: f64) -> Result<(), String> {
     if !v.is_finite() || v < lo || v > hi {
-        return Err(format!("{flag} {v}: must be {lo} to {hi} s"));
+        return Err(format!("{flag} {}: must be {lo} to {hi} s", shown(v)));
     }
     Ok(())
+}
+
+/// A user's number as they would have typed it: plain where that is short (`0.5`, `86400`),
+/// in exponent form where plain would run to dozens of digits (`1e30`, `1e-300`).
+pub fn shown(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-6..1e12).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
 }
 
 /// One window of ours: the wake-ups, (ns since the run's start, lateness ns), and the deadlines

@@ -59,13 +59,13 @@ impl PublishOptions {
         if !(self.duration_s.is_finite() && (0.4..=86_400.0).contains(&self.duration_s)) {
             return Err(format!(
                 "--duration {}: must be 0.4 to 86400 s",
-                self.duration_s
+                crate::cycle::shown(self.duration_s)
             ));
         }
         if !(self.window_s.is_finite() && (0.05..=60.0).contains(&self.window_s)) {
             return Err(format!(
                 "--window-s {}: must be 0.05 to 60 s",
-                self.window_s
+                crate::cycle::shown(self.window_s)
             ));
         }
         if self.window_s * 4.0 > self.duration_s {

@@ -345,6 +345,14 @@ fn main() -> ExitCode {
             loop_cycle_us,
             common,
         } => (|| {
+            // Checked here under `all`'s own names: the runs below get shares of them.
+            timing::cycle::check_seconds("--duration", duration, 0.8, 86_400.0)
+                .map_err(|e| format!("{e} (publish gets half of it, at least 0.4 s)"))?;
+            if !(250..=100_000).contains(&loop_cycle_us) {
+                return Err(format!(
+                    "--loop-cycle-us {loop_cycle_us}: the loop run's SYNC period must be 250 to 100000 µs"
+                ));
+            }
             let o = cycle_options(&cycle, duration);
             o.check()?;
             let step = StepOptions {
