@@ -130,8 +130,13 @@ mod tests {
         let mut last = 0;
         let mut fresh_reads = 0u64;
         loop {
-            // Sampled before the read: once the writer has finished, a read must see N.
+            // Sampled before the read: once the writer has finished, a read must see N. The
+            // fence makes the writer's last hand-over visible here (is_finished reads the end of
+            // the thread without ordering; miri's weak-memory emulation shows the difference).
             let finished = writer.is_finished();
+            if finished {
+                std::sync::atomic::fence(std::sync::atomic::Ordering::Acquire);
+            }
             let (v, fresh) = r.read();
             assert!(v.iter().all(|&x| x == v[0]), "torn: {v:?}");
             assert!(v[0] >= last, "went back from {last} to {}", v[0]);
