@@ -554,7 +554,7 @@ pub fn run(exe: &Path, o: &PublishOptions) -> Result<(Run, Vec<Series>), String>
     let mut run = Run::new(
         NAME,
         &format!(
-            "state to client: coordinator vs bare iceoryx2, {} B every {period_us} µs, ns",
+            "state to client: coordinator vs bare iceoryx2, {} B every {period_us} µs",
             core::mem::size_of::<MachineState>()
         ),
     );
