@@ -1000,7 +1000,7 @@ impl Config {
             .filter(|(_, a)| a.device == DeviceKind::CmmoSt && !a.simulated)
             .filter_map(|(i, a)| {
                 let addr = a.modbus.as_ref().filter(|t| valid_host_port(t))?;
-                resolves(addr).err().map(|reason| ConfigError {
+                resolve_modbus(addr).err().map(|reason| ConfigError {
                     key: format!("axes[{i}].modbus"),
                     problem: Problem::ModbusResolve {
                         addr: addr.clone(),
@@ -2162,13 +2162,12 @@ fn check_supervision(key: &str, a: &AxisConfig, cycle_us: u32, err: &mut Errors)
 
 /// `host:port` with a non-empty host and a port in 1..=65535.
 /// Whether `addr` (already `host:port`) resolves to at least one address.
-fn resolves(addr: &str) -> Result<(), String> {
+/// The first address `addr` (`host:port`) resolves to, or what the resolver said: what
+/// `coordinator check` refuses and the run dials, found one way.
+pub fn resolve_modbus(addr: &str) -> Result<std::net::SocketAddr, String> {
     use std::net::ToSocketAddrs;
     match addr.to_socket_addrs() {
-        Ok(mut all) => match all.next() {
-            Some(_) => Ok(()),
-            None => Err("the name has no address".into()),
-        },
+        Ok(mut all) => all.next().ok_or_else(|| "the name has no address".into()),
         Err(e) => Err(e.to_string()),
     }
 }

@@ -15,7 +15,7 @@
 //!   [`report`] (table, `summary.json`, histogram files, plots, reading a folder back),
 //!   [`machine`] (CPU, kernel, preemption, load, real-time settings granted), [`progress`]
 //!   (a bar on a terminal, lines otherwise), [`load`] (`--load`), [`session`] (one invocation,
-//!   its folder).
+//!   its folder), [`binaries`] (the coordinator's binaries beside `timing`).
 //!
 //! ```
 //! use timing::report::summary::Run;
@@ -35,6 +35,7 @@
 //! assert!(timing::report::table::run(&run).contains("p99.9"));
 //! ```
 
+pub mod binaries;
 pub mod cycle;
 pub mod cyclictest;
 pub mod load;

@@ -16,7 +16,7 @@
 //! with SIGTERM.
 
 use std::io::Read as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -79,25 +79,6 @@ impl PublishOptions {
         }
         Ok(())
     }
-}
-
-/// The coordinator binary beside `exe` (both are built into the same target folder), or an
-/// error naming it and the command that builds it.
-pub fn coordinator_path(exe: &Path) -> Result<PathBuf, String> {
-    let dir = exe
-        .parent()
-        .ok_or_else(|| format!("{}: no folder", exe.display()))?;
-    let path = dir.join("coordinator");
-    if path.is_file() {
-        return Ok(path);
-    }
-    let release = dir.file_name().is_some_and(|d| d == "release");
-    Err(format!(
-        "the coordinator binary {} is missing: `timing publish` runs the real coordinator; \
-         build it with `cargo build -p coordinator{}`",
-        path.display(),
-        if release { " --release" } else { "" }
-    ))
 }
 
 /// A child process whose output is kept (read by two threads) for its error message.
@@ -472,7 +453,7 @@ pub fn parse_notify_line(output: &str) -> Option<(u64, u64, f64, f64, f64)> {
 /// returns the run for the report.
 pub fn run(exe: &Path, o: &PublishOptions) -> Result<(Run, Vec<Series>), String> {
     o.check()?;
-    let coordinator_exe = coordinator_path(exe)?;
+    let coordinator_exe = crate::binaries::beside(exe, "coordinator")?;
     let stamp = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.subsec_nanos());
@@ -649,12 +630,5 @@ mod tests {
             .unwrap_err();
             assert!(e.contains(word), "{e}");
         }
-    }
-
-    #[test]
-    fn a_missing_coordinator_is_named_with_its_build_command() {
-        let e = coordinator_path(Path::new("/nonexistent/release/timing")).unwrap_err();
-        assert!(e.contains("/nonexistent/release/coordinator"), "{e}");
-        assert!(e.contains("cargo build -p coordinator --release"), "{e}");
     }
 }

@@ -207,26 +207,6 @@ pub fn config(bus: &str, kind: Drives, cycle_us: u32) -> String {
     )
 }
 
-/// `coordinator` and `drive-sim`, next to this executable.
-pub fn sibling(name: &str) -> Result<PathBuf, String> {
-    let exe =
-        std::env::current_exe().map_err(|e| format!("cannot find this program's path: {e}"))?;
-    let dir = exe.parent().ok_or("this program's path has no folder")?;
-    // A test or an example runs from deps/ or examples/: the binaries are one level up.
-    for d in [dir, dir.parent().unwrap_or(dir)] {
-        let p = d.join(name);
-        if p.is_file() {
-            return Ok(p);
-        }
-    }
-    let release = dir.components().any(|c| c.as_os_str() == "release");
-    Err(format!(
-        "{name} is not next to this program in {}: build it with `cargo build{} -p coordinator --bins`",
-        dir.display(),
-        if release { " --release" } else { "" }
-    ))
-}
-
 fn now_ns() -> u64 {
     monotonic_now().as_nanos()
 }
@@ -637,7 +617,7 @@ fn drive_client(
 
 /// Starts one machine, measures, stops it; the samples and the bus's frames.
 fn measure(kind: Drives, o: &LoopOptions) -> Result<(Vec<Sent>, Mishaps, Vec<Seen>), String> {
-    let coordinator = sibling("coordinator")?;
+    let coordinator = crate::binaries::sibling("coordinator")?;
     let mut sc = Scene::new()?;
     let bus = unique("tloop");
     let prefix = unique("timing-loop-");
@@ -649,7 +629,7 @@ fn measure(kind: Drives, o: &LoopOptions) -> Result<(Vec<Sent>, Mishaps, Vec<See
     let capture_s = capture.to_string_lossy().into_owned();
     let mut monitor = None;
     if kind == Drives::Vbus {
-        let sim = sibling("drive-sim")?;
+        let sim = crate::binaries::sibling("drive-sim")?;
         // The monitor joins first: a newcomer on a vbus stalls the endpoints already on it.
         monitor = Some(Monitor::start(&bus)?);
         let p = sc.spawn("drive-sim", &sim, &["--config", &cfg_s])?;

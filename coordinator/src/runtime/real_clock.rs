@@ -14,7 +14,7 @@
 //! run on the services' executor; the main thread prints what the others report.
 
 use std::io::Write;
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
@@ -249,16 +249,11 @@ enum Opened {
     Socketcan(SocketCanBus),
 }
 
-/// The Modbus address of `axis`, resolved.
+/// The Modbus address of `axis`, resolved as `coordinator check` resolves it.
 fn modbus_address(name: &str, addr: &str) -> Result<SocketAddr, RunError> {
-    let mut all = addr.to_socket_addrs().map_err(|e| {
+    crate::config::resolve_modbus(addr).map_err(|why| {
         RunError::Io(format!(
-            "axis {name}: modbus = {addr:?}: cannot resolve: {e}"
-        ))
-    })?;
-    all.next().ok_or_else(|| {
-        RunError::Io(format!(
-            "axis {name}: modbus = {addr:?}: the name has no address"
+            "axis {name}: modbus = {addr:?}: cannot resolve: {why}"
         ))
     })
 }

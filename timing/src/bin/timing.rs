@@ -438,7 +438,7 @@ fn main() -> ExitCode {
             };
             o.check()?;
             let exe = own_exe()?;
-            timing::publish::coordinator_path(&exe)?;
+            timing::binaries::beside(&exe, "coordinator")?;
             let mut s = Session::start(command_line(), common.load);
             s.add(timing::publish::run(&exe, &o)?);
             finish(s, common.out)
