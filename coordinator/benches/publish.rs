@@ -31,6 +31,7 @@ fn running(plan: &MachinePlan) -> VirtualRun<'_> {
         },
         shm: None,
         capture: None,
+        record: None,
     };
     let mut run = VirtualRun::new(plan, &opts).unwrap();
     let mut out = Vec::new();

@@ -58,6 +58,18 @@ enum Command {
         /// timestamp order.
         #[arg(long, value_name = "DIR")]
         capture: Option<std::path::PathBuf>,
+        /// Record everything that enters the cycle (frames with their times, drive reports,
+        /// Modbus images, client commands, the clock) and what it puts out, compressed, for
+        /// `coordinator replay FILE`.
+        #[arg(long, value_name = "FILE")]
+        record: Option<std::path::PathBuf>,
+    },
+    /// Run a recording's cycle again on its recorded inputs and check that every frame sent and
+    /// every state published is bit-identical; exit status 1 at the first difference, which is
+    /// reported with its cycle and the expected and found values.
+    Replay {
+        /// The recording (`coordinator run --record FILE`).
+        file: std::path::PathBuf,
     },
     /// Print a commented example configuration (the embedded default machine).
     ConfigExample {
@@ -96,6 +108,23 @@ fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Command::Check { file } => check(&file),
+        Command::Replay { file } => {
+            let mut stdout = std::io::stdout();
+            match coordinator::runtime::record::replay::replay(&file, &mut stdout) {
+                Ok(s) => {
+                    println!("{s}");
+                    if s.outcome == coordinator::runtime::record::replay::Outcome::Identical {
+                        ExitCode::SUCCESS
+                    } else {
+                        ExitCode::FAILURE
+                    }
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::from(2)
+                }
+            }
+        }
         Command::Run {
             config,
             duration,
@@ -107,6 +136,7 @@ fn main() -> ExitCode {
             shm_prefix,
             no_shm,
             capture,
+            record,
         } => {
             if duration.is_none() && virtual_time {
                 eprintln!("error: --virtual-time needs --duration (it would run flat out forever)");
@@ -140,6 +170,10 @@ fn main() -> ExitCode {
                 },
                 shm: (!no_shm).then_some(shm_prefix),
                 capture,
+                record: record.map(|path| coordinator::runtime::run::RecordTo {
+                    path,
+                    config: text.clone(),
+                }),
             };
             let mut stdout = std::io::stdout();
             match run(&cfg, &opts, &mut stdout) {

@@ -34,6 +34,7 @@ fn options() -> RunOptions {
             home: true,
         },
         capture: None,
+        record: None,
     }
 }
 

@@ -59,9 +59,20 @@ fn probe(on: bool) {
 }
 
 fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
-    let cfg = Config::parse(&synthetic::config(axes, 8)).expect("synthetic config parses");
+    allocations_in(axes, None)
+}
+
+/// As [`allocations_in_the_cycle`], recording into `record` (the recorder's work on the cycle
+/// thread is probed too).
+fn allocations_in(axes: usize, record: Option<&std::path::Path>) -> (u64, u64) {
+    let text = synthetic::config(axes, 8);
+    let cfg = Config::parse(&text).expect("synthetic config parses");
     let plan = plan(&cfg).expect("synthetic machine plans");
-    let opts = synthetic::demo_options(false);
+    let mut opts = synthetic::demo_options(false);
+    opts.record = record.map(|p| coordinator::runtime::run::RecordTo {
+        path: p.to_path_buf(),
+        config: text.clone(),
+    });
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     run.lp.probe = Some(probe);
     let before = allocations();
@@ -95,17 +106,19 @@ fn allocations_in_the_cycle(axes: usize) -> (u64, u64) {
                     s.position_min + 100
                 };
             }
-            probe(true);
-            let reply = run.stepper.cycle.command(&Command::MoveGroup {
-                group: g as GroupId,
-                positions,
-                velocity_percent: 100,
-                buffer: BufferMode::Aborting,
-            });
-            probe(false);
+            // Through the loop, as a client's command comes (the recording sees it).
+            let tag = run
+                .submit(Command::MoveGroup {
+                    group: g as GroupId,
+                    positions,
+                    velocity_percent: 100,
+                    buffer: BufferMode::Aborting,
+                })
+                .expect("room for a command");
+            let reply = run.answer_to(tag, 3, &mut out);
             // The moves run, so the steps counted below do the real work.
             assert!(
-                matches!(reply, Reply::Latched { .. }),
+                matches!(reply, Some(Reply::Latched { .. })),
                 "round {round} group {g}: {reply:?}\n{}",
                 String::from_utf8_lossy(&out)
             );
@@ -145,6 +158,24 @@ fn sixty_four_axis_cycle_allocates_nothing() {
     let (n, cycles) = allocations_in_the_cycle(64);
     assert!(cycles > 100, "{cycles}");
     assert_eq!(n, 0, "{n} allocations in {cycles} cycles");
+}
+
+#[test]
+fn recording_allocates_nothing_on_the_cycle_thread_and_replays_identically() {
+    let path = std::env::temp_dir().join(format!("cycle-alloc-{}.rec", std::process::id()));
+    let (n, cycles) = allocations_in(8, Some(&path));
+    assert!(cycles > 100, "{cycles}");
+    assert_eq!(n, 0, "{n} allocations in {cycles} cycles while recording");
+    let mut out = Vec::new();
+    let r = coordinator::runtime::record::replay::replay(&path, &mut out);
+    let _ = std::fs::remove_file(&path);
+    let r = r.unwrap();
+    assert_eq!(
+        r.outcome,
+        coordinator::runtime::record::replay::Outcome::Identical,
+        "{r}"
+    );
+    assert_eq!(r.cycles, cycles);
 }
 
 #[test]

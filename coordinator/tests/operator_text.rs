@@ -159,6 +159,7 @@ fn an_operators_stop_of_a_running_chain_is_said_plainly() {
         },
         shm: None,
         capture: None,
+        record: None,
     };
     let mut run = VirtualRun::new(&plan, &opts).expect("machine builds");
     let mut out = Vec::new();

@@ -38,6 +38,7 @@ fn six_drives_booted_together_come_online_without_a_fault() {
         },
         shm: None,
         capture: None,
+        record: None,
     };
     let mut out = Vec::new();
     let summary = run(&cfg, &opts, &mut out).expect("runs");

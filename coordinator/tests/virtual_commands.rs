@@ -31,6 +31,7 @@ fn a_virtual_time_run_answers_client_commands() {
         },
         shm: Some(prefix.clone()),
         capture: None,
+        record: None,
     };
     let mut run = VirtualRun::new(&plan, &opts).unwrap();
     let mut out = Vec::new();

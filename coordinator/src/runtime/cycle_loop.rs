@@ -9,6 +9,7 @@
 //! [`crate::runtime::real_clock`]'s real clock (absolute deadlines, the bus ports, the services'
 //! queues, the Modbus exchange threads). Nothing here allocates after [`CycleLoop::new`].
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use drivers::time::Instant;
@@ -18,8 +19,10 @@ use crate::axis::Image;
 use crate::command::{Answer, Request};
 use crate::cycle::{BusFrame, ModbusInput, Transport};
 use crate::event::Event;
-use crate::runtime::nodes::{self, NodeReport};
+use crate::runtime::nodes::{self, NodeReport, NodeStatus};
 use crate::runtime::plan::MachinePlan;
+use crate::runtime::record::format::Header;
+use crate::runtime::record::recorder::{RecordStats, Recorder, Tap};
 use crate::runtime::run::{RunError, Snapshot};
 use crate::runtime::script::{Phase, Script};
 use crate::runtime::shm::StateSide;
@@ -37,6 +40,24 @@ pub struct Wake {
     pub skipped: u64,
 }
 
+/// A drive report as the cycle takes it: the axis and what the report means.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NodeChange {
+    /// The axis.
+    pub axis: crate::command::AxisId,
+    /// What the report means for it.
+    pub status: NodeStatus,
+}
+
+impl From<&NodeReport> for NodeChange {
+    fn from(r: &NodeReport) -> NodeChange {
+        NodeChange {
+            axis: r.axis,
+            status: r.status(),
+        }
+    }
+}
+
 /// What one cycle iteration talks to. Every method is called on the cycle thread and must not
 /// allocate, lock or block (except [`CycleIo::wait`], which is where the cycle sleeps).
 pub trait CycleIo {
@@ -44,8 +65,9 @@ pub trait CycleIo {
     /// runs the simulated drives up to it) and hands every frame received since the last cycle
     /// to `rx`, bus by bus in arrival order.
     fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake;
-    /// The next drive report (booted, waiting, lost, refused), if any.
-    fn node_report(&mut self) -> Option<NodeReport>;
+    /// The next drive report (booted, waiting, lost, refused), if any: its axis and what it
+    /// means for the cycle.
+    fn node_report(&mut self) -> Option<NodeChange>;
     /// Modbus slot `slot`'s input for cycle `k`; `last_output` is what the cycle wrote to it
     /// last.
     fn modbus_input(
@@ -65,6 +87,10 @@ pub trait CycleIo {
     fn send(&mut self, frame: &BusFrame) -> bool;
     /// The next SDO/NMT frame of the drives' boot, if any.
     fn service_frame(&mut self, now: Instant) -> Option<BusFrame>;
+    /// Whether a stop signal came (the loop's `flag`, set by [`crate::runtime::signals`]).
+    fn stop_asked(&mut self, flag: &AtomicBool) -> bool {
+        flag.load(Ordering::Relaxed)
+    }
     /// One event of the cycle.
     fn event(&mut self, e: Event);
     /// A status snapshot is due.
@@ -109,6 +135,11 @@ pub struct CycleLoop<'p> {
     /// Called with `true` right before the cycle thread's own work of a cycle (the script's
     /// commands and the step) and with `false` right after: tests count allocations there.
     pub probe: Option<fn(bool)>,
+    /// `--record`: what enters each cycle and what it puts out, to the writer.
+    recorder: Option<Recorder>,
+    /// Whether the orderly end had begun when the last iteration ended (a later change came
+    /// from outside the loop: recorded).
+    ending_seen: bool,
 }
 
 impl std::fmt::Debug for CycleLoop<'_> {
@@ -162,7 +193,39 @@ impl<'p> CycleLoop<'p> {
             sdo_slots: plan.buses.iter().map(|b| (b.sdo_slots, 0)).collect(),
             held: None,
             probe: None,
+            recorder: None,
+            ending_seen: false,
         })
+    }
+
+    /// Records every cycle from now on into `path` (`--record`); `config` is the machine's
+    /// configuration text, `virtual_time` the clock. Call before the first cycle.
+    pub fn record(
+        &mut self,
+        path: &std::path::Path,
+        config: &str,
+        virtual_time: bool,
+        script: crate::runtime::script::ScriptOptions,
+        duration: Option<Duration>,
+    ) -> Result<(), RunError> {
+        let header = Header {
+            recorder: format!("coordinator {}", env!("CARGO_PKG_VERSION")),
+            config: String::new(),
+            virtual_time,
+            start_ns: self.start.as_nanos(),
+            duration_ns: duration.map(|d| d.as_nanos().min(u128::from(u64::MAX)) as u64),
+            script: [script.demo, script.chains, script.home],
+            state_size: std::mem::size_of::<shm_api::contract::MachineState>() as u32,
+            layout_hash: shm_api::contract::LAYOUT_HASH,
+        };
+        self.recorder =
+            Some(Recorder::create(path, self.plan, config, header).map_err(RunError::Io)?);
+        Ok(())
+    }
+
+    /// Ends the recording, if one runs: the writer drains and closes the file.
+    pub fn finish_recording(&mut self) -> Option<RecordStats> {
+        self.recorder.take().map(Recorder::finish)
     }
 
     /// Cycles run.
@@ -208,6 +271,41 @@ impl<'p> CycleLoop<'p> {
         stepper: &mut Stepper<'p>,
         io: &mut I,
     ) -> Option<Instant> {
+        let next = match self.recorder.take() {
+            None => self.cycle(stepper, io),
+            Some(mut rec) => {
+                // The recording's own work on the cycle thread is probed too.
+                let hook = self.probe;
+                let probe = |on| {
+                    if let Some(p) = hook {
+                        p(on);
+                    }
+                };
+                probe(true);
+                rec.begin(self.ending && !self.ending_seen);
+                probe(false);
+                let k = self.k;
+                let next = self.cycle(
+                    stepper,
+                    &mut Tap {
+                        io,
+                        rec: rec.record(),
+                    },
+                );
+                let late_us = (rec.record().wake.late_ns / 1000).min(u64::from(u32::MAX)) as u32;
+                probe(true);
+                rec.end(k, stepper, stepper.counters(self.skipped, late_us));
+                probe(false);
+                self.recorder = Some(rec);
+                next
+            }
+        };
+        self.ending_seen = self.ending;
+        next
+    }
+
+    /// The cycle itself (see [`CycleLoop::iterate`]).
+    fn cycle<I: CycleIo>(&mut self, stepper: &mut Stepper<'p>, io: &mut I) -> Option<Instant> {
         let wake = io.wait(&mut |f| stepper.receive(f));
         let now = wake.now;
         self.skipped += wake.skipped;
@@ -222,7 +320,7 @@ impl<'p> CycleLoop<'p> {
             stepper.cycle.overrun(wake.skipped, away);
         }
         while let Some(r) = io.node_report() {
-            nodes::apply(&mut stepper.cycle, &r, now);
+            nodes::apply(&mut stepper.cycle, r.axis, r.status, now);
             if let Some(seen) = self.reported.get_mut(usize::from(r.axis))
                 && !*seen
             {
@@ -255,7 +353,7 @@ impl<'p> CycleLoop<'p> {
             });
         }
         let over = self.end.is_some_and(|e| now >= e);
-        if (over || self.stop.load(std::sync::atomic::Ordering::Relaxed)) && !self.ending {
+        if (over || io.stop_asked(self.stop)) && !self.ending {
             self.shut_down();
         }
         let booted = self.booted();

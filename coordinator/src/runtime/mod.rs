@@ -25,6 +25,7 @@ pub mod nodes;
 pub mod plan;
 pub mod real_clock;
 pub mod realtime_thread;
+pub mod record;
 pub mod run;
 pub mod script;
 pub mod services;

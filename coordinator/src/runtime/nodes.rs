@@ -56,15 +56,16 @@ impl NodeReport {
 /// Brings the report into the cycle: the axis online, or offline with the fault that says why.
 pub fn apply<const A: usize, const G: usize>(
     cycle: &mut Cycle<'_, A, G>,
-    r: &NodeReport,
+    axis: AxisId,
+    status: NodeStatus,
     now: Instant,
 ) {
-    match r.status() {
-        NodeStatus::Running => cycle.set_online(r.axis, true, now),
+    match status {
+        NodeStatus::Running => cycle.set_online(axis, true, now),
         // An axis never booted stays offline without a fault; a lost one is already faulted.
-        NodeStatus::Waiting => cycle.set_offline(r.axis, None),
-        NodeStatus::Reset => cycle.set_offline(r.axis, Some(FaultReason::DriveReset)),
-        NodeStatus::Refused => cycle.set_offline(r.axis, Some(FaultReason::BootFailed)),
+        NodeStatus::Waiting => cycle.set_offline(axis, None),
+        NodeStatus::Reset => cycle.set_offline(axis, Some(FaultReason::DriveReset)),
+        NodeStatus::Refused => cycle.set_offline(axis, Some(FaultReason::BootFailed)),
     }
 }
 

@@ -33,9 +33,9 @@ use crate::config::BusKind;
 use crate::cycle::{BusFrame, ModbusInput, Transport};
 use crate::event::Event;
 use crate::runtime::capture::{self, CaptureBus, CaptureSource};
-use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
+use crate::runtime::cycle_loop::{CycleIo, CycleLoop, NodeChange, Wake};
 use crate::runtime::modbus::{self as mb, Link, ModbusCycleSide, ModbusSettings};
-use crate::runtime::nodes::{NodeReport, Nodes};
+use crate::runtime::nodes::Nodes;
 use crate::runtime::plan::MachinePlan;
 use crate::runtime::realtime_thread::{self, RealtimeSettings};
 use crate::runtime::run::{
@@ -158,8 +158,8 @@ impl CycleIo for RealIo {
         wake
     }
 
-    fn node_report(&mut self) -> Option<NodeReport> {
-        self.ends.boot_report()
+    fn node_report(&mut self) -> Option<NodeChange> {
+        self.ends.boot_report().as_ref().map(NodeChange::from)
     }
 
     fn modbus_input(&mut self, k: u64, slot: usize, _last: &Image, _now: Instant) -> ModbusInput {
@@ -533,6 +533,9 @@ pub fn run_real(
                     opts.duration,
                     opts.status_every,
                 )?;
+                if let Some(r) = &opts.record {
+                    lp.record(&r.path, &r.config, false, opts.script, opts.duration)?;
+                }
                 let mut io = RealIo {
                     ports,
                     producer,
@@ -551,6 +554,7 @@ pub fn run_real(
                 while lp.iterate(&mut stepper, &mut io).is_some() {}
                 // The rest (summary, closing the ports and services) is no cycle work.
                 realtime_thread::leave_realtime();
+                let recording = lp.finish_recording().map(|r| r.line());
                 let k = lp.cycles();
                 let mut summary = Summary {
                     cycles: k,
@@ -562,6 +566,7 @@ pub fn run_real(
                 };
                 finish_summary(plan, &stepper.cycle, &lp.script, &mut summary);
                 summary.overruns = lp.overruns;
+                summary.recording = recording;
                 Ok(CycleResult {
                     summary,
                     late: lp.lateness(),

@@ -43,6 +43,17 @@ pub struct RunOptions {
     pub shm: Option<String>,
     /// Write a candump log and a pcap of every bus into this directory.
     pub capture: Option<std::path::PathBuf>,
+    /// `--record FILE`: record every cycle's inputs and outputs for `coordinator replay`.
+    pub record: Option<RecordTo>,
+}
+
+/// Where a run records itself, and the configuration text the recording carries.
+#[derive(Clone, Debug)]
+pub struct RecordTo {
+    /// The recording file.
+    pub path: std::path::PathBuf,
+    /// The machine's configuration as the run read it.
+    pub config: String,
 }
 
 impl Default for RunOptions {
@@ -58,6 +69,7 @@ impl Default for RunOptions {
             },
             shm: None,
             capture: None,
+            record: None,
         }
     }
 }
@@ -114,6 +126,8 @@ pub struct Summary {
     pub units: Vec<(String, String, crate::units::Scale)>,
     /// What the capture wrote, a line per bus.
     pub captures: Vec<String>,
+    /// What the recording wrote (`--record`).
+    pub recording: Option<String>,
 }
 
 /// One bus's traffic over a run.
@@ -185,6 +199,9 @@ impl std::fmt::Display for Summary {
         )?;
         for c in &self.captures {
             writeln!(f, "  capture: {c}")?;
+        }
+        if let Some(r) = &self.recording {
+            writeln!(f, "  {r}")?;
         }
         for b in &self.waiting {
             writeln!(f, "  waited for: {b}")?;

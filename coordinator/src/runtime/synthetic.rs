@@ -241,6 +241,7 @@ pub fn demo_options(chains: bool) -> RunOptions {
         },
         shm: None,
         capture: None,
+        record: None,
     }
 }
 

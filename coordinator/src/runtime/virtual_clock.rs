@@ -13,8 +13,8 @@ use crate::command::{Answer, Request};
 use crate::cycle::{BusFrame, ModbusInput, Transport};
 use crate::event::Event;
 use crate::runtime::capture::InlineCapture;
-use crate::runtime::cycle_loop::{CycleIo, CycleLoop, Wake};
-use crate::runtime::nodes::{NodeReport, Nodes};
+use crate::runtime::cycle_loop::{CycleIo, CycleLoop, NodeChange, Wake};
+use crate::runtime::nodes::Nodes;
 use crate::runtime::plan::MachinePlan;
 use crate::runtime::run::{
     BusFigures, FrameHash, RunError, RunOptions, Snapshot, Summary, capture_lines, finish_summary,
@@ -74,7 +74,17 @@ pub struct VirtualIo<'p> {
     pub missed_syncs: u64,
     /// The orderly end has begun (set before each step from the loop).
     ending: bool,
+    /// Requests of in-process clients ([`VirtualRun::submit`]), taken as shared memory's are.
+    inbox: std::collections::VecDeque<Request>,
+    /// Their answers, until [`VirtualRun::take_answers`].
+    outbox: Vec<Answer>,
+    next_local: u64,
 }
+
+/// Tags of in-process requests carry this bit (shared memory's count up from 1).
+const LOCAL_TAG: u64 = 1 << 63;
+/// In-process requests waiting at most, and their answers kept at most.
+pub const INBOX_CAPACITY: usize = 256;
 
 impl std::fmt::Debug for VirtualIo<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -185,10 +195,10 @@ impl CycleIo for VirtualIo<'_> {
         }
     }
 
-    fn node_report(&mut self) -> Option<NodeReport> {
+    fn node_report(&mut self) -> Option<NodeChange> {
         let r = self.nodes.poll_report()?;
         report_node(self.plan, &r, &mut self.text, &mut self.summary);
-        Some(r)
+        Some(NodeChange::from(&r))
     }
 
     fn modbus_input(&mut self, _k: u64, slot: usize, last: &Image, now: Instant) -> ModbusInput {
@@ -217,6 +227,10 @@ impl CycleIo for VirtualIo<'_> {
     }
 
     fn request(&mut self) -> Option<Request> {
+        // In-process clients first (`VirtualRun::submit`), then shared memory's.
+        if let Some(r) = self.inbox.pop_front() {
+            return Some(r);
+        }
         let side = self.commands.as_mut()?;
         loop {
             let (p, c) = side.receive()?;
@@ -230,6 +244,12 @@ impl CycleIo for VirtualIo<'_> {
     }
 
     fn answer(&mut self, answer: Answer) {
+        if answer.tag & LOCAL_TAG != 0 {
+            if self.outbox.len() < self.outbox.capacity() {
+                self.outbox.push(answer);
+            }
+            return;
+        }
         if let Some(i) = self.pending.iter().position(|(t, _)| *t == answer.tag) {
             let (_, p) = self.pending.swap_remove(i);
             let tag = p.request().tag;
@@ -333,7 +353,7 @@ impl<'p> VirtualRun<'p> {
             }
             None => (None, None),
         };
-        let lp = CycleLoop::new(
+        let mut lp = CycleLoop::new(
             plan,
             Script::new(opts.script, t0),
             state,
@@ -341,6 +361,10 @@ impl<'p> VirtualRun<'p> {
             None,
             opts.status_every,
         )?;
+        if let Some(r) = &opts.record {
+            // Virtual time ends from outside the loop (`run_virtual`): recorded per cycle.
+            lp.record(&r.path, &r.config, true, opts.script, None)?;
+        }
         let n = plan.buses.len();
         let capture = match &opts.capture {
             Some(dir) => {
@@ -382,6 +406,9 @@ impl<'p> VirtualRun<'p> {
                 synced: 0,
                 missed_syncs: 0,
                 ending: false,
+                inbox: std::collections::VecDeque::with_capacity(INBOX_CAPACITY),
+                outbox: Vec::with_capacity(INBOX_CAPACITY),
+                next_local: 0,
             },
         })
     }
@@ -411,6 +438,41 @@ impl<'p> VirtualRun<'p> {
     /// Asks the script for the orderly end (stop, disable).
     pub fn shut_down(&mut self) {
         self.lp.shut_down();
+    }
+
+    /// Queues a client's command for the next cycle, taken through the same path as a shared-
+    /// memory client's (admission, answer, recording); returns its tag, or `None` when
+    /// [`INBOX_CAPACITY`] commands already wait.
+    pub fn submit(&mut self, command: crate::command::Command) -> Option<u64> {
+        if self.io.inbox.len() >= INBOX_CAPACITY {
+            return None;
+        }
+        let tag = LOCAL_TAG | self.io.next_local;
+        self.io.next_local += 1;
+        self.io.inbox.push_back(Request { tag, command });
+        Some(tag)
+    }
+
+    /// The answers to [`VirtualRun::submit`]'s commands since the last call.
+    pub fn take_answers(&mut self) -> Vec<Answer> {
+        // Drained, not taken: the outbox keeps its capacity (pushing never allocates).
+        self.io.outbox.drain(..).collect()
+    }
+
+    /// Waits for the answer to `tag`: steps until it comes (at most `cycles` cycles).
+    pub fn answer_to(
+        &mut self,
+        tag: u64,
+        cycles: u32,
+        out: &mut dyn Write,
+    ) -> Option<crate::command::Reply> {
+        for _ in 0..cycles {
+            if let Some(i) = self.io.outbox.iter().position(|a| a.tag == tag) {
+                return Some(self.io.outbox.swap_remove(i).reply);
+            }
+            self.step(out);
+        }
+        None
     }
 
     /// Runs one cycle: the drives up to this SYNC, receive, boot, Modbus, commands, script,
@@ -461,6 +523,7 @@ impl<'p> VirtualRun<'p> {
         summary.frames_lost = (self.stepper.tx_refused, self.stepper.rx_dropped);
         summary.frame_hash = self.io.hash.value();
         finish_summary(plan, &self.stepper.cycle, &self.lp.script, &mut summary);
+        summary.recording = self.lp.finish_recording().map(|r| r.line());
         if let (Some(c), Some(dir)) = (self.io.capture.take(), &self.io.capture_dir) {
             summary.captures = capture_lines(dir, c.finish());
         }
