@@ -125,10 +125,15 @@ impl std::fmt::Display for ReplaySummary {
         let t = self.machine_time.as_secs_f64();
         match &self.outcome {
             Outcome::Identical => {
+                let commands = match self.commands {
+                    0 => "no client commands".to_string(),
+                    1 => "1 client command".to_string(),
+                    n => format!("{n} client commands"),
+                };
                 write!(
                     f,
-                    "replay: {} cycles ({t:.3} s of machine time, {} client commands): every frame sent ({}) and every state published ({}) identical to the recording",
-                    self.cycles, self.commands, self.frames, self.states
+                    "replay: {} cycles ({t:.3} s of machine time, {commands}): every frame sent ({}) and every state published ({}) identical to the recording",
+                    self.cycles, self.frames, self.states
                 )?;
                 if self.cut {
                     write!(
