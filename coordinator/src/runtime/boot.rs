@@ -448,6 +448,20 @@ impl fmt::Display for BootFailure {
 
 impl std::error::Error for BootFailure {}
 
+impl BootFailure {
+    /// Whether the node is asked again (absent, lost, or the exchange itself failed) rather than
+    /// refused. An SDO transfer aborted for a protocol error (toggle bit, command specifier,
+    /// block size or sequence, CRC, out of memory: 0503 0000h, 0504 0000h..0504 0005h) says
+    /// nothing about the drive's configuration: one damaged frame must not leave a drive
+    /// refused until it happens to reboot.
+    pub fn is_waiting(&self) -> bool {
+        let protocol = self
+            .abort
+            .is_some_and(|c| c.code() == 0x0503_0000 || (c.code() & 0xFFFF_0000) == 0x0504_0000);
+        self.detail.is_waiting() || protocol
+    }
+}
+
 /// The outcome of one node's boot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BootReport {
@@ -823,7 +837,7 @@ impl BootSequencer {
         if matches!(n.state, NodeState::Running | NodeState::Refused) {
             return;
         }
-        let waiting = result.as_ref().err().is_some_and(|e| e.detail.is_waiting());
+        let waiting = result.as_ref().err().is_some_and(BootFailure::is_waiting);
         // A waiting node is reported once, not at every probe.
         let quiet = waiting && n.waiting;
         n.reported = true;
@@ -1438,6 +1452,53 @@ mod tests {
             Address::new(0x1000, 0)
         ));
         s
+    }
+
+    /// An SDO abort frame from node 2 for `a` with `code`.
+    fn abort_frame(a: Address, code: u32) -> Frame {
+        let c = code.to_le_bytes();
+        Frame::new_std(
+            0x582,
+            &[
+                0x80,
+                a.index as u8,
+                (a.index >> 8) as u8,
+                a.sub,
+                c[0],
+                c[1],
+                c[2],
+                c[3],
+            ],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_damaged_exchange_is_asked_again_and_a_refusal_is_kept() {
+        // Seen in a fault campaign: a damaged SDO frame made the drive abort with "command
+        // specifier not valid", and the node stayed refused until it rebooted, which a
+        // running drive never does. A protocol abort says nothing about the drive: ask again.
+        let t = Instant::from_millis(1);
+        let dt = Address::new(0x1000, 0);
+        let mut s = at_identity(t);
+        s.handle_frame(&abort_frame(dt, 0x0504_0001), t);
+        let f = s.reports()[0].result.unwrap_err();
+        assert_eq!(f.abort.map(|c| c.code()), Some(0x0504_0001));
+        assert!(f.is_waiting(), "{f}");
+        let mut reset = false;
+        while let Some(f) = s.poll_transmit(t) {
+            reset |= f.data() == [0x82, 2];
+        }
+        assert!(reset, "the node is asked again");
+        // The toggle bit too; but a value the drive refuses is the drive's answer: refused.
+        let mut s = at_identity(t);
+        s.handle_frame(&abort_frame(dt, 0x0503_0000), t);
+        assert!(s.reports()[0].result.unwrap_err().is_waiting());
+        let mut s = at_identity(t);
+        s.handle_frame(&abort_frame(dt, 0x0609_0030), t);
+        let f = s.reports()[0].result.unwrap_err();
+        assert!(!f.is_waiting(), "{f}");
+        assert!(s.poll_transmit(t).is_none_or(|f| f.data() != [0x82, 2]));
     }
 
     #[test]

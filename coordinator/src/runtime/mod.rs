@@ -27,6 +27,7 @@ pub mod real_clock;
 pub mod realtime_thread;
 pub mod record;
 pub mod run;
+pub mod scenario;
 pub mod script;
 pub mod services;
 pub mod shm;

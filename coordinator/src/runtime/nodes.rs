@@ -47,7 +47,7 @@ impl NodeReport {
         match &self.report.result {
             Ok(()) => NodeStatus::Running,
             Err(e) if e.detail == FailureDetail::UnexpectedBootUp => NodeStatus::Reset,
-            Err(e) if e.detail.is_waiting() => NodeStatus::Waiting,
+            Err(e) if e.is_waiting() => NodeStatus::Waiting,
             Err(_) => NodeStatus::Refused,
         }
     }

@@ -94,7 +94,17 @@ impl std::fmt::Debug for VirtualIo<'_> {
     }
 }
 
-impl VirtualIo<'_> {
+impl<'p> VirtualIo<'p> {
+    /// The machine.
+    pub fn plan(&self) -> &'p MachinePlan {
+        self.plan
+    }
+
+    /// The coordinator's own port on bus `bus` (fault injection: its controller's bus-off).
+    pub fn coordinator_port(&self, bus: usize) -> Option<drivers::can::PortId> {
+        self.ports.get(bus).map(|p| p.id())
+    }
+
     /// The simulated drive of an axis, on whichever bus it is.
     pub fn drive_mut(&mut self, axis: &str) -> Option<&mut SimDrive> {
         self.sims.iter_mut().find_map(|s| s.drive_mut(axis))
