@@ -116,3 +116,30 @@ fn a_scenario_naming_what_the_machine_lacks_is_refused_in_words() {
         "{e}"
     );
 }
+
+#[test]
+fn sync_consumer_mode_survives_lost_and_late_syncs() {
+    let text = std::fs::read_to_string(data().join("consumer-sync.toml")).unwrap();
+    let s = ScenarioFile::parse(&text).unwrap();
+    let opts = ScenarioOptions {
+        duration_s: Some(20.0),
+        quiet: true,
+        ..ScenarioOptions::default()
+    };
+    let (r, _) = run(&s, &opts);
+    assert!(r.violation.is_none(), "{r}");
+    assert!(
+        r.injected
+            .get(&FaultKind::SyncLoss)
+            .is_some_and(|&n| n >= 2),
+        "{r}"
+    );
+    assert!(
+        r.injected
+            .get(&FaultKind::SyncLate)
+            .is_some_and(|&n| n >= 1),
+        "{r}"
+    );
+    assert_eq!(r.books.lost, 0, "{r}");
+    assert!(r.recovered_after.is_some(), "{r}");
+}

@@ -313,7 +313,7 @@ impl Injector {
                 }
             }
             (FaultKind::ModbusDrop, Target::Axis(a)) => set_silent(run, a, true),
-            (FaultKind::ModbusSlow, Target::Axis(a)) => set_silent(run, a, k % 4 != 0),
+            (FaultKind::ModbusSlow, Target::Axis(a)) => set_silent(run, a, !k.is_multiple_of(4)),
             _ => {}
         }
         // The injector's own ports receive every frame: keep their queues empty.

@@ -376,7 +376,11 @@ pub fn run_scenario(
     let end = t0 + duration;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut injector = Injector::new(&run, seed);
-    let mut operator = Operator::new(&plan, ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F_C11E), t0);
+    let mut operator = Operator::new(
+        &plan,
+        ChaCha8Rng::seed_from_u64(seed ^ 0x005E_ED0F_C11E),
+        t0,
+    );
     let mut invariants = Invariants::new(&plan);
     // The scripted faults, checked against the machine.
     let mut planned = Vec::new();
