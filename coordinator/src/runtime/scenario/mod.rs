@@ -5,7 +5,7 @@
 //! reproduces it. After the campaign the faults end and the machine must come back (enabled,
 //! homed, fault-free) under the operator's acknowledge.
 //!
-//! - [`file`]: the scenario file, checked.
+//! - [`file`](mod@file): the scenario file, checked.
 //! - [`faults`]: the fault kinds and their injection.
 //! - [`invariants`]: what must hold every cycle.
 //! - [`operator`]: the client and the books of its commands.
