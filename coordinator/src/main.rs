@@ -71,7 +71,7 @@ enum Command {
         /// The scenario (TOML: machine, duration_s, seed, [random], [[fault]]).
         file: std::path::PathBuf,
         /// Another seed than the file's (any integer 0 to 18446744073709551615).
-        #[arg(long)]
+        #[arg(long, value_parser = seed_number)]
         seed: Option<u64>,
         /// Another duration than the file's: seconds of machine time after start-up, 0.001 to
         /// 31536000.
@@ -117,6 +117,13 @@ fn run_seconds(text: &str) -> Result<f64, String> {
         Ok(d) if d.is_finite() && (0.001..=31_536_000.0).contains(&d) => Ok(d),
         _ => Err("give seconds of machine time, 0.001 to 31536000".into()),
     }
+}
+
+/// `--seed`: a whole number that fits 64 bits.
+fn seed_number(text: &str) -> Result<u64, String> {
+    text.trim()
+        .parse::<u64>()
+        .map_err(|_| "give a whole number, 0 to 18446744073709551615".into())
 }
 
 fn main() -> ExitCode {

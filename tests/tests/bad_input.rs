@@ -98,6 +98,8 @@ fn cases(dir: &Path, example: &str) -> Vec<Case> {
         p.display().to_string()
     };
     let log = file("good.log", "(0.000000) can0 123#00\n".into());
+    let good_scenario = "machine = \"embedded\"\nduration_s = 1.0\n".to_string();
+    let scenario = file("good-scenario.toml", good_scenario.clone());
     let bus = format!("vbus:bad-input-{}", std::process::id());
     let bus = bus.as_str();
     let mut v = vec![
@@ -720,6 +722,87 @@ fn cases(dir: &Path, example: &str) -> Vec<Case> {
             "coordinator",
             &["check", "/nonexistent.toml"],
             &["/nonexistent.toml"],
+        ),
+        // coordinator: scenarios and recordings.
+        case(
+            "coordinator",
+            "coordinator",
+            &["scenario", "/nonexistent.toml"],
+            &["/nonexistent.toml"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &["scenario", &scenario, "--duration", "inf"],
+            &["--duration", "0.001 to 31536000"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &["scenario", &scenario, "--seed=-1"],
+            &["--seed", "0 to 18446744073709551615"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &[
+                "scenario",
+                &file(
+                    "s-nan.toml",
+                    good_scenario.replace("duration_s = 1.0", "duration_s = nan"),
+                ),
+            ],
+            &["duration_s = NaN", "0.001 to 31536000"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &[
+                "scenario",
+                &file(
+                    "s-axis.toml",
+                    format!(
+                        "{good_scenario}[[fault]]\nat_s = 0.5\nkind = \"drive-reboot\"\naxis = \"q\"\n"
+                    ),
+                ),
+            ],
+            &["fault[0].axis = \"q\"", "no such axis"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &[
+                "scenario",
+                &file(
+                    "s-kind.toml",
+                    format!("{good_scenario}[[fault]]\nat_s = 0.5\nkind = \"meteor\"\n"),
+                ),
+            ],
+            &["unknown variant `meteor`", "frame-loss"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &[
+                "scenario",
+                &file(
+                    "s-length.toml",
+                    format!("{good_scenario}[random]\nevery_s = 1\nlength_s = [0.5, 0.1]\n"),
+                ),
+            ],
+            &["random.length_s[1] = 0.1", "0.5 to 3600"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &["replay", "/nonexistent.rec"],
+            &["cannot read /nonexistent.rec"],
+        ),
+        case(
+            "coordinator",
+            "coordinator",
+            &["replay", &log],
+            &["is not a recording"],
         ),
         // timing: sizes, periods, durations, folders.
         case(

@@ -616,3 +616,47 @@ fn motion_cmd_lists_records_and_reads_the_emcas_parameters_on_the_default_machin
         "error: --axis w: no such axis; the axes are x, y, z, gripper\n"
     );
 }
+
+#[test]
+fn clients_killed_in_the_middle_of_their_requests_disturb_no_other_client() {
+    let _scene = one_at_a_time();
+    let p = prefix("killed-requests");
+    let coordinator = Coordinator::start(&p, 25);
+    let mut c = connect(&p);
+    c.next(Duration::from_secs(5)).expect("states");
+    // Twenty client processes, each killed at its own moment after it starts: before it sends,
+    // between its request and the reply, or after.
+    for i in 0..20u64 {
+        let mut child = Command::new(bin("shm-api", "motion-cmd"))
+            .args([
+                "--prefix",
+                &p,
+                "--timeout-ms",
+                "5000",
+                "set-input",
+                "7",
+                "on",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_micros(500 + i * 1500));
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    // Every command of a live client is still answered, in order.
+    let t = Duration::from_secs(2);
+    for i in 0..200u32 {
+        let r = c.command(&CommandRequest::set_input(6, i % 2 == 0), t);
+        if let Err(e) = r {
+            panic!(
+                "command {i} after the killed clients: {e}\n{}",
+                coordinator.output_now()
+            );
+        }
+    }
+    let out = coordinator.finish();
+    assert!(!out.contains("panicked"), "{out}");
+    assert!(out.contains("summary:"), "{out}");
+}

@@ -85,9 +85,8 @@ pub struct RecordStats {
     pub cycles: u64,
     /// Bytes in the file.
     pub file_bytes: u64,
-    /// The cycle at which the recording stopped early (the writer fell behind, or a cycle did
-    /// not fit its record), if it did.
-    pub stopped_at: Option<u64>,
+    /// The cycle at which the recording stopped early, and why, if it did.
+    pub stopped_at: Option<(u64, &'static str)>,
     /// Why the writer failed, if it did.
     pub error: Option<String>,
 }
@@ -102,9 +101,9 @@ impl RecordStats {
             self.path.display(),
             self.path.display()
         );
-        if let Some(k) = self.stopped_at {
+        if let Some((k, why)) = self.stopped_at {
             s.push_str(&format!(
-                "; STOPPED EARLY at cycle {k}: the writer could not keep up with the cycle (the recording replays up to there)"
+                "; STOPPED EARLY at cycle {k}: {why} (the recording replays up to there)"
             ));
         }
         if let Some(e) = &self.error {
@@ -125,7 +124,7 @@ pub struct Recorder {
     /// Virtual time: wait for room in the ring instead of ending the recording.
     wait_for_room: bool,
     cycles: u64,
-    stopped_at: Option<u64>,
+    stopped_at: Option<(u64, &'static str)>,
     done: Arc<AtomicBool>,
     writer: Option<JoinHandle<Result<u64, String>>>,
     path: PathBuf,
@@ -215,12 +214,15 @@ impl Recorder {
         let state = state_bytes(&self.state);
         let need = 4 + len + state.len();
         if !ok {
-            self.stopped_at = Some(k);
+            self.stopped_at = Some((
+                k,
+                "more frames or commands arrived in one cycle than a record holds",
+            ));
             return;
         }
         while self.ring.slots() < need {
             if !self.wait_for_room || self.ring.is_abandoned() {
-                self.stopped_at = Some(k);
+                self.stopped_at = Some((k, "the writer could not keep up with the cycle"));
                 return;
             }
             std::thread::sleep(Duration::from_micros(200));
