@@ -19,6 +19,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+use drivers::cli_number::Allowed;
 use drivers::time::monotonic_now;
 use iceoryx2::prelude::*;
 use shm_api::contract::MachineState;
@@ -55,18 +56,8 @@ pub struct PublishOptions {
 impl PublishOptions {
     /// Checks the numbers before anything starts.
     pub fn check(&self) -> Result<(), String> {
-        if !(self.duration_s.is_finite() && (0.4..=86_400.0).contains(&self.duration_s)) {
-            return Err(format!(
-                "--duration {}: must be 0.4 to 86400 s",
-                crate::cycle::shown(self.duration_s)
-            ));
-        }
-        if !(self.window_s.is_finite() && (0.05..=60.0).contains(&self.window_s)) {
-            return Err(format!(
-                "--window-s {}: must be 0.05 to 60 s",
-                crate::cycle::shown(self.window_s)
-            ));
-        }
+        Allowed::new("seconds", 0.4, 86_400.0).check_flag("--duration", self.duration_s)?;
+        Allowed::new("seconds", 0.05, 60.0).check_flag("--window-s", self.window_s)?;
         if self.window_s * 4.0 > self.duration_s {
             return Err(format!(
                 "--window-s {} with --duration {}: the duration must hold one window of each of \

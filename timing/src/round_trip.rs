@@ -37,6 +37,7 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use drivers::can::Bus;
+use drivers::cli_number::Allowed;
 use drivers::time::monotonic_now;
 use shm_api::client::{Client, reply_result};
 use shm_api::contract::{AxisState, CommandRequest, axis_flags, axis_mode, axis_state, fault};
@@ -101,7 +102,7 @@ pub struct LoopOptions {
 impl LoopOptions {
     /// Refuses values that cannot be measured with, naming the option.
     pub fn check(&self) -> Result<(), String> {
-        crate::cycle::check_seconds("--duration", self.duration_s, 0.5, 86_400.0)?;
+        Allowed::new("seconds", 0.5, 86_400.0).check_flag("--duration", self.duration_s)?;
         if !(250..=100_000).contains(&self.cycle_us) {
             return Err(format!(
                 "--cycle-us {}: the SYNC period must be 250 to 100000 µs",
