@@ -113,10 +113,8 @@ enum Command {
 /// `--duration`: finite seconds of machine time, a millisecond to a year, checked before any
 /// conversion (`Duration::from_secs_f64` panics on NaN, negatives and overflow).
 fn run_seconds(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(d) if d.is_finite() && (0.001..=31_536_000.0).contains(&d) => Ok(d),
-        _ => Err("give seconds of machine time, 0.001 to 31536000".into()),
-    }
+    coordinator::drivers::cli_number::Allowed::new("seconds of machine time", 0.001, 31_536_000.0)
+        .parse(text)
 }
 
 /// `--seed`: a whole number that fits 64 bits.

@@ -2,6 +2,8 @@
 //!
 //! - [`catalog`]: the facts of the four supported drives (identity, profiles, PDO1,
 //!   supervision, record table) in one place, each citing its manual digest.
+//! - [`cli_number`] (`std`): a number a user typed (seconds, a rate, a scale), checked finite
+//!   and in range and refused naming its unit and range, for every binary of the workspace.
 //! - [`can`]: one CAN frame type, the [`can::Bus`] trait, the bit-timing model, and (with the
 //!   `std` feature) the backends: SocketCAN, the deterministic virtual bus in one process and
 //!   across processes over shared memory, fault injection, candump and pcap capture.
@@ -28,6 +30,8 @@ pub mod can;
 pub mod canopen;
 pub mod catalog;
 pub mod cia402;
+#[cfg(feature = "std")]
+pub mod cli_number;
 pub mod fhpp;
 pub mod modbus;
 pub mod sim;

@@ -406,7 +406,7 @@ fn cases(dir: &Path, example: &str) -> Vec<Case> {
                 "--status-every",
                 "NaN",
             ],
-            &["--status-every NaN", "0 (never)"],
+            &["--status-every NaN", "or 0: never"],
         ),
         case(
             "coordinator",

@@ -17,6 +17,7 @@ use coordinator::runtime::realtime_thread::{
     RealtimeReport, RealtimeSettings, enter_realtime, leave_realtime,
 };
 use coordinator::runtime::ticker::Ticker;
+use drivers::cli_number::Allowed;
 use drivers::time::monotonic_now;
 
 use crate::cyclictest::{self, WindowSettings};
@@ -78,8 +79,8 @@ impl CycleOptions {
                 cpus - 1
             ));
         }
-        check_seconds("--duration", self.duration_s, 0.01, 86_400.0)?;
-        check_seconds("--window-s", self.window_s, 0.01, 3600.0)?;
+        Allowed::new("seconds", 0.01, 86_400.0).check_flag("--duration", self.duration_s)?;
+        Allowed::new("seconds", 0.01, 3600.0).check_flag("--window-s", self.window_s)?;
         if self.loops_per_window() > cyclictest::MAX_LOOPS {
             return Err(format!(
                 "--window-s {} at --period-us {} is {} periods: at most {} fit in a window (cyclictest keeps that many samples)",
@@ -101,24 +102,6 @@ impl CycleOptions {
     fn windows(&self, with_baseline: bool) -> u64 {
         let sides = if with_baseline { 2.0 } else { 1.0 };
         ((self.duration_s / (self.window_s * sides)).round() as u64).max(1)
-    }
-}
-
-/// Refuses a number of seconds that is not finite or out of `lo..=hi`.
-pub fn check_seconds(flag: &str, v: f64, lo: f64, hi: f64) -> Result<(), String> {
-    if !v.is_finite() || v < lo || v > hi {
-        return Err(format!("{flag} {}: must be {lo} to {hi} s", shown(v)));
-    }
-    Ok(())
-}
-
-/// A user's number as they would have typed it: plain where that is short (`0.5`, `86400`),
-/// in exponent form where plain would run to dozens of digits (`1e30`, `1e-300`).
-pub fn shown(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() || (1e-6..1e12).contains(&v.abs()) {
-        format!("{v}")
-    } else {
-        format!("{v:e}")
     }
 }
 

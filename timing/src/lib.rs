@@ -15,7 +15,8 @@
 //!   [`report`] (table, `summary.json`, histogram files, plots, reading a folder back),
 //!   [`machine`] (CPU, kernel, preemption, load, real-time settings granted), [`progress`]
 //!   (a bar on a terminal, lines otherwise), [`load`] (`--load`), [`session`] (one invocation,
-//!   its folder), [`binaries`] (the coordinator's binaries beside `timing`).
+//!   its folder), [`binaries`] (the coordinator's binaries beside `timing`), [`child`] (a
+//!   started process: its output kept, its stop).
 //!
 //! ```
 //! use timing::report::summary::Run;
@@ -36,6 +37,7 @@
 //! ```
 
 pub mod binaries;
+pub mod child;
 pub mod cycle;
 pub mod cyclictest;
 pub mod load;

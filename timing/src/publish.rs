@@ -12,19 +12,19 @@
 //! busy-polling and woken by a bare listener. Latency = receive time − the sample's
 //! `publish_time_ns`. The coordinator's states also give "cycle to published"
 //! (`publish_time_ns − sync_time_ns`), and its closing line gives what the notify costs the
-//! cycle thread. The coordinator is stopped with SIGINT (its safe stop), the bare publisher
-//! with SIGTERM.
+//! cycle thread. Both processes are [`crate::child::Kept`]: stopped with SIGINT (the
+//! coordinator's safe stop, the bare publisher's clean end), killed if they do not end.
 
-use std::io::Read as _;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
+use drivers::cli_number::Allowed;
 use drivers::time::monotonic_now;
 use iceoryx2::prelude::*;
 use shm_api::contract::MachineState;
 
+use crate::child::Kept;
 use crate::report::summary::Run;
 use crate::stats::Series;
 
@@ -56,18 +56,8 @@ pub struct PublishOptions {
 impl PublishOptions {
     /// Checks the numbers before anything starts.
     pub fn check(&self) -> Result<(), String> {
-        if !(self.duration_s.is_finite() && (0.4..=86_400.0).contains(&self.duration_s)) {
-            return Err(format!(
-                "--duration {}: must be 0.4 to 86400 s",
-                crate::cycle::shown(self.duration_s)
-            ));
-        }
-        if !(self.window_s.is_finite() && (0.05..=60.0).contains(&self.window_s)) {
-            return Err(format!(
-                "--window-s {}: must be 0.05 to 60 s",
-                crate::cycle::shown(self.window_s)
-            ));
-        }
+        Allowed::new("seconds", 0.4, 86_400.0).check_flag("--duration", self.duration_s)?;
+        Allowed::new("seconds", 0.05, 60.0).check_flag("--window-s", self.window_s)?;
         if self.window_s * 4.0 > self.duration_s {
             return Err(format!(
                 "--window-s {} with --duration {}: the duration must hold one window of each of \
@@ -78,96 +68,6 @@ impl PublishOptions {
             ));
         }
         Ok(())
-    }
-}
-
-/// A child process whose output is kept (read by two threads) for its error message.
-struct Kept {
-    child: Child,
-    what: String,
-    text: Arc<Mutex<String>>,
-    readers: Vec<std::thread::JoinHandle<()>>,
-}
-
-impl Kept {
-    fn spawn(what: &str, mut cmd: Command) -> Result<Kept, String> {
-        let mut child = cmd
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| format!("starting {what}: {e}"))?;
-        let text = Arc::new(Mutex::new(String::new()));
-        let mut readers = Vec::new();
-        let out: Vec<Box<dyn std::io::Read + Send>> = vec![
-            Box::new(child.stdout.take().expect("piped")),
-            Box::new(child.stderr.take().expect("piped")),
-        ];
-        for mut r in out {
-            let text = text.clone();
-            readers.push(std::thread::spawn(move || {
-                let mut buf = [0u8; 4096];
-                while let Ok(n) = r.read(&mut buf) {
-                    if n == 0 {
-                        break;
-                    }
-                    let mut t = text.lock().unwrap_or_else(|e| e.into_inner());
-                    t.push_str(&String::from_utf8_lossy(&buf[..n]));
-                }
-            }));
-        }
-        Ok(Kept {
-            child,
-            what: what.into(),
-            text,
-            readers,
-        })
-    }
-
-    /// Everything it printed so far.
-    fn output(&self) -> String {
-        self.text.lock().unwrap_or_else(|e| e.into_inner()).clone()
-    }
-
-    /// `error` with the process's output appended.
-    fn failed(&self, error: &str) -> String {
-        format!(
-            "{error}\n--- output of {} ---\n{}",
-            self.what,
-            self.output().trim_end()
-        )
-    }
-
-    /// Sends `signal` and waits up to `grace` for the end (then kills it); returns the exit
-    /// status text and the whole output.
-    fn stop(mut self, signal: libc::c_int, grace: Duration) -> (Option<i32>, String) {
-        if let Ok(None) = self.child.try_wait() {
-            // SAFETY: kill only sends a signal to our own child's process id.
-            unsafe {
-                libc::kill(self.child.id() as libc::pid_t, signal);
-            }
-        }
-        let until = Instant::now() + grace;
-        let status = loop {
-            match self.child.try_wait() {
-                Ok(Some(s)) => break s.code(),
-                Ok(None) if Instant::now() < until => {
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-                _ => {
-                    let _ = self.child.kill();
-                    break self.child.wait().ok().and_then(|s| s.code());
-                }
-            }
-        };
-        for r in self.readers.drain(..) {
-            let _ = r.join();
-        }
-        (status, self.output())
-    }
-
-    fn exited(&mut self) -> bool {
-        matches!(self.child.try_wait(), Ok(Some(_)))
     }
 }
 
@@ -346,7 +246,7 @@ fn measure(
     let t0 = Instant::now();
     let mut last = 0u64;
     for w in 0..windows {
-        if coordinator.exited() {
+        if !coordinator.alive() {
             progress.finish();
             return Err(coordinator.failed("the coordinator ended during the measurement"));
         }
@@ -467,33 +367,31 @@ pub fn run(exe: &Path, o: &PublishOptions) -> Result<(Run, Vec<Series>), String>
     let mut client = match client {
         Ok(c) => c,
         Err(e) => {
-            let (_, text) = coordinator.stop(libc::SIGINT, Duration::from_secs(10));
-            return Err(format!(
-                "connecting to the coordinator under {prefix}: {e}\n--- output of the coordinator ---\n{}",
-                text.trim_end()
-            ));
+            coordinator.stop(Duration::from_secs(10));
+            return Err(coordinator.failed(&format!(
+                "connecting to the coordinator under {prefix}: {e}"
+            )));
         }
     };
     let first = match client.next(Duration::from_secs(30)) {
         Ok(s) => *s,
         Err(e) => {
-            let msg = coordinator.failed(&format!("the coordinator's first state: {e}"));
-            let _ = coordinator.stop(libc::SIGINT, Duration::from_secs(10));
-            return Err(msg);
+            coordinator.stop(Duration::from_secs(10));
+            return Err(coordinator.failed(&format!("the coordinator's first state: {e}")));
         }
     };
     let period_ns = u64::from(first.cycle_ns).max(1);
     let period_us = period_ns / 1000;
-    // Enough periods for the run and a margin; SIGTERM ends it sooner.
+    // Enough periods for the run and a margin; SIGINT ends it sooner.
     let count = ((o.duration_s + 60.0) * 1e9 / period_ns as f64) as u64;
     let mut cmd = Command::new(exe);
     cmd.args(["bare-publisher", "--prefix", &bare_prefix, "--period-ns"])
         .arg(period_ns.to_string())
         .args(["--count", &count.to_string()]);
-    let bare_proc = match Kept::spawn("the bare publisher", cmd) {
+    let mut bare_proc = match Kept::spawn("the bare publisher", cmd) {
         Ok(b) => b,
         Err(e) => {
-            let _ = coordinator.stop(libc::SIGINT, Duration::from_secs(10));
+            coordinator.stop(Duration::from_secs(10));
             return Err(e);
         }
     };
@@ -505,32 +403,27 @@ pub fn run(exe: &Path, o: &PublishOptions) -> Result<(Run, Vec<Series>), String>
             m
         });
     drop(client);
-    let (bare_status, bare_text) = bare_proc.stop(libc::SIGTERM, Duration::from_secs(5));
+    let bare_status = bare_proc.stop(Duration::from_secs(5));
     // The coordinator's safe stop takes up to 6 s (stop the axes, disable the drives).
-    let (status, text) = coordinator.stop(libc::SIGINT, Duration::from_secs(20));
+    let status = coordinator.stop(Duration::from_secs(20));
+    let text = coordinator.output();
     let measured = measured?;
     // 2: the run completed but reported faults or boot failures (a starved simulated drive on
     // a loaded host): the latencies stand, the note says so.
     if !matches!(status, Some(0) | Some(2)) {
-        return Err(format!(
-            "the coordinator ended with status {} after SIGINT\n--- output of the coordinator ---\n{}",
-            status.map_or("none (killed)".into(), |c| c.to_string()),
-            text.trim_end()
-        ));
+        return Err(coordinator.failed(&format!(
+            "the coordinator ended with status {} after SIGINT",
+            status.map_or("none (killed)".into(), |c| c.to_string())
+        )));
     }
     if bare_status != Some(0) {
-        return Err(format!(
-            "the bare publisher ended with status {}\n--- its output ---\n{}",
-            bare_status.map_or("none (killed)".into(), |c| c.to_string()),
-            bare_text.trim_end()
-        ));
+        return Err(bare_proc.failed(&format!(
+            "the bare publisher ended with status {}",
+            bare_status.map_or("none (killed)".into(), |c| c.to_string())
+        )));
     }
-    let notify = parse_notify_line(&text).ok_or_else(|| {
-        format!(
-            "the coordinator printed no `state notify:` line\n--- output of the coordinator ---\n{}",
-            text.trim_end()
-        )
-    })?;
+    let notify = parse_notify_line(&text)
+        .ok_or_else(|| coordinator.failed("the coordinator printed no `state notify:` line"))?;
 
     let mut run = Run::new(
         NAME,

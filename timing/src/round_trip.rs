@@ -30,17 +30,19 @@
 use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
 use drivers::can::Bus;
+use drivers::cli_number::Allowed;
 use drivers::time::monotonic_now;
 use shm_api::client::{Client, reply_result};
 use shm_api::contract::{AxisState, CommandRequest, axis_flags, axis_mode, axis_state, fault};
 
+use crate::child::{Kept, TAIL_LINES};
 use crate::progress::Progress;
 use crate::report::summary::Run;
 use crate::stats::Series;
@@ -100,7 +102,7 @@ pub struct LoopOptions {
 impl LoopOptions {
     /// Refuses values that cannot be measured with, naming the option.
     pub fn check(&self) -> Result<(), String> {
-        crate::cycle::check_seconds("--duration", self.duration_s, 0.5, 86_400.0)?;
+        Allowed::new("seconds", 0.5, 86_400.0).check_flag("--duration", self.duration_s)?;
         if !(250..=100_000).contains(&self.cycle_us) {
             return Err(format!(
                 "--cycle-us {}: the SYNC period must be 250 to 100000 µs",
@@ -216,11 +218,11 @@ fn unique(tag: &str) -> String {
     format!("{tag}{}x{}", std::process::id(), now_ns() % 1_000_000_000)
 }
 
-/// The processes of one machine, their output in files; stopped (and on failure shown) when
-/// dropped or finished.
+/// The processes of one machine ([`Kept`]: their output kept, stopped with SIGINT then
+/// SIGKILL) and its folder (configuration, capture); stopped and removed when dropped.
 struct Scene {
     dir: PathBuf,
-    procs: Vec<(String, Child, PathBuf)>,
+    procs: Vec<Kept>,
 }
 
 impl Scene {
@@ -234,71 +236,42 @@ impl Scene {
     }
 
     fn spawn(&mut self, label: &str, exe: &Path, args: &[&str]) -> Result<usize, String> {
-        let log = self.dir.join(format!("{}.out", label.replace(' ', "-")));
-        let out = File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
-        let err = out
-            .try_clone()
-            .map_err(|e| format!("{}: {e}", log.display()))?;
-        let child = Command::new(exe)
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(out)
-            .stderr(err)
-            .spawn()
-            .map_err(|e| format!("cannot start {}: {e}", exe.display()))?;
-        self.procs.push((label.into(), child, log));
+        let mut cmd = Command::new(exe);
+        cmd.args(args);
+        self.procs.push(Kept::spawn(label, cmd)?);
         Ok(self.procs.len() - 1)
     }
 
-    fn output(&self, p: usize) -> String {
-        std::fs::read_to_string(&self.procs[p].2).unwrap_or_default()
-    }
-
     fn alive(&mut self, p: usize) -> bool {
-        matches!(self.procs[p].1.try_wait(), Ok(None))
+        self.procs[p].alive()
     }
 
     /// Waits until `p` printed `text`; fails when it ended or 60 s passed.
     fn wait_output(&mut self, p: usize, text: &str) -> Result<(), String> {
-        let end = now_ns() + 60_000_000_000;
-        while !self.output(p).contains(text) {
-            if !self.alive(p) || now_ns() > end {
-                return Err(self.failed(&format!("{} never printed \"{text}\"", self.procs[p].0)));
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        Ok(())
+        let r = self.procs[p].wait_output(text, Duration::from_secs(60));
+        // The others' output too: one may explain why this one never got there.
+        r.map_err(|_| {
+            self.failed(&format!(
+                "{} never printed \"{text}\"",
+                self.procs[p].label()
+            ))
+        })
     }
 
     /// `what`, followed by the last lines of every process's output.
     fn failed(&self, what: &str) -> String {
         let mut s = what.to_string();
-        for (label, _, log) in &self.procs {
-            let text = std::fs::read_to_string(log).unwrap_or_default();
-            let lines: Vec<&str> = text.lines().collect();
-            let tail = &lines[lines.len().saturating_sub(30)..];
-            s.push_str(&format!(
-                "\n--- {label} (last {} lines):\n{}",
-                tail.len(),
-                tail.join("\n")
-            ));
+        for k in &self.procs {
+            s.push('\n');
+            s.push_str(&k.tail(TAIL_LINES));
         }
         s
     }
 
-    /// SIGINT, then up to 10 s for each to end, then SIGKILL.
+    /// SIGINT, then up to 10 s for each to end, then SIGKILL; the last started first.
     fn stop(&mut self) {
-        for (_, c, _) in self.procs.iter_mut().rev() {
-            if let Ok(None) = c.try_wait() {
-                // SAFETY: kill(2) on our own child, not yet reaped; no memory is involved.
-                unsafe { libc::kill(c.id() as libc::pid_t, libc::SIGINT) };
-                let end = now_ns() + 10_000_000_000;
-                while matches!(c.try_wait(), Ok(None)) && now_ns() < end {
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-                let _ = c.kill();
-                let _ = c.wait();
-            }
+        for k in self.procs.iter_mut().rev() {
+            k.stop(Duration::from_secs(10));
         }
     }
 }

@@ -24,6 +24,7 @@ use coordinator::runtime::script::Phase;
 use coordinator::runtime::synthetic::{self, Spec};
 use coordinator::runtime::virtual_clock::VirtualRun;
 use drivers::can::{Bus, VirtualPort};
+use drivers::cli_number::Allowed;
 use drivers::time::monotonic_now;
 use serde_json::json;
 
@@ -68,7 +69,9 @@ impl SimOptions {
                 coordinator::config::CYCLE_US.end()
             ));
         }
-        crate::cycle::check_seconds("--duration", self.seconds_per_machine, 0.01, 86_400.0)
+        Allowed::new("seconds", 0.01, 86_400.0)
+            .check_flag("--duration", self.seconds_per_machine)?;
+        Ok(())
     }
 }
 

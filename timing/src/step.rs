@@ -18,6 +18,7 @@ use coordinator::runtime::realtime_thread::{RealtimeSettings, enter_realtime, le
 use coordinator::runtime::stepper::TX_CAPACITY;
 use coordinator::runtime::synthetic::{self, Kinds, Spec};
 use drivers::can::Frame;
+use drivers::cli_number::Allowed;
 use drivers::time::monotonic_now;
 
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -116,7 +117,9 @@ impl StepOptions {
         if let Some(p) = self.priority.filter(|p| !(1..=99).contains(p)) {
             return Err(format!("--priority {p}: SCHED_FIFO priorities are 1 to 99"));
         }
-        crate::cycle::check_seconds("--duration", self.seconds_per_series, 0.01, 86_400.0)
+        Allowed::new("seconds", 0.01, 86_400.0)
+            .check_flag("--duration", self.seconds_per_series)?;
+        Ok(())
     }
 
     fn machines(&self) -> Vec<(usize, Profile, bool)> {

@@ -34,6 +34,7 @@ use drivers::can::shm_bus::ShmBus;
 use drivers::can::station::Station;
 use drivers::canopen::NodeId;
 use drivers::canopen::endpoint::Endpoint;
+use drivers::cli_number::Allowed;
 use drivers::fhpp::state::State as FhppState;
 use drivers::sim::cmmo_st::{self, Server, ServerConfig};
 use drivers::sim::emca::Emca;
@@ -42,14 +43,12 @@ use drivers::sim::mtr_dci::{FestoNode, MtrDci, Profile as MtrProfile};
 use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
 use drivers::time::{Instant, monotonic_now};
 
-/// `--duration`: the same range as `coordinator run --duration`...
-const MAX_DURATION_S: f64 = 31_536_000.0;
-/// ...from a millisecond (less would end before a drive could answer anything).
-const MIN_DURATION_S: f64 = 0.001;
-/// `--status-every`: 0 (never), or at least this often...
-const MIN_STATUS_S: f64 = 0.01;
-/// ...and at most this (one line a day).
-const MAX_STATUS_S: f64 = 86_400.0;
+/// `--duration`: the same range as `coordinator run --duration`, from a millisecond (less
+/// would end before a drive could answer anything) to a year.
+const DURATION: Allowed =
+    Allowed::new("seconds", 0.001, 31_536_000.0).note("leave --duration out to run until Ctrl-C");
+/// `--status-every`: 0 (never), or from a hundredth of a second to one line a day.
+const STATUS_EVERY: Allowed = Allowed::new("seconds", 0.01, 86_400.0).note("or 0: never");
 /// The shared-memory bus has no wake-up event: poll it at least this often.
 const CAN_POLL: Duration = Duration::from_micros(200);
 /// Without CAN drives the loop only prints status lines and watches for the end.
@@ -188,30 +187,17 @@ fn profile_name(profile: Profile) -> &'static str {
 fn timing(cli: &Cli) -> Result<(Option<Duration>, Option<Duration>), String> {
     let duration = match &cli.duration {
         None => None,
-        Some(text) => match text.trim().parse::<f64>() {
-            Ok(d) if d.is_finite() && (MIN_DURATION_S..=MAX_DURATION_S).contains(&d) => {
-                Some(Duration::from_secs_f64(d))
-            }
-            _ => {
-                return Err(format!(
-                    "--duration {text}: give seconds, {MIN_DURATION_S} to {MAX_DURATION_S} \
-                     (leave --duration out to run until Ctrl-C)"
-                ));
-            }
-        },
+        Some(text) => Some(Duration::from_secs_f64(
+            DURATION.parse_flag("--duration", text)?,
+        )),
     };
     let text = &cli.status_every;
-    let every = match text.trim().parse::<f64>() {
-        Ok(0.0) => None,
-        Ok(s) if s.is_finite() && (MIN_STATUS_S..=MAX_STATUS_S).contains(&s) => {
-            Some(Duration::from_secs_f64(s))
-        }
-        _ => {
-            return Err(format!(
-                "--status-every {text}: give seconds, 0 (never) or {MIN_STATUS_S} to \
-                 {MAX_STATUS_S}"
-            ));
-        }
+    let every = if text.trim().parse::<f64>() == Ok(0.0) {
+        None
+    } else {
+        Some(Duration::from_secs_f64(
+            STATUS_EVERY.parse_flag("--status-every", text)?,
+        ))
     };
     Ok((duration, every))
 }

@@ -11,6 +11,7 @@ use shm_api::contract::{
     command_kind, status, target,
 };
 
+use hdrhistogram::Histogram;
 use iceoryx2::prelude::{Node, ipc};
 use shm_api::names::ServiceNames;
 use shm_api::publisher::{
@@ -910,23 +911,18 @@ impl StateSide {
     }
 }
 
-/// How long the cycle thread's notify took: a fixed histogram (100 ns buckets up to 200 µs,
-/// one more for longer), filled without allocating, read after the run.
+/// How long the cycle thread's notify took: an HDR histogram (1 ns to 10 s, 3 significant
+/// digits, as the cycle loop's wake-up lateness) allocated up front, so recording on the cycle
+/// thread never allocates; read after the run.
 #[derive(Debug, Clone)]
 pub struct NotifyFigures {
-    buckets: Box<[u64; NOTIFY_BUCKETS + 1]>,
+    /// Notify durations, ns (0 recorded as 1: the histogram's lowest value).
+    took: Histogram<u64>,
     /// Notifies made.
     pub calls: u64,
     /// Notifies iceoryx2 refused (counted; the cycle goes on).
     pub failed: u64,
-    /// The longest, ns.
-    pub max_ns: u64,
 }
-
-/// Width of a [`NotifyFigures`] bucket, ns.
-const NOTIFY_BUCKET_NS: u64 = 100;
-/// Buckets below the overflow bucket (200 µs).
-const NOTIFY_BUCKETS: usize = 2000;
 
 impl Default for NotifyFigures {
     fn default() -> Self {
@@ -935,44 +931,35 @@ impl Default for NotifyFigures {
 }
 
 impl NotifyFigures {
-    /// Empty; allocates its buckets now, so recording never does.
+    /// Empty; allocates its histogram now, so recording never does.
     pub fn new() -> NotifyFigures {
         NotifyFigures {
-            buckets: Box::new([0; NOTIFY_BUCKETS + 1]),
+            // Constant bounds, valid: 1 <= lowest, highest >= 2 * lowest, 3 digits <= 5.
+            took: Histogram::new_with_bounds(1, 10_000_000_000, 3)
+                .expect("valid constant histogram bounds"),
             calls: 0,
             failed: 0,
-            max_ns: 0,
         }
     }
 
     /// Counts one notify of `ns`, `ok` or refused.
     pub fn record(&mut self, ns: u64, ok: bool) {
-        let b = ((ns / NOTIFY_BUCKET_NS) as usize).min(NOTIFY_BUCKETS);
-        self.buckets[b] += 1;
+        // Beyond 10 s the value is dropped from the histogram (never resized: no allocation);
+        // it is still counted.
+        let _ = self.took.record(ns.max(1));
         self.calls += 1;
         self.failed += u64::from(!ok);
-        self.max_ns = self.max_ns.max(ns);
     }
 
-    /// The `q` quantile (0..=1), ns: the upper edge of its bucket (the maximum beyond the
-    /// buckets); 0 before any notify.
+    /// The `q` quantile (0..=1), ns: the highest value the histogram holds as equal to it
+    /// (within 0.1 %); 0 before any notify.
     pub fn quantile_ns(&self, q: f64) -> u64 {
-        if self.calls == 0 {
-            return 0;
-        }
-        let rank = ((q.clamp(0.0, 1.0) * self.calls as f64).ceil() as u64).max(1);
-        let mut seen = 0;
-        for (i, &n) in self.buckets.iter().enumerate() {
-            seen += n;
-            if seen >= rank {
-                return if i == NOTIFY_BUCKETS {
-                    self.max_ns
-                } else {
-                    ((i as u64 + 1) * NOTIFY_BUCKET_NS).min(self.max_ns)
-                };
-            }
-        }
-        self.max_ns
+        self.took.value_at_quantile(q.clamp(0.0, 1.0))
+    }
+
+    /// The longest, ns (as [`NotifyFigures::quantile_ns`], within 0.1 %); 0 before any notify.
+    pub fn max_ns(&self) -> u64 {
+        self.took.max()
     }
 }
 
@@ -989,7 +976,7 @@ impl std::fmt::Display for NotifyFigures {
             self.failed,
             us(self.quantile_ns(0.5)),
             us(self.quantile_ns(0.99)),
-            us(self.max_ns)
+            us(self.max_ns())
         )
     }
 }
@@ -1440,22 +1427,34 @@ mod tests {
     }
 
     #[test]
-    fn notify_figures_read_their_quantiles_from_the_buckets() {
+    fn notify_figures_read_their_quantiles_from_the_histogram() {
         let mut f = NotifyFigures::new();
-        assert_eq!(f.quantile_ns(0.5), 0);
+        assert_eq!((f.quantile_ns(0.5), f.max_ns()), (0, 0));
         for ns in 1..=100u64 {
             f.record(ns * 1000, ns != 7);
         }
         f.record(1_000_000, true);
-        assert_eq!((f.calls, f.failed, f.max_ns), (101, 1, 1_000_000));
-        // The 51st of 101 is 51 µs, in the bucket ending at 51.1 µs.
-        assert_eq!(f.quantile_ns(0.5), 51_100);
-        assert_eq!(f.quantile_ns(1.0), 1_000_000);
+        assert_eq!((f.calls, f.failed), (101, 1));
+        // 3 significant digits: 2048 sub-buckets, so a value in [1024·2^k, 2048·2^k) shares a
+        // 2^k ns bucket and reads as that bucket's highest value.
+        // Median, the 51st of 101: 51 µs in [32768, 65536), 32 ns buckets: 50976..=51007.
+        assert_eq!(f.quantile_ns(0.5), 51_007);
+        // p99, the 100th (ceil(99.99)): 100 µs in [65536, 131072), 64 ns: 99968..=100031.
+        assert_eq!(f.quantile_ns(0.99), 100_031);
+        // The last, 1 ms in [524288, 1048576), 512 ns: 999936..=1000447.
+        assert_eq!(f.quantile_ns(1.0), 1_000_447);
+        assert_eq!(f.max_ns(), 1_000_447);
         let line = f.to_string();
         assert!(
-            line.starts_with("state notify: 101 calls, 1 failed, median 51.10 µs"),
+            line.starts_with(
+                "state notify: 101 calls, 1 failed, median 51.01 µs, p99 100.03 µs, max 1000.45 µs"
+            ),
             "{line}"
         );
+        // A zero-length notify counts as 1 ns, the histogram's lowest value.
+        let mut z = NotifyFigures::new();
+        z.record(0, true);
+        assert_eq!((z.calls, z.quantile_ns(0.5)), (1, 1));
     }
 
     #[test]

@@ -25,6 +25,7 @@ use drivers::can::reorder::{self, ReorderBuffer};
 use drivers::can::shm_bus::{self, ShmBus};
 use drivers::can::socketcan::SocketCanBus;
 use drivers::can::{Bus, BusError, Frame};
+use drivers::cli_number::Allowed;
 use drivers::time::{Instant, monotonic_now};
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Write};
@@ -64,7 +65,7 @@ enum Cmd {
         #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1_000_000_000))]
         count: Option<u64>,
         /// Stop after this many seconds (fails if --count was not reached); 0.001 to 31536000.
-        #[arg(long, value_parser = seconds)]
+        #[arg(long, value_parser = SECONDS.parser())]
         timeout: Option<f64>,
     },
     /// Send frames given in cansend notation (605#4000100000000000, 123#R, 12345678#00).
@@ -85,7 +86,7 @@ enum Cmd {
         /// `vbus:NAME` or a SocketCAN interface.
         iface: String,
         /// Time scale: 2 replays twice as fast; 0.001 to 1000.
-        #[arg(long, default_value_t = 1.0, value_parser = speed)]
+        #[arg(long, default_value_t = 1.0, value_parser = SPEED.parser())]
         speed: f64,
         /// Milliseconds to stay on the bus after the last frame (see LINGER); 0 to 60000.
         #[arg(long, default_value_t = LINGER_MS, value_parser = clap::value_parser!(u64).range(0..=60_000))]
@@ -93,22 +94,12 @@ enum Cmd {
     },
 }
 
-/// `--timeout`: finite seconds in a range a dump can wait (a year at most; a millisecond at
-/// least, as less would end before the first frame could arrive).
-fn seconds(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(s) if s.is_finite() && (0.001..=31_536_000.0).contains(&s) => Ok(s),
-        _ => Err("give seconds, 0.001 to 31536000".into()),
-    }
-}
+/// `--timeout`: seconds a dump can wait (a year at most; a millisecond at least, as less would
+/// end before the first frame could arrive).
+const SECONDS: Allowed = Allowed::new("seconds", 0.001, 31_536_000.0);
 
-/// `--speed`: a finite time scale whose replay can be timed (1000 times faster or slower at most).
-fn speed(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(s) if s.is_finite() && (0.001..=1000.0).contains(&s) => Ok(s),
-        _ => Err("give a time scale, 0.001 to 1000 (2 replays twice as fast)".into()),
-    }
-}
+/// `--speed`: a time scale whose replay can be timed (1000 times faster or slower at most).
+const SPEED: Allowed = Allowed::new("a time scale", 0.001, 1000.0).note("2 replays twice as fast");
 
 fn open_bus(iface: &str, bitrate: u32) -> Result<Box<dyn Bus>, String> {
     if iface.trim().is_empty()

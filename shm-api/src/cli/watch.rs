@@ -4,6 +4,7 @@ use std::io::Write;
 use std::time::{Duration, Instant};
 
 use clap::Parser;
+use drivers::cli_number::Allowed;
 
 use super::resolve::axis_list;
 use super::{Machine, exit, format};
@@ -23,7 +24,7 @@ pub struct WatchArgs {
     #[arg(long, value_delimiter = ',')]
     pub axes: Vec<String>,
     /// Lines per second (0.01 to 1000000).
-    #[arg(long, conflicts_with = "every_cycle", default_value_t = 10.0, value_parser = rate)]
+    #[arg(long, conflicts_with = "every_cycle", default_value_t = 10.0, value_parser = RATE.parser())]
     pub rate: f64,
     /// One line per cycle (every state published; gaps are reported on stderr).
     #[arg(long)]
@@ -40,19 +41,15 @@ pub struct WatchArgs {
     pub timeout_ms: u64,
 }
 
-/// `--rate`: finite lines per second, checked before anything connects.
-fn rate(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(r) if r.is_finite() && (0.01..=1e6).contains(&r) => Ok(r),
-        _ => Err("give lines per second, 0.01 to 1000000".into()),
-    }
-}
+/// `--rate`: lines per second, checked before anything connects.
+const RATE: Allowed = Allowed::new("lines per second", 0.01, 1e6);
 
 impl WatchArgs {
     /// The time between lines at `--rate` (a non-positive or absurd rate is refused).
     pub fn period(&self) -> Option<Duration> {
-        (self.rate.is_finite() && self.rate >= 0.01 && self.rate <= 1e6)
-            .then(|| Duration::from_secs_f64(1.0 / self.rate))
+        RATE.check(self.rate)
+            .ok()
+            .map(|r| Duration::from_secs_f64(1.0 / r))
     }
 }
 
@@ -80,10 +77,12 @@ pub fn run(
 ) -> i32 {
     let timeout = Duration::from_millis(args.timeout_ms);
     let Some(period) = args.period() else {
-        let _ = writeln!(
-            err,
-            "error: --rate must be a positive number of lines per second"
-        );
+        // Only a caller that built the arguments itself gets here: clap checks `--rate`.
+        let refused = RATE
+            .check_flag("--rate", args.rate)
+            .err()
+            .unwrap_or_else(|| RATE.refusal());
+        let _ = writeln!(err, "error: {refused}");
         return exit::ERROR;
     };
     // The first state gives the names to resolve.

@@ -346,7 +346,8 @@ fn main() -> ExitCode {
             common,
         } => (|| {
             // Checked here under `all`'s own names: the runs below get shares of them.
-            timing::cycle::check_seconds("--duration", duration, 0.8, 86_400.0)
+            drivers::cli_number::Allowed::new("seconds", 0.8, 86_400.0)
+                .check_flag("--duration", duration)
                 .map_err(|e| format!("{e} (publish gets half of it, at least 0.4 s)"))?;
             if !(250..=100_000).contains(&loop_cycle_us) {
                 return Err(format!(
