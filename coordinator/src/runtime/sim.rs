@@ -24,6 +24,9 @@ use crate::axis::{DeviceKind, Profile};
 use crate::cycle::Transport;
 use crate::runtime::plan::MachinePlan;
 
+/// Stations of one bus listed without an allocation in `SimBus::run_until`.
+const INLINE_STATIONS: usize = 8;
+
 /// A simulated CANopen drive on its bus port.
 pub enum SimDrive {
     /// Festo MTR-DCI (boxed: the simulators are tens of kilobytes each).
@@ -203,6 +206,19 @@ impl SimBus {
 
     /// Runs the drives on a virtual-time bus up to `until`.
     pub fn run_until(&mut self, bus: &VirtualBus, until: Instant) {
+        // Once per bus and cycle: the usual few stations are listed on the stack, not in a
+        // fresh allocation.
+        let mut inline = heapless::Vec::<&mut dyn Steppable, INLINE_STATIONS>::new();
+        if self.drives.len() + usize::from(self.sync.is_some()) <= INLINE_STATIONS {
+            for (_, d) in self.drives.iter_mut() {
+                let _ = inline.push(d.steppable());
+            }
+            if let Some(s) = &mut self.sync {
+                let _ = inline.push(s.as_mut());
+            }
+            station::run_until(bus, &mut inline, until);
+            return;
+        }
         let mut refs = self.refs();
         station::run_until(bus, &mut refs, until);
     }

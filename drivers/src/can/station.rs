@@ -40,6 +40,10 @@ pub struct Station<B, E> {
     pending: Option<Frame>,
     /// Errors other than a full queue, counted (the loop goes on).
     errors: u64,
+    /// Within one [`run_until`]: the endpoint's next deadline as it was at the end of its last
+    /// step there (`None`: not known). Outside a run the endpoint may change through the public
+    /// field, so every run starts by forgetting it.
+    known: Option<Option<Instant>>,
 }
 
 impl<B: Bus, E: Endpoint> Station<B, E> {
@@ -50,6 +54,7 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
             endpoint,
             pending: None,
             errors: 0,
+            known: None,
         }
     }
 
@@ -63,6 +68,13 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
     /// [`Station::step`] at `now`, the bus's current time as the caller already knows it (a
     /// virtual-time loop: asking the bus again costs its lock).
     pub fn step_at(&mut self, now: Instant) -> usize {
+        self.known = None;
+        self.exchange(now)
+    }
+
+    /// [`Station::step_at`] remembering the endpoint's deadline for the rest of a
+    /// [`run_until`] (an endpoint's `poll_timeout` is asked several times per event otherwise).
+    fn exchange(&mut self, now: Instant) -> usize {
         let mut moved = 0;
         loop {
             match self.bus.try_recv() {
@@ -77,7 +89,13 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
                 }
             }
         }
-        if self.endpoint.poll_timeout().is_some_and(|t| t <= now) {
+        // Without a frame received, the deadline is still the one known from the end of the
+        // previous step in this run (nothing else touched the endpoint meanwhile).
+        let due = match self.known {
+            Some(d) if moved == 0 => d,
+            _ => self.endpoint.poll_timeout(),
+        };
+        if due.is_some_and(|t| t <= now) {
             self.endpoint.handle_timeout(now);
         }
         while let Some(f) = self
@@ -93,6 +111,9 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
                 }
                 Err(_) => self.errors += 1,
             }
+        }
+        if self.known.is_some() {
+            self.known = Some(self.endpoint.poll_timeout());
         }
         moved
     }
@@ -121,6 +142,19 @@ pub trait Steppable {
     }
     /// See [`Station::next_deadline`].
     fn next_deadline(&self) -> Option<Instant>;
+    /// [`run_until`] begins: from here until it returns, only it steps the station, so what
+    /// the station learns of its endpoint in one step stays true until the next. By default
+    /// nothing is remembered.
+    fn begin_run(&mut self) {}
+    /// [`Steppable::step_at`] within a [`run_until`] (after [`Steppable::begin_run`]).
+    fn step_in_run(&mut self, now: Instant) -> usize {
+        self.step_at(now)
+    }
+    /// [`Steppable::next_deadline`] within a [`run_until`], after the station's first step
+    /// there.
+    fn deadline_in_run(&self) -> Option<Instant> {
+        self.next_deadline()
+    }
 }
 
 impl<B: Bus, E: Endpoint> Steppable for Station<B, E> {
@@ -132,6 +166,19 @@ impl<B: Bus, E: Endpoint> Steppable for Station<B, E> {
     }
     fn next_deadline(&self) -> Option<Instant> {
         Station::next_deadline(self)
+    }
+    fn begin_run(&mut self) {
+        // Asked once here; kept up to date by every step of the run.
+        self.known = Some(self.endpoint.poll_timeout());
+    }
+    fn step_in_run(&mut self, now: Instant) -> usize {
+        self.exchange(now)
+    }
+    fn deadline_in_run(&self) -> Option<Instant> {
+        match self.known {
+            Some(d) => d,
+            None => self.endpoint.poll_timeout(),
+        }
     }
 }
 
@@ -154,16 +201,7 @@ pub fn settle(stations: &mut [&mut dyn Steppable]) -> usize {
 /// timer, but no later than `until`. Always after the bus's current time, so a loop of
 /// [`settle`] and `bus.advance_to(next_event(..))` makes progress.
 pub fn next_event(bus: &VirtualBus, stations: &[&mut dyn Steppable], until: Instant) -> Instant {
-    next_event_from(bus.now(), bus, stations, until)
-}
-
-/// [`next_event`] with the bus's current time given.
-fn next_event_from(
-    now: Instant,
-    bus: &VirtualBus,
-    stations: &[&mut dyn Steppable],
-    until: Instant,
-) -> Instant {
+    let now = bus.now();
     let mut next = until;
     if let Some(t) = bus.next_event_time() {
         next = next.min(t);
@@ -188,15 +226,15 @@ fn next_event_from(
 /// instant without a frame or a timer: the other stations' steps would move nothing (they
 /// would only take the bus's lock to find that out).
 fn settle_virtual(now: Instant, stations: &mut [&mut dyn Steppable]) {
-    let mut moved: usize = stations.iter_mut().map(|s| s.step_at(now)).sum();
+    let mut moved: usize = stations.iter_mut().map(|s| s.step_in_run(now)).sum();
     for _ in 1..10_000 {
         if moved == 0 {
             break;
         }
         moved = stations
             .iter_mut()
-            .filter(|s| s.next_deadline().is_some_and(|t| t <= now))
-            .map(|s| s.step_at(now))
+            .filter(|s| s.deadline_in_run().is_some_and(|t| t <= now))
+            .map(|s| s.step_in_run(now))
             .sum();
     }
 }
@@ -213,6 +251,9 @@ pub fn run_until(bus: &VirtualBus, stations: &mut [&mut dyn Steppable], until: I
             bus.advance_to(next_event(bus, stations, until));
         }
     }
+    for s in stations.iter_mut() {
+        s.begin_run();
+    }
     loop {
         // Virtual time moves only with `advance_to`: one reading per event.
         let now = bus.now();
@@ -220,6 +261,13 @@ pub fn run_until(bus: &VirtualBus, stations: &mut [&mut dyn Steppable], until: I
         if now >= until {
             return;
         }
-        bus.advance_to(next_event_from(now, bus, stations, until));
+        // The stations' next deadline; the bus adds its own under the same lock it runs by.
+        let mut bound = until;
+        for s in stations.iter() {
+            if let Some(t) = s.deadline_in_run().filter(|&t| t > now) {
+                bound = bound.min(t);
+            }
+        }
+        bus.advance_to_next_event(now, bound);
     }
 }

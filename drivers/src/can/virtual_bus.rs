@@ -30,6 +30,9 @@
 //! coordinator's real-time path (which owns its own bus endpoint). The batch calls
 //! ([`VirtualPort::send_batch`], [`VirtualPort::recv_batch`]) take the lock once for many
 //! frames. All queues are allocated when a port is attached; carrying frames allocates nothing.
+//! In virtual time two questions asked many times per event are answered without the lock,
+//! from atomics the locked code keeps up to date: [`VirtualBus::now`], and a port's
+//! `try_recv` when nothing waits for it.
 //!
 //! ```
 //! use drivers::can::{Bus, Frame, VirtualBus, VirtualBusConfig};
@@ -49,6 +52,7 @@ use crate::time::{Instant, monotonic_now};
 use core::cmp::Reverse;
 use core::time::Duration;
 use std::collections::{BinaryHeap, VecDeque};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 
 /// How the bus tells time.
@@ -169,6 +173,9 @@ struct PortSlot {
     bus_off: Option<TimeWindow>,
     /// The head was already delivered once and is being sent again (duplicate fault).
     retransmit: bool,
+    /// Shared with the port's handle: `false` only while `rx` is empty and the port connected,
+    /// so a virtual-time `try_recv` that would find nothing need not take the lock.
+    maybe_rx: Arc<AtomicBool>,
 }
 
 impl PortSlot {
@@ -199,6 +206,10 @@ struct Core {
     seq: u64,
     faults: FaultSet,
     stats: BusStats,
+    /// Frames in all transmit queues: with none, an idle wire has nothing to arbitrate.
+    queued: usize,
+    /// `now`, readable without the lock (virtual time).
+    now_shared: Arc<AtomicU64>,
 }
 
 impl Core {
@@ -222,7 +233,7 @@ impl Core {
     /// Runs the model through every event at or before `until`.
     fn run_to(&mut self, until: Instant) {
         loop {
-            if self.on_wire.is_none() {
+            if self.on_wire.is_none() && self.queued > 0 {
                 self.start_next(until);
             }
             let wire = self.on_wire.map(|w| w.end).filter(|&t| t <= until);
@@ -237,6 +248,7 @@ impl Core {
         }
         if until > self.now {
             self.now = until;
+            self.now_shared.store(until.as_nanos(), Ordering::Release);
         }
     }
 
@@ -260,6 +272,7 @@ impl Core {
                     while let Some(h) = p.tx.front() {
                         if h.submitted <= t0 && w.overlaps(h.submitted, t0) {
                             p.tx.pop_front();
+                            self.queued -= 1;
                             p.counters.dropped += 1;
                             p.retransmit = false;
                             discarded = true;
@@ -325,6 +338,7 @@ impl Core {
             src.retransmit = true;
         } else {
             src.tx.pop_front();
+            self.queued -= 1;
             src.retransmit = false;
         }
         let loopback = self.cfg.loopback;
@@ -403,6 +417,7 @@ fn is_receiver(p: &PortSlot, i: usize, from: usize, loopback: bool) -> bool {
 fn push_rx(p: &mut PortSlot, frame: Frame, cap: usize) {
     if p.rx.len() < cap {
         p.rx.push_back(frame);
+        p.maybe_rx.store(true, Ordering::Release);
         p.counters.received += 1;
     } else {
         p.counters.dropped += 1;
@@ -411,6 +426,8 @@ fn push_rx(p: &mut PortSlot, frame: Frame, cap: usize) {
 
 struct Shared {
     core: Mutex<Core>,
+    /// The virtual clock's `now`, kept by `Core::run_to`.
+    now: Arc<AtomicU64>,
     /// Real-time mode: wakes receivers waiting in `recv_until` when something was sent.
     wake: Condvar,
 }
@@ -452,8 +469,11 @@ impl VirtualBus {
             ClockMode::Virtual => Instant::ZERO,
             ClockMode::Real => monotonic_now(),
         };
+        let now = Arc::new(AtomicU64::new(start.as_nanos()));
         let core = Core {
             cfg,
+            queued: 0,
+            now_shared: now.clone(),
             now: start,
             idle_since: start,
             on_wire: None,
@@ -466,6 +486,7 @@ impl VirtualBus {
         Ok(VirtualBus {
             shared: Arc::new(Shared {
                 core: Mutex::new(core),
+                now,
                 wake: Condvar::new(),
             }),
             cfg,
@@ -495,6 +516,7 @@ impl VirtualBus {
     fn attach_slot(&self, name: &str, monitor: bool) -> VirtualPort {
         let mut c = self.lock();
         let id = c.ports.len();
+        let maybe_rx = Arc::new(AtomicBool::new(false));
         c.ports.push(PortSlot {
             attached: true,
             monitor,
@@ -504,11 +526,13 @@ impl VirtualBus {
             disconnected: false,
             bus_off: None,
             retransmit: false,
+            maybe_rx: maybe_rx.clone(),
         });
         VirtualPort {
             bus: self.clone(),
             id,
             name: name.into(),
+            maybe_rx,
         }
     }
 
@@ -525,7 +549,11 @@ impl VirtualBus {
 
     /// The bus clock: virtual time, or `CLOCK_MONOTONIC` in real time.
     pub fn now(&self) -> Instant {
-        self.lock().clock_now()
+        match self.cfg.clock {
+            // Asked several times per event by a virtual-time loop: no lock.
+            ClockMode::Virtual => Instant::from_nanos(self.shared.now.load(Ordering::Acquire)),
+            ClockMode::Real => monotonic_now(),
+        }
     }
 
     /// Virtual time: runs the bus up to `t` (never backwards). Real time: runs the model up to
@@ -537,6 +565,28 @@ impl VirtualBus {
             ClockMode::Real => monotonic_now(),
         };
         c.run_to(t);
+    }
+
+    /// Virtual time: runs the bus to its own next event (a frame completing, a delayed
+    /// delivery) or to `bound`, whichever comes first, and at least 1 ns past `now`, the
+    /// caller's reading of the clock. What [`VirtualBus::next_event_time`] and
+    /// [`VirtualBus::advance_to`] do in two calls, under one lock (a virtual-time station loop
+    /// does it once per event). Real time: as [`VirtualBus::advance_to`].
+    pub fn advance_to_next_event(&self, now: Instant, bound: Instant) -> Instant {
+        let mut c = self.lock();
+        let t = match c.cfg.clock {
+            ClockMode::Virtual => {
+                let next = c.next_event().map_or(bound, |t| t.min(bound));
+                if next <= now {
+                    now + Duration::from_nanos(1)
+                } else {
+                    next
+                }
+            }
+            ClockMode::Real => monotonic_now(),
+        };
+        c.run_to(t);
+        t
     }
 
     /// Virtual time: runs the bus for `d`. Real time: as [`VirtualBus::advance_to`].
@@ -619,8 +669,14 @@ impl VirtualBus {
         };
         p.disconnected = disconnected;
         if disconnected {
-            p.counters.dropped += p.tx.len() as u64;
+            p.maybe_rx.store(true, Ordering::Release);
+            let dropped = p.tx.len();
+            p.counters.dropped += dropped as u64;
             p.tx.clear();
+            c.queued -= dropped;
+            let Some(p) = c.ports.get_mut(port.0) else {
+                return;
+            };
             p.rx.clear();
             p.retransmit = false;
             if cut {
@@ -652,6 +708,8 @@ pub struct VirtualPort {
     bus: VirtualBus,
     id: usize,
     name: Box<str>,
+    /// See `PortSlot::maybe_rx`.
+    maybe_rx: Arc<AtomicBool>,
 }
 
 impl core::fmt::Debug for VirtualPort {
@@ -670,8 +728,10 @@ impl Drop for VirtualPort {
         let now = c.clock_now();
         if let Some(p) = c.ports.get_mut(self.id) {
             p.attached = false;
+            let dropped = p.tx.len();
             p.tx.clear();
             p.rx.clear();
+            c.queued -= dropped;
         }
         if cut {
             c.on_wire = None;
@@ -765,6 +825,7 @@ fn send_locked(c: &mut Core, id: usize, frames: &[Frame]) -> Result<usize, BusEr
         });
         n += 1;
     }
+    c.queued += n;
     if n == 0 && !frames.is_empty() {
         return Err(BusError::WouldBlock);
     }
@@ -792,8 +853,18 @@ impl Bus for VirtualPort {
     }
 
     fn try_recv(&mut self) -> Result<Option<Frame>, BusError> {
+        // Virtual time: nothing arrives between calls unless the bus is run, which sets the
+        // flag; a port with nothing waiting answers without the lock.
+        if self.bus.cfg.clock == ClockMode::Virtual && !self.maybe_rx.load(Ordering::Acquire) {
+            return Ok(None);
+        }
         let mut c = self.bus.lock_current();
-        Ok(recv_slot(&mut c, self.id)?.rx.pop_front())
+        let p = recv_slot(&mut c, self.id)?;
+        let f = p.rx.pop_front();
+        if p.rx.is_empty() {
+            p.maybe_rx.store(false, Ordering::Release);
+        }
+        Ok(f)
     }
 
     fn recv_until(&mut self, deadline: Instant) -> Result<Option<Frame>, BusError> {

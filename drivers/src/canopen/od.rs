@@ -390,6 +390,16 @@ const fn key(a: Address) -> u32 {
     (a.index as u32) << 8 | a.sub as u32
 }
 
+/// An empty cell of the dictionary's hash index.
+const EMPTY: u16 = u16::MAX;
+/// Cells tried from a key's home cell before the binary search takes over.
+const PROBES: usize = 4;
+
+/// The home cell of `k` in an index of `n` cells (a multiplicative hash mapped onto `0..n`).
+fn home_cell(k: u32, n: usize) -> usize {
+    ((u64::from(k.wrapping_mul(0x9E37_79B1)) * n as u64) >> 32) as usize
+}
+
 /// The two's-complement raw form of an integer value, checked against the type's range.
 fn int_to_raw(dt: DataType, v: &Value<'_>) -> Result<u64, AbortCode> {
     let bits = int_bits(dt);
@@ -470,6 +480,14 @@ pub fn decode_value(dt: DataType, bytes: &[u8]) -> Value<'_> {
 
 /// Up to 8 little-endian bytes as a zero-extended `u64`.
 pub fn le_u64(bytes: &[u8]) -> u64 {
+    // The widths device code reads every cycle, without a call to memcpy.
+    match *bytes {
+        [a] => return u64::from(a),
+        [a, b] => return u64::from(u16::from_le_bytes([a, b])),
+        [a, b, c, d] => return u64::from(u32::from_le_bytes([a, b, c, d])),
+        [a, b, c, d, e, f, g, h] => return u64::from_le_bytes([a, b, c, d, e, f, g, h]),
+        _ => {}
+    }
     let mut b = [0u8; 8];
     let n = bytes.len().min(8);
     b[..n].copy_from_slice(&bytes[..n]);
@@ -574,6 +592,11 @@ pub struct ObjectDictionary<'a, const N: usize, const BYTES: usize> {
     defs: heapless::Vec<EntryDef<'a>, N>,
     /// `index << 8 | sub` of each slot, in the same order: a compact array to search.
     keys: heapless::Vec<u32, N>,
+    /// A hash index over `keys`: the position of a key sits in one of the first `PROBES`
+    /// cells from its home cell, or the key is not indexed (then a binary search finds it).
+    /// Device code reads and writes dozens of values a cycle by address; a probe or two is
+    /// cheaper than a binary search over hundreds of keys.
+    index: [u16; N],
     /// Bumped by every change of a stored value.
     generation: u32,
     arena: [u8; BYTES],
@@ -593,6 +616,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             slots: heapless::Vec::new(),
             defs: heapless::Vec::new(),
             keys: heapless::Vec::new(),
+            index: [EMPTY; N],
             generation: 0,
             arena: [0; BYTES],
             used: 0,
@@ -643,6 +667,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         // Same capacity as `slots`, which just took the entry.
         let _ = self.keys.insert(pos, key(def.addr));
         let _ = self.defs.insert(pos, def);
+        self.reindex();
         self.used += size;
         Ok(())
     }
@@ -692,8 +717,42 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         self.defs.iter()
     }
 
+    /// Rebuilds the hash index (an insert moves the positions after it).
+    fn reindex(&mut self) {
+        self.index = [EMPTY; N];
+        for (pos, &k) in self.keys.iter().enumerate() {
+            // A position that does not fit a cell is left to the binary search.
+            let Ok(pos) = u16::try_from(pos) else { break };
+            if pos == EMPTY {
+                break;
+            }
+            let mut cell = home_cell(k, N);
+            for _ in 0..PROBES {
+                if self.index[cell] == EMPTY {
+                    self.index[cell] = pos;
+                    break;
+                }
+                cell = if cell + 1 == N { 0 } else { cell + 1 };
+            }
+        }
+    }
+
     fn find(&self, addr: Address) -> Result<usize, AbortCode> {
-        match self.keys.binary_search(&key(addr)) {
+        let k = key(addr);
+        let mut cell = home_cell(k, N);
+        for _ in 0..PROBES {
+            let Some(&pos) = self.index.get(cell) else {
+                break;
+            };
+            if pos == EMPTY {
+                break;
+            }
+            if self.keys.get(usize::from(pos)) == Some(&k) {
+                return Ok(usize::from(pos));
+            }
+            cell = if cell + 1 == N { 0 } else { cell + 1 };
+        }
+        match self.keys.binary_search(&k) {
             Ok(i) => Ok(i),
             Err(p) => {
                 // A neighbour with the same index means the object exists but not the sub.
@@ -706,6 +765,25 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
                 }
             }
         }
+    }
+
+    /// The position of an entry, for [`ObjectDictionary::entry_at`] and
+    /// [`ObjectDictionary::set_raw_at`]: a caller that reads the definition and then writes
+    /// the value looks the address up once. Valid until the next insert.
+    pub(crate) fn position(&self, addr: Address) -> Result<usize, AbortCode> {
+        self.find(addr)
+    }
+
+    /// The definition at a position from [`ObjectDictionary::position`].
+    pub(crate) fn entry_at(&self, i: usize) -> &EntryDef<'a> {
+        &self.defs[i]
+    }
+
+    /// [`ObjectDictionary::set_raw`] at a position from [`ObjectDictionary::position`].
+    pub(crate) fn set_raw_at(&mut self, i: usize, data: &[u8]) -> Result<(), AbortCode> {
+        self.check_write(i, data)?;
+        self.store(i, data);
+        Ok(())
     }
 
     /// The definition of an entry: `NoObject` or `NoSubIndex` if it does not exist.

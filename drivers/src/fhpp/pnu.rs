@@ -357,10 +357,15 @@ pub struct CapacityError {
 /// its value's place.
 #[derive(Debug, Clone, Copy)]
 struct Key {
-    pnu: u16,
-    sub: u8,
+    /// `pnu << 8 | sub`: sorts as (PNU, sub-index) and compares in one step.
+    key: u32,
     def: u16,
     value: u16,
+}
+
+/// The search key of a (PNU, sub-index).
+const fn param_key(pnu: u16, sub: u8) -> u32 {
+    (pnu as u32) << 8 | sub as u32
 }
 
 /// A device's parameter values: one `i64` per (PNU, sub-index) of its [`Table`], starting at
@@ -408,15 +413,14 @@ impl<const N: usize> ParamStore<N> {
                 {
                     // At most one key per value: the capacity is the values'.
                     let _ = store.keys.push(Key {
-                        pnu: d.pnu,
-                        sub,
+                        key: param_key(d.pnu, sub),
                         def,
                         value,
                     });
                 }
             }
         }
-        store.keys.sort_unstable_by_key(|k| (k.pnu, k.sub));
+        store.keys.sort_unstable_by_key(|k| k.key);
         Ok(store)
     }
 
@@ -431,7 +435,7 @@ impl<const N: usize> ParamStore<N> {
         // hold exactly (sub-index 0 of a simple EFPC variable, errors) takes the scans.
         if let Ok(k) = self
             .keys
-            .binary_search_by(|k| (k.pnu, k.sub).cmp(&(param.pnu, param.sub)))
+            .binary_search_by_key(&param_key(param.pnu, param.sub), |k| k.key)
             && let Some(d) = self.table.entry(usize::from(self.keys[k].def))
         {
             return Ok((d, usize::from(self.keys[k].value)));

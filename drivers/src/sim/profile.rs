@@ -19,6 +19,10 @@ const NS_PER_S: i128 = 1_000_000_000;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Scale {
     dt_ns: u32,
+    /// Steps per second when the step divides a second exactly (250 µs: 4000), else 0: the
+    /// conversions to per-second units are then exact multiplications, not 128-bit divisions
+    /// (the axis converts its velocity and acceleration every step).
+    steps_per_s: u32,
 }
 
 fn clamp_i64(v: i128) -> i64 {
@@ -28,8 +32,15 @@ fn clamp_i64(v: i128) -> i64 {
 impl Scale {
     /// A scale for steps of `dt_ns` nanoseconds (at least 1).
     pub const fn new(dt_ns: u32) -> Self {
+        let dt_ns = if dt_ns == 0 { 1 } else { dt_ns };
+        let ns_per_s = NS_PER_S as u32;
         Scale {
-            dt_ns: if dt_ns == 0 { 1 } else { dt_ns },
+            dt_ns,
+            steps_per_s: if ns_per_s.is_multiple_of(dt_ns) {
+                ns_per_s / dt_ns
+            } else {
+                0
+            },
         }
     }
     /// The step length in nanoseconds.
@@ -57,10 +68,20 @@ impl Scale {
     }
     /// Sub-units per step to inc/s, rounded towards zero.
     pub fn to_velocity(&self, v: i64) -> i64 {
+        if self.steps_per_s != 0 {
+            // v·10⁹ / dt is exactly v·(10⁹ / dt): the same quotient without the division.
+            return clamp_i64(((v as i128) * self.steps_per_s as i128) >> FRAC_BITS);
+        }
         clamp_i64(((v as i128) * NS_PER_S / self.dt_ns as i128) >> FRAC_BITS)
     }
     /// Sub-units per step² to inc/s², rounded towards zero.
     pub fn to_acceleration(&self, a: i64) -> i64 {
+        if self.steps_per_s != 0 {
+            // dt divides 10⁹, so dt² divides 10¹⁸: an exact quotient, as in `to_velocity`.
+            // |a| < 2⁶³ and (10⁹/dt)² ≤ 10¹⁸ < 2⁶⁰: the product fits in an i128.
+            let k = self.steps_per_s as i128;
+            return clamp_i64(((a as i128) * k * k) >> FRAC_BITS);
+        }
         let dt = self.dt_ns as i128;
         clamp_i64(((a as i128) * NS_PER_S * NS_PER_S / (dt * dt)) >> FRAC_BITS)
     }
@@ -232,6 +253,42 @@ pub fn ramp_velocity(v: i64, target: i64, acc: i64, dec: i64) -> i64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn exact_step_conversions_match_the_division() {
+        // The multiplication shortcut of a step that divides a second against the division it
+        // replaces, over signs, magnitudes and the clamp.
+        let slow_v = |dt: i128, v: i64| clamp_i64(((v as i128) * NS_PER_S / dt) >> FRAC_BITS);
+        let slow_a = |dt: i128, a: i64| {
+            clamp_i64(((a as i128) * NS_PER_S * NS_PER_S / (dt * dt)) >> FRAC_BITS)
+        };
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        for dt in [
+            1u32,
+            1000,
+            125_000,
+            250_000,
+            500_000,
+            1_000_000,
+            4_000_000,
+            1_000_000_000,
+        ] {
+            let s = Scale::new(dt);
+            assert_ne!(s.steps_per_s, 0);
+            let mut values = vec![0, 1, -1, i64::MAX, i64::MIN, ONE, -ONE, ONE - 1, 1 - ONE];
+            for _ in 0..2000 {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                values.push((x as i64) >> (x % 64));
+            }
+            for &v in &values {
+                assert_eq!(s.to_velocity(v), slow_v(dt as i128, v), "dt {dt} v {v}");
+                assert_eq!(s.to_acceleration(v), slow_a(dt as i128, v), "dt {dt} a {v}");
+            }
+        }
+        assert_eq!(Scale::new(300_000).steps_per_s, 0);
+    }
 
     /// The distance the discrete ramp covers braking from `v`, by brute force.
     fn brake_distance(mut v: i64, dec: i64) -> i64 {

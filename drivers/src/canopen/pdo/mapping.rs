@@ -383,7 +383,9 @@ impl Mapping {
                 continue;
             }
             let store = |code| PdoError::Store { addr: e.addr, code };
-            let def = od.entry(e.addr).map_err(store)?;
+            // One lookup for the definition and the write.
+            let i = od.position(e.addr).map_err(store)?;
+            let def = od.entry_at(i);
             let size = def.storage_size().min(8);
             let raw = if def.data_type.class() == TypeClass::Signed {
                 sign_extend(*v, e.bits) as u64
@@ -391,7 +393,7 @@ impl Mapping {
                 *v
             };
             let bytes = raw.to_le_bytes();
-            od.set_raw(e.addr, bytes.get(..size).unwrap_or(&[]))
+            od.set_raw_at(i, bytes.get(..size).unwrap_or(&[]))
                 .map_err(store)?;
         }
         Ok(())

@@ -155,7 +155,16 @@ fn div_round(n: i128, d: i128) -> i64 {
     if d == 0 {
         return 0;
     }
-    let q = (2 * n + d.signum() * n.signum() * d.abs()) / (2 * d);
+    let (num, den) = (2 * n + d.signum() * n.signum() * d.abs(), 2 * d);
+    // Both sides fit in 64 bits (every value the drive publishes each tick): the same
+    // truncating quotient by a 64-bit division instead of a 128-bit one. i64::MIN / -1 does
+    // not fit and takes the general path (which clamps it).
+    if let (Ok(a), Ok(b)) = (i64::try_from(num), i64::try_from(den))
+        && (a != i64::MIN || b != -1)
+    {
+        return a / b;
+    }
+    let q = num / den;
     q.clamp(i64::MIN as i128, i64::MAX as i128) as i64
 }
 
@@ -1485,6 +1494,38 @@ impl Endpoint for Tlc5xx {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rounding_division_is_the_same_in_64_bits() {
+        // The 64-bit shortcut of `div_round` against the 128-bit formula it stands for.
+        let wide = |n: i128, d: i128| {
+            let q = (2 * n + d.signum() * n.signum() * d.abs()) / (2 * d);
+            q.clamp(i64::MIN as i128, i64::MAX as i128) as i64
+        };
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        let mut cases: Vec<(i128, i128)> = vec![
+            (0, 1),
+            (1, 2),
+            (-1, 2),
+            (3, -2),
+            (i64::MAX as i128, 1),
+            (i64::MIN as i128 / 2, -1),
+            (i64::MIN as i128 / 2, 1),
+            (i64::MAX as i128 * 60, 7),
+        ];
+        for _ in 0..5000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let n = ((x as i64) >> (x % 64)) as i128 * ((x >> 40) % 70_000) as i128;
+            let d =
+                (((x >> 8) as i64) >> (x % 61)).max(1) as i128 * if x & 1 == 0 { 1 } else { -1 };
+            cases.push((n, d));
+        }
+        for (n, d) in cases {
+            assert_eq!(div_round(n, d), wide(n, d), "{n} / {d}");
+        }
+    }
 
     #[test]
     fn scaling_rounds_to_the_nearest_increment() {
