@@ -95,12 +95,12 @@ fn default_fault_length() -> f64 {
 /// The longest campaign: a year of machine time.
 pub const MAX_DURATION_S: f64 = 31_536_000.0;
 
-fn seconds(key: &str, v: f64, min: f64, max: f64) -> Result<(), String> {
-    if v.is_finite() && (min..=max).contains(&v) {
-        Ok(())
-    } else {
-        Err(format!("{key} = {v}: give seconds, {min} to {max}"))
-    }
+/// Checks seconds a scenario gives under `key` (the workspace's one check of a typed number).
+pub fn seconds(key: &str, v: f64, min: f64, max: f64) -> Result<(), String> {
+    drivers::cli_number::Allowed::new("seconds", min, max)
+        .check(v)
+        .map(|_| ())
+        .map_err(|e| format!("{key} = {v}: {e}"))
 }
 
 impl ScenarioFile {

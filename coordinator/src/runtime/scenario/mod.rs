@@ -322,12 +322,7 @@ pub fn run_scenario(
     let wall0 = std::time::Instant::now();
     let seed = opts.seed.unwrap_or(s.seed);
     let duration_s = opts.duration_s.unwrap_or(s.duration_s);
-    if !(duration_s.is_finite() && (0.001..=file::MAX_DURATION_S).contains(&duration_s)) {
-        return Err(format!(
-            "--duration {duration_s}: give seconds, 0.001 to {}",
-            file::MAX_DURATION_S
-        ));
-    }
+    file::seconds("--duration", duration_s, 0.001, file::MAX_DURATION_S)?;
     let duration = Duration::from_secs_f64(duration_s);
     let (text, machine) = machine_text(s, base)?;
     let cfg = Config::parse(&text).map_err(|e| format!("the scenario's machine: {e}"))?;
