@@ -1417,6 +1417,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     pub fn step(&mut self, input: &CycleInput<'_>, out: &mut CycleOutput<'_>) {
         self.now = input.now;
         let now = input.now;
+        self.prefetch();
         for a in self.axes.iter_mut() {
             a.input = None;
             a.fpc_in = None;
@@ -1428,6 +1429,27 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         self.transmit(now, out);
         self.previous_inputs = self.inputs;
         self.cycle += 1;
+    }
+
+    /// Asks for every cache line the step reads, all at once, before it reads the first: the
+    /// state comes from memory (the cycle thread slept a period), and lines asked for together
+    /// arrive together instead of one miss after another as the sweep reaches them.
+    #[inline(always)]
+    fn prefetch(&self) {
+        // The scalars, and the line of each container that holds its length or indices.
+        prefetch(core::slice::from_ref(&self.cycle));
+        prefetch(core::slice::from_ref(&self.setup));
+        prefetch_first(&self.events);
+        prefetch_first(&self.solos.slots);
+        prefetch_first(&self.buses);
+        prefetch_vec(&self.axes);
+        prefetch_vec(&self.groups);
+        prefetch(&self.solos.running[..self.axes.len()]);
+        for b in &self.buses {
+            prefetch(&b.by_node);
+            prefetch_first(&b.heartbeat);
+            prefetch_first(&b.guarding);
+        }
     }
 
     fn receive(&mut self, input: &CycleInput<'_>) {
@@ -2020,6 +2042,46 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             }
         }
     }
+}
+
+/// Asks for the first cache line of a vector (its length) and every line of its elements.
+#[inline(always)]
+fn prefetch_vec<T, const N: usize>(v: &Vec<T, N>) {
+    prefetch_first(v);
+    prefetch(v.as_slice());
+}
+
+/// Asks for the cache line `x` starts in.
+#[inline(always)]
+fn prefetch_first<T>(x: &T) {
+    prefetch_bytes((x as *const T).cast(), 1);
+}
+
+/// Asks for every cache line of `items`.
+#[inline(always)]
+fn prefetch<T>(items: &[T]) {
+    prefetch_bytes(items.as_ptr().cast(), core::mem::size_of_val(items));
+}
+
+/// Asks for the cache lines of `bytes` bytes from `p` (no-op off x86_64).
+#[inline(always)]
+fn prefetch_bytes(p: *const u8, bytes: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use core::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // From the start of the line `p` is in, so that each line is asked for once.
+        let skew = (p as usize) & 63;
+        let line = p.wrapping_sub(skew).cast::<i8>();
+        let mut off = 0;
+        while off < skew + bytes {
+            // SAFETY: a prefetch is a hint: it never faults, whatever the address (and these
+            // are lines of the state the step is about to read).
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(line.wrapping_add(off)) };
+            off += 64;
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (p, bytes);
 }
 
 /// A refusal of the admission table as the reply says it.
