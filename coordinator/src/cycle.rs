@@ -1431,9 +1431,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         self.cycle += 1;
     }
 
-    /// Asks for every cache line the step reads, all at once, before it reads the first: the
-    /// state comes from memory (the cycle thread slept a period), and lines asked for together
-    /// arrive together instead of one miss after another as the sweep reaches them.
+    /// Asks for the cache lines the step reads every cycle, all at once, before it reads the
+    /// first: the state comes from memory (the cycle thread slept a period), and lines asked for
+    /// together arrive together instead of one miss after another as the sweep reaches them.
+    /// (Not asked for: a running single-axis motion's slot and the supervision's per-node
+    /// entries, read only for the axes and nodes concerned.)
     #[inline(always)]
     fn prefetch(&self) {
         // The scalars, and the line of each container that holds its length or indices.
