@@ -270,9 +270,15 @@ impl<const A: usize> BusRt<A> {
     }
 }
 
+/// What the step reads of an axis every cycle. The sweep walks these from memory once per
+/// cycle (the cycle thread slept a period in between), so what only commands, the parameter
+/// channel's answers and the axis's own planning read is in [`AxisCold`].
 #[derive(Clone, Debug)]
 struct AxisRt {
-    setup: AxisSetup,
+    /// `setup.transport`, `setup.late_cycles` and `setup.following_error`, read every cycle.
+    transport: Transport,
+    late_cycles: u16,
+    following_error: i64,
     drive: DriveAxis,
     mode: AxisMode,
     online: bool,
@@ -286,17 +292,25 @@ struct AxisRt {
     fault: FaultReason,
     /// The drive's own fault already turned into `fault`, so it is raised once.
     drive_fault_seen: bool,
-    /// Feed override of the axis's own moves and jogs, % (its group's override sets it too).
-    override_percent: u16,
     group: Option<GroupId>,
     /// A velocity or force record of the group drives this axis directly.
     special: Option<Demand>,
-    /// The parameter channel (axes with `fpc`), its task and this cycle's reply bytes.
+    /// The parameter channel (axes with `fpc`) and this cycle's reply bytes.
     fpc: Option<fpc::Client>,
-    fpc_task: Option<fpc::Param>,
     fpc_in: Option<Image>,
     last_state: AxisState,
     out: Image,
+}
+
+/// What the step reads of an axis only when a command, a parameter reply or the axis's own
+/// planning needs it (the hot part is [`AxisRt`], same index).
+#[derive(Clone, Debug)]
+struct AxisCold {
+    setup: AxisSetup,
+    /// Feed override of the axis's own moves and jogs, % (its group's override sets it too).
+    override_percent: u16,
+    /// The parameter channel's task in progress.
+    fpc_task: Option<fpc::Param>,
 }
 
 /// What a single-axis motion is.
@@ -485,6 +499,8 @@ pub struct GroupStatus {
 pub struct Cycle<'t, const A: usize, const G: usize> {
     setup: CycleSetup,
     axes: Vec<AxisRt, A>,
+    /// The axes' setups and rarely read state, by axis index.
+    cold: Vec<AxisCold, A>,
     /// The axes' single-axis moves and jogs, by axis index.
     solos: Solos<A>,
     groups: Vec<GroupRt<'t>, G>,
@@ -513,6 +529,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let mut c = Cycle {
             setup,
             axes: Vec::new(),
+            cold: Vec::new(),
             solos: Solos::new(),
             groups: Vec::new(),
             buses: Vec::new(),
@@ -544,7 +561,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 .map_err(|e| SetupError::Axis(id, e))?;
             c.axes
                 .push(AxisRt {
-                    setup: *s,
+                    transport: s.transport,
+                    late_cycles: s.late_cycles,
+                    following_error: s.following_error,
                     drive,
                     mode: AxisMode::Off,
                     online: false,
@@ -556,7 +575,6 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     following: false,
                     fault: FaultReason::None,
                     drive_fault_seen: false,
-                    override_percent: 100,
                     group: None,
                     special: None,
                     fpc: if s.fpc {
@@ -565,10 +583,16 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     } else {
                         None
                     },
-                    fpc_task: None,
                     fpc_in: None,
                     last_state: AxisState::Offline,
                     out: Image::default(),
+                })
+                .map_err(|_| SetupError::Capacity(A))?;
+            c.cold
+                .push(AxisCold {
+                    setup: *s,
+                    override_percent: 100,
+                    fpc_task: None,
                 })
                 .map_err(|_| SetupError::Capacity(A))?;
             c.solos.push().map_err(|_| SetupError::Capacity(A))?;
@@ -624,7 +648,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let mode = match (a.mode, self.solos.get(usize::from(axis)).map(|s| s.kind)) {
             (AxisMode::On, Some(SoloKind::Jog { permille })) => AxisMode::Jog {
                 positive: permille > 0,
-                velocity: jog_velocity(&a.setup.limits, permille),
+                velocity: jog_velocity(&self.cold[usize::from(axis)].setup.limits, permille),
             },
             (m, _) => m,
         };
@@ -696,11 +720,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         };
         a.online = true;
         a.missed = 0;
-        if let Transport::Can { bus, node: n } = a.setup.transport
+        if let Transport::Can { bus, node: n } = a.transport
             && let Some(id) = node(n)
             && let Some(b) = self.buses.get_mut(usize::from(bus))
         {
-            match a.setup.supervision {
+            match self.cold[usize::from(axis)].setup.supervision {
                 Supervision::Heartbeat { consumer_ms } => {
                     let _ = b
                         .heartbeat
@@ -758,7 +782,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         a.missed = 0;
         a.following = false;
         self.solos.clear(usize::from(axis));
-        if let Transport::Can { bus, node: n } = a.setup.transport
+        if let Transport::Can { bus, node: n } = a.transport
             && let Some(id) = node(n)
             && let Some(b) = self.buses.get_mut(usize::from(bus))
         {
@@ -1033,11 +1057,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 velocity_percent,
                 buffer,
             } => {
-                let a = self
-                    .axes
+                let a = &self
+                    .cold
                     .get(usize::from(axis))
-                    .ok_or(Rejected::UnknownAxis(axis))?;
-                in_range(axis, position, a.setup.position_min, a.setup.position_max)?;
+                    .ok_or(Rejected::UnknownAxis(axis))?
+                    .setup;
+                in_range(axis, position, a.position_min, a.position_max)?;
                 percent(axis, velocity_percent)?;
                 self.admit_axes(Target::Axis(axis), AxisVerb::Move)?;
                 self.start_solo(
@@ -1060,8 +1085,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 percent(group, velocity_percent)?;
                 let mut targets = [AxisTarget::Keep; MAX_GROUP_AXES];
                 for (i, &m) in g.setup.axes.iter().enumerate() {
-                    let a = &self.axes[usize::from(m)];
-                    in_range(m, positions[i], a.setup.position_min, a.setup.position_max)?;
+                    let a = &self.cold[usize::from(m)].setup;
+                    in_range(m, positions[i], a.position_min, a.position_max)?;
                     targets[i] = AxisTarget::Absolute(positions[i]);
                 }
                 self.admit_group_motion(gi, GroupVerb::Move)?;
@@ -1218,7 +1243,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 for a in self.target_axes(target)? {
                     let i = usize::from(a);
-                    self.axes[i].override_percent = percent;
+                    self.cold[i].override_percent = percent;
                     if let Some(s) = self.solos.get_mut(i) {
                         let _ = s.motion.set_override(percent.min(s.max_override));
                     }
@@ -1280,10 +1305,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     /// take over (aborting: that one ramps down first; buffered: once it has arrived).
     fn start_solo(&mut self, i: usize, kind: SoloKind, buffer: BufferMode) -> Result<(), Rejected> {
         let cycle_ns = self.setup.cycle_ns;
-        let a = &mut self.axes[i];
+        let a = &self.axes[i];
+        let c = &self.cold[i];
         if let Some(s) = self.solos.get_mut(i) {
             // Checked now, so that a refusal comes with the command, not later.
-            plan_solo(&a.setup, a.setpoint, kind, a.override_percent, cycle_ns)?;
+            plan_solo(&c.setup, a.setpoint, kind, c.override_percent, cycle_ns)?;
             if buffer == BufferMode::Aborting {
                 s.motion.hold();
                 s.end = SoloEnd::Halt;
@@ -1291,7 +1317,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             s.next = Some(kind);
             return Ok(());
         }
-        let solo = plan_solo(&a.setup, a.setpoint, kind, a.override_percent, cycle_ns)?;
+        let solo = plan_solo(&c.setup, a.setpoint, kind, c.override_percent, cycle_ns)?;
         self.solos.set(i, Some(solo));
         Ok(())
     }
@@ -1317,7 +1343,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             ));
         };
         client.submit(req).map_err(|_| Rejected::Busy)?;
-        a.fpc_task = match req {
+        self.cold[usize::from(axis)].fpc_task = match req {
             fpc::Request::Read(p) | fpc::Request::Write(p, _) => Some(p),
             fpc::Request::NoTask => None,
         };
@@ -1339,7 +1365,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let mut end = [0i64; MAX_GROUP_AXES];
         let first = g.setup.axes.first().map_or(0, |&m| usize::from(m));
         let mut limits = [scale(
-            &self.axes[first].setup.limits,
+            &self.cold[first].setup.limits,
             velocity_percent,
             acceleration_percent,
             jerk_percent,
@@ -1358,9 +1384,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 AxisTarget::Absolute(p) => p,
                 AxisTarget::Relative(d) => a.setpoint.saturating_add(d),
             };
-            in_range(m, end[i], a.setup.position_min, a.setup.position_max)?;
+            let setup = &self.cold[usize::from(m)].setup;
+            in_range(m, end[i], setup.position_min, setup.position_max)?;
             limits[i] = scale(
-                &a.setup.limits,
+                &setup.limits,
                 velocity_percent,
                 acceleration_percent,
                 jerk_percent,
@@ -1390,6 +1417,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     pub fn step(&mut self, input: &CycleInput<'_>, out: &mut CycleOutput<'_>) {
         self.now = input.now;
         let now = input.now;
+        self.prefetch();
         for a in self.axes.iter_mut() {
             a.input = None;
             a.fpc_in = None;
@@ -1401,6 +1429,29 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         self.transmit(now, out);
         self.previous_inputs = self.inputs;
         self.cycle += 1;
+    }
+
+    /// Asks for the cache lines the step reads every cycle, all at once, before it reads the
+    /// first: the state comes from memory (the cycle thread slept a period), and lines asked for
+    /// together arrive together instead of one miss after another as the sweep reaches them.
+    /// (Not asked for: a running single-axis motion's slot and the supervision's per-node
+    /// entries, read only for the axes and nodes concerned.)
+    #[inline(always)]
+    fn prefetch(&self) {
+        // The scalars, and the line of each container that holds its length or indices.
+        prefetch(core::slice::from_ref(&self.cycle));
+        prefetch(core::slice::from_ref(&self.setup));
+        prefetch_first(&self.events);
+        prefetch_first(&self.solos.slots);
+        prefetch_first(&self.buses);
+        prefetch_vec(&self.axes);
+        prefetch_vec(&self.groups);
+        prefetch(&self.solos.running[..self.axes.len()]);
+        for b in &self.buses {
+            prefetch(&b.by_node);
+            prefetch_first(&b.heartbeat);
+            prefetch_first(&b.guarding);
+        }
     }
 
     fn receive(&mut self, input: &CycleInput<'_>) {
@@ -1448,7 +1499,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             }
         }
         for i in 0..self.axes.len() {
-            if let Transport::Modbus { slot } = self.axes[i].setup.transport {
+            if let Transport::Modbus { slot } = self.axes[i].transport {
                 let Some(m) = input.modbus.get(usize::from(slot)).copied() else {
                     continue;
                 };
@@ -1504,7 +1555,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 a.missed = 0;
             } else {
                 a.missed = a.missed.saturating_add(1);
-                let limit = a.setup.late_cycles;
+                let limit = a.late_cycles;
                 if limit != 0 && a.missed == limit {
                     self.raise(i as AxisId, FaultReason::LateTpdo(limit));
                 }
@@ -1754,7 +1805,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 AxisTarget::Absolute(p) => (p - a.setpoint).signum(),
                 AxisTarget::Relative(d) => d.signum(),
             };
-            let v = a.setup.limits.velocity as i64 * i64::from(r.velocity_percent) / 100;
+            let v = self.cold[usize::from(m)].setup.limits.velocity as i64
+                * i64::from(r.velocity_percent)
+                / 100;
             a.special = match (r.mode, sign) {
                 (_, 0) => None,
                 (RecordMode::Velocity, s) => Some(Demand::Velocity { velocity: s * v }),
@@ -1831,8 +1884,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 };
                 if over {
                     let next = s.next;
+                    let c = &self.cold[i];
                     let solo = next.and_then(|k| {
-                        plan_solo(&a.setup, a.setpoint, k, a.override_percent, cycle_ns).ok()
+                        plan_solo(&c.setup, a.setpoint, k, c.override_percent, cycle_ns).ok()
                     });
                     self.solos.set(i, solo);
                 }
@@ -1910,10 +1964,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 self.axes[i].drive_fault_seen = true;
             }
             let a = &self.axes[i];
-            if a.following && a.setup.following_error > 0 && a.input.is_some() {
+            if a.following && a.following_error > 0 && a.input.is_some() {
                 let e = (a.setpoint - fb.position).abs();
-                if e > a.setup.following_error {
-                    let limit = a.setup.following_error;
+                if e > a.following_error {
+                    let limit = a.following_error;
                     self.raise(i as AxisId, FaultReason::FollowingError { error: e, limit });
                 }
             }
@@ -1921,7 +1975,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             if let (Some(client), Some(input)) = (&mut a.fpc, a.fpc_in)
                 && let Some(outcome) = client.handle_input(input.bytes())
             {
-                let p = a.fpc_task.take().unwrap_or_default();
+                let p = self.cold[i].fpc_task.take().unwrap_or_default();
                 let result = match outcome {
                     Ok(v) => Ok(v.raw()),
                     Err(fpc::TaskError::Refused { number, .. }) => Err(number),
@@ -1958,7 +2012,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             if !a.online {
                 continue;
             }
-            match a.setup.transport {
+            match a.transport {
                 Transport::Can { bus, node: n } => {
                     if let Some(id) = node(n)
                         && let Ok(f) =
@@ -1977,7 +2031,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         // The parameter channels after every RPDO1: the motion images come first.
         for a in &self.axes {
             if let (true, Some(client), Transport::Can { bus, node: n }) =
-                (a.online, &a.fpc, a.setup.transport)
+                (a.online, &a.fpc, a.transport)
                 && let Some(id) = node(n)
                 && let Ok(f) = Frame::new_std(FunctionCode::Rpdo(2).cob_id(id), &client.output())
             {
@@ -1990,6 +2044,46 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             }
         }
     }
+}
+
+/// Asks for the first cache line of a vector (its length) and every line of its elements.
+#[inline(always)]
+fn prefetch_vec<T, const N: usize>(v: &Vec<T, N>) {
+    prefetch_first(v);
+    prefetch(v.as_slice());
+}
+
+/// Asks for the cache line `x` starts in.
+#[inline(always)]
+fn prefetch_first<T>(x: &T) {
+    prefetch_bytes((x as *const T).cast(), 1);
+}
+
+/// Asks for every cache line of `items`.
+#[inline(always)]
+fn prefetch<T>(items: &[T]) {
+    prefetch_bytes(items.as_ptr().cast(), core::mem::size_of_val(items));
+}
+
+/// Asks for the cache lines of `bytes` bytes from `p` (no-op off x86_64).
+#[inline(always)]
+fn prefetch_bytes(p: *const u8, bytes: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use core::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // From the start of the line `p` is in, so that each line is asked for once.
+        let skew = (p as usize) & 63;
+        let line = p.wrapping_sub(skew).cast::<i8>();
+        let mut off = 0;
+        while off < skew + bytes {
+            // SAFETY: a prefetch is a hint: it never faults, whatever the address (and these
+            // are lines of the state the step is about to read).
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(line.wrapping_add(off)) };
+            off += 64;
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (p, bytes);
 }
 
 /// A refusal of the admission table as the reply says it.
