@@ -40,6 +40,13 @@ pub struct Wake {
     pub skipped: u64,
 }
 
+impl Wake {
+    /// The lateness in whole µs, as the published state carries it (saturating).
+    pub fn late_us(&self) -> u32 {
+        (self.late_ns / 1000).min(u64::from(u32::MAX)) as u32
+    }
+}
+
 /// A drive report as the cycle takes it: the axis and what the report means.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NodeChange {
@@ -292,7 +299,7 @@ impl<'p> CycleLoop<'p> {
                         rec: rec.record(),
                     },
                 );
-                let late_us = (rec.record().wake.late_ns / 1000).min(u64::from(u32::MAX)) as u32;
+                let late_us = rec.record().wake.late_us();
                 probe(true);
                 rec.end(k, stepper, stepper.counters(self.skipped, late_us));
                 probe(false);
@@ -401,7 +408,7 @@ impl<'p> CycleLoop<'p> {
             io.modbus_output(self.k, slot, &stepper.modbus_output(slot));
         }
         if let Some(st) = &mut self.state {
-            let late_us = (wake.late_ns / 1000).min(u64::from(u32::MAX)) as u32;
+            let late_us = wake.late_us();
             st.counters = stepper.counters(self.skipped, late_us);
             st.publish(&stepper.cycle, now.as_nanos());
         }

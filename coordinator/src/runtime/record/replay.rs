@@ -512,7 +512,7 @@ pub fn replay(path: &Path, out: &mut dyn std::io::Write) -> Result<ReplaySummary
             summary.outcome = Outcome::Diverged { cycle: k, what };
             break;
         }
-        let late_us = (record.wake.late_ns / 1000).min(u64::from(u32::MAX)) as u32;
+        let late_us = record.wake.late_us();
         recorded_state(
             &mut found,
             &info,
