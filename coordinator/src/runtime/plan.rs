@@ -124,6 +124,13 @@ impl MachinePlan {
             .enumerate()
             .filter(|(_, b)| b.kind == BusKind::Simulated)
     }
+    /// How many axes are on Modbus (the cycle's Modbus slots).
+    pub fn modbus_axes(&self) -> usize {
+        self.axes
+            .iter()
+            .filter(|a| matches!(a.setup.transport, Transport::Modbus { .. }))
+            .count()
+    }
     /// The axis on node `node` of bus `bus`.
     pub fn axis_on(&self, bus: usize, node: u8) -> Option<usize> {
         self.axes.iter().position(|a| {

@@ -7,7 +7,7 @@ use drivers::time::{Instant, monotonic_now};
 use hdrhistogram::Histogram;
 
 use crate::axis::Image;
-use crate::cycle::{BusFrame, Cycle, CycleInput, CycleOutput, ModbusInput, Transport};
+use crate::cycle::{BusFrame, Cycle, CycleInput, CycleOutput, ModbusInput};
 use crate::runtime::plan::{MAX_AXES, MAX_BUSES, MAX_GROUPS, MachinePlan};
 use crate::runtime::run::RunError;
 
@@ -70,11 +70,7 @@ impl<'t> Stepper<'t> {
         let cycle = Box::new(
             Cycle::new(plan.cycle, &axes, &groups).map_err(|e| RunError::Config(e.to_string()))?,
         );
-        let slots = plan
-            .axes
-            .iter()
-            .filter(|a| matches!(a.setup.transport, Transport::Modbus { .. }))
-            .count();
+        let slots = plan.modbus_axes();
         // Modbus axes come online with their first answer (`CycleLoop`).
         Ok(Stepper {
             cycle,

@@ -160,11 +160,7 @@ impl Recorder {
             .name("record-writer".into())
             .spawn(move || write_records(consumer, z, &d))
             .map_err(|e| format!("--record: cannot start the writer thread: {e}"))?;
-        let modbus = plan
-            .axes
-            .iter()
-            .filter(|a| matches!(a.setup.transport, crate::cycle::Transport::Modbus { .. }))
-            .count();
+        let modbus = plan.modbus_axes();
         Ok(Recorder {
             record: CycleRecord::with_capacity(RX_CAPACITY + 64, TX_CAPACITY, modbus),
             scratch: vec![0u8; RECORD_BYTES].into_boxed_slice(),

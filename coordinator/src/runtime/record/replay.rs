@@ -452,11 +452,7 @@ pub fn replay(path: &Path, out: &mut dyn std::io::Write) -> Result<ReplaySummary
     )
     .map_err(|e| e.to_string())?;
     let info = StaticInfo::new(&plan, h.virtual_time);
-    let modbus = plan
-        .axes
-        .iter()
-        .filter(|a| matches!(a.setup.transport, crate::cycle::Transport::Modbus { .. }))
-        .count();
+    let modbus = plan.modbus_axes();
     let mut record = CycleRecord::with_capacity(RX_CAPACITY + 64, TX_CAPACITY, modbus);
     let mut expected = vec![0u8; size];
     let mut found = boxed_state();
