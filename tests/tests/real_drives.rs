@@ -963,9 +963,64 @@ fn drives_that_appear_later_are_booted_and_a_wrong_device_is_refused_by_name() {
     }
 }
 
+/// Attempts of [`eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun`]: a
+/// fault its drive-sim explains (the host did not run the drive loop) starts it again.
+const EIGHT_ATTEMPTS: usize = 3;
+
 #[test]
 fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
-    let mut sc = Scene::new("eight");
+    // Drives that are processes of a shared host can be kept off the CPU longer than the three
+    // cycles after which the coordinator rightly faults them (this VM has been seen holding a
+    // SCHED_FIFO drive-sim for 30 ms and more under load). Such a fault is the host's, and
+    // drive-sim says so itself ("the drive loop paused ..."); any other fault fails at once.
+    let mut stalls = Vec::new();
+    for attempt in 1..=EIGHT_ATTEMPTS {
+        match eight_drives_attempt(attempt) {
+            Ok(()) => return,
+            Err(stall) => {
+                eprintln!("attempt {attempt}: a drive fault the host explains: {stall}");
+                stalls.push(stall);
+            }
+        }
+    }
+    panic!(
+        "the host stalled the simulated drives in all {EIGHT_ATTEMPTS} attempts:\n{}",
+        stalls.join("\n")
+    );
+}
+
+/// Whether a fault is one that a drive kept off the CPU causes: its TPDOs, heartbeats or
+/// guarding answers came late.
+fn fault_of_a_late_drive(line: &str) -> bool {
+    ["no TPDO for", "heartbeat lost", "node guarding lost"]
+        .iter()
+        .any(|r| line.contains(r))
+}
+
+/// The drive-sims' own reports of a pause of their drive loop of at least two cycles (enough
+/// for three SYNCs without a TPDO), as text; empty if none.
+fn drive_sim_stalls(sc: &Scene, sims: &[P]) -> String {
+    let least_ms = 2.0 * f64::from(CYCLE_US) / 1000.0;
+    let mut found = String::new();
+    for &p in sims {
+        for line in sc.output(p).lines() {
+            let ms = line
+                .split_once("the drive loop paused ")
+                .and_then(|(_, rest)| rest.split_once(" ms"))
+                .and_then(|(ms, _)| ms.parse::<f64>().ok());
+            if ms.is_some_and(|ms| ms >= least_ms) {
+                found.push_str(line);
+                found.push('\n');
+            }
+        }
+    }
+    found
+}
+
+/// One run of the eight-drive machine: `Err` with the drive-sims' stall reports if a drive
+/// faulted because the host did not run its drive-sim; panics on anything else.
+fn eight_drives_attempt(attempt: usize) -> Result<(), String> {
+    let mut sc = Scene::new(&format!("eight-{attempt}"));
     let bus = unique("rde");
     let prefix = unique("t-real-eight-");
     let mut axes_toml = String::new();
@@ -1012,16 +1067,53 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
     // Two processes of four drives (a process costs CPU per wake-up, a drive little more).
     let first = sc.drive_sim(&config, &["a1", "a2", "a3", "a4"]);
     let second = sc.drive_sim(&config, &["a5", "a6", "a7", "a8"]);
-    sc.wait_running(&[first, second]);
+    let sims = [first, second];
+    sc.wait_running(&sims);
     let coord = sc.coordinator(
         &config,
         &prefix,
         &["--duration", "30", "--demo", "--no-chains"],
     );
+    // A fault: the coordinator's FAULT lines if the drive-sims explain every one, else a panic
+    // that shows every process's output.
+    let explained = |sc: &mut Scene| -> Result<(), String> {
+        let out = sc.output(coord);
+        let faults: Vec<&str> = out.lines().filter(|l| l.contains("FAULT")).collect();
+        let stalls = drive_sim_stalls(sc, &sims);
+        assert!(
+            !faults.is_empty()
+                && faults.iter().all(|l| fault_of_a_late_drive(l))
+                && !stalls.is_empty(),
+            "a fault no stall of the host explains:\n{}",
+            faults.join("\n")
+        );
+        Err(format!("{}\n{stalls}", faults.join("\n")))
+    };
     let mut c = connect(&prefix);
-    sc.wait_state(&mut c, coord, "all eight enabled and homed", |s| {
-        s.axis_count == 8 && axes(s).iter().all(ready)
-    });
+    let end = Instant::now() + PATIENCE;
+    loop {
+        let s = c.latest().map(|s| Box::new(*s));
+        if let Some(s) = &s {
+            if s.axis_count == 8 && axes(s).iter().all(ready) {
+                break;
+            }
+            if axes(s).iter().any(|a| a.fault != fault::NONE) {
+                // The line may follow the state by a moment.
+                std::thread::sleep(Duration::from_millis(200));
+                return explained(&mut sc);
+            }
+        }
+        assert!(
+            sc.running(coord),
+            "the coordinator ended before all eight were ready"
+        );
+        assert!(
+            Instant::now() < end,
+            "all eight enabled and homed: not within {PATIENCE:?}; last state:\n{}",
+            s.as_deref().map_or("no state".into(), describe)
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
     // Drain the event log so far: what follows is the stall's.
     while c.next_event().is_some() {}
 
@@ -1035,7 +1127,11 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
     let overrun = loop {
         match c.wait_event(Duration::from_millis(200)).unwrap() {
             Some(r) if usize::from(r.id) == event_id::OVERRUN => break r,
-            Some(r) => assert_ne!(usize::from(r.id), event_id::FAULT, "a fault: {r:?}"),
+            Some(r) if usize::from(r.id) == event_id::FAULT => {
+                sc.wait_exit(coord);
+                return explained(&mut sc);
+            }
+            Some(_) => {}
             None => assert!(Instant::now() < end, "no OVERRUN event"),
         }
     };
@@ -1050,7 +1146,9 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
         out.lines().any(|l| l.contains(": OVERRUN: ")),
         "an OVERRUN line"
     );
-    assert!(!out.contains("FAULT"), "no fault line");
+    if out.contains("FAULT") {
+        return explained(&mut sc);
+    }
     assert!(
         !out.lines().any(|l| l.starts_with("  fault: ")),
         "the summary lists no fault"
@@ -1075,6 +1173,7 @@ fn eight_drives_on_one_bus_run_without_faults_and_a_stall_is_an_overrun() {
         Some(0),
         "exit status 0: no fault, no refusal"
     );
+    Ok(())
 }
 
 #[test]

@@ -9,6 +9,8 @@
 //! - `timing loop [--drives vbus|in-process|both] [--duration S | --samples N] [--cycle-us 2000]`
 //! - `timing all [--duration S] [--loop-cycle-us 2000]`: cycle, step, sim, publish and loop
 //!   into one folder
+//! - `timing load [--duration S]`: the background load alone, to run anything else on a busy
+//!   host on purpose
 //! - `timing report DIR`, `timing compare DIR DIR`
 //!
 //! Every measuring subcommand takes `--out DIR` (default `timing/results/run-DATE`) and
@@ -209,6 +211,13 @@ enum Cmd {
         #[command(flatten)]
         common: Common,
     },
+    /// The documented background load alone, until Ctrl-C or --duration: to run anything
+    /// else (the test suite, a machine) on a busy host on purpose.
+    Load {
+        /// Stop after this long, s (default: until Ctrl-C or SIGTERM).
+        #[arg(long)]
+        duration: Option<f64>,
+    },
     /// Redraws the plots and the table of a run's folder.
     Report {
         /// The folder.
@@ -274,6 +283,44 @@ fn own_exe() -> Result<PathBuf, String> {
 fn finish(s: Session, out: Option<PathBuf>) -> Result<(), String> {
     let dir = out.unwrap_or_else(session::default_dir);
     print!("{}", s.finish(&dir)?);
+    Ok(())
+}
+
+/// `timing load`: the background load in the foreground, with a line a minute so a log shows
+/// that it ran.
+fn run_load(duration: Option<f64>) -> Result<(), String> {
+    let limit = match duration {
+        Some(d) => Some(Duration::from_secs_f64(
+            drivers::cli_number::Allowed::new("seconds", 0.1, 7.0 * 86_400.0)
+                .check_flag("--duration", d)?,
+        )),
+        None => None,
+    };
+    let stop = coordinator::runtime::signals::stop_flag();
+    let start = std::time::Instant::now();
+    let load = timing::load::Load::start();
+    println!("timing load: {}", timing::load::DESCRIPTION);
+    println!("timing load: running; Ctrl-C to stop");
+    let mut next_line = Duration::from_secs(60);
+    while !stop.load(std::sync::atomic::Ordering::Relaxed)
+        && limit.is_none_or(|l| start.elapsed() < l)
+    {
+        std::thread::sleep(Duration::from_millis(100));
+        if start.elapsed() >= next_line {
+            println!(
+                "timing load: {:.0} min, {} churn rounds",
+                next_line.as_secs_f64() / 60.0,
+                load.churn_rounds.load(std::sync::atomic::Ordering::Relaxed)
+            );
+            next_line += Duration::from_secs(60);
+        }
+    }
+    let rounds = load.churn_rounds.load(std::sync::atomic::Ordering::Relaxed);
+    drop(load);
+    println!(
+        "timing load: stopped after {:.1} s ({rounds} churn rounds)",
+        start.elapsed().as_secs_f64()
+    );
     Ok(())
 }
 
@@ -413,6 +460,7 @@ fn main() -> ExitCode {
                 .for_each(|r| s.add(r));
             finish(s, common.out)
         })(),
+        Cmd::Load { duration } => run_load(duration),
         Cmd::Report { dir } => session::redraw(&dir).map(|t| print!("{t}")),
         Cmd::Compare { a, b } => (|| {
             let sa = timing::report::files::read_summary(&a).map_err(|e| e.to_string())?;
