@@ -110,6 +110,13 @@ fn targets(x: AxisTarget, y: AxisTarget) -> [AxisTarget; MAX_GROUP_AXES] {
 /// and steps at MC; 12 goes to (10, 0) mm and ends the chain.
 pub fn record_table() -> RecordTable {
     let mut t = RecordTable::with_axes(2);
+    fill_record_table(&mut t);
+    t
+}
+
+/// Puts [`record_table`]'s records into `t` where it lies (a microcontroller fills a `const`
+/// initialised static so, rather than moving the 60 KB table through the stack).
+pub fn fill_record_table(t: &mut RecordTable) {
     let r10 = Record {
         targets: targets(AxisTarget::Absolute(80_000), AxisTarget::Absolute(100_000)),
         velocity_percent: 80,
@@ -149,7 +156,6 @@ pub fn record_table() -> RecordTable {
         t.insert(n, r).expect("the scenario's records are valid");
     }
     t.validate().expect("the scenario's chain links are valid");
-    t
 }
 
 /// Where the script is.
@@ -241,6 +247,8 @@ pub struct Controller<'t> {
     events: u64,
     /// The cycle the scenario reached its end in.
     end_cycle: u64,
+    /// The most a command of the script cost, in the clock's units.
+    command_cost: u32,
 }
 
 fn node(n: u8) -> NodeId {
@@ -268,6 +276,7 @@ impl<'t> Controller<'t> {
             commanded: false,
             events: 0,
             end_cycle: 0,
+            command_cost: 0,
         };
         for (i, a) in axes.iter().enumerate() {
             let map = pdo_mapping(a.kind, a.profile);
@@ -321,6 +330,12 @@ impl<'t> Controller<'t> {
         self.end_cycle
     }
 
+    /// The most one command of the script cost so far ([`Cycle::command`], timed with the
+    /// clock [`Controller::step`] is given): the group move's planning happens there.
+    pub fn command_cost(&self) -> u32 {
+        self.command_cost
+    }
+
     /// Events the cycle reported so far.
     pub fn events(&self) -> u64 {
         self.events
@@ -357,7 +372,7 @@ impl<'t> Controller<'t> {
         let now = self.now();
         let number = self.cycle.cycle();
         self.commissioning_answers();
-        self.script(now);
+        self.script(now, clock);
         let t0 = clock();
         let mut modbus: [Image; 0] = [];
         let mut out = CycleOutput {
@@ -428,8 +443,11 @@ impl<'t> Controller<'t> {
         }
     }
 
-    fn command(&mut self, c: Command) {
-        if let Reply::Rejected(_) = self.cycle.command(&c) {
+    fn command(&mut self, c: Command, clock: &mut impl FnMut() -> u32) {
+        let t0 = clock();
+        let reply = self.cycle.command(&c);
+        self.command_cost = self.command_cost.max(clock().wrapping_sub(t0));
+        if let Reply::Rejected(_) = reply {
             self.fail(Failure::Rejected);
         }
         self.commanded = true;
@@ -441,7 +459,7 @@ impl<'t> Controller<'t> {
     }
 
     /// The operator: each phase's command once, then the next phase when its condition holds.
-    fn script(&mut self, now: Instant) {
+    fn script(&mut self, now: Instant, clock: &mut impl FnMut() -> u32) {
         let axes = [0u16, 1].map(|a| self.cycle.axis_status(a));
         let [Some(x), Some(y)] = axes else {
             return;
@@ -459,10 +477,10 @@ impl<'t> Controller<'t> {
             }
             Phase::Enabling => {
                 if !self.commanded && both(&|s| s.feedback.state != AxisState::Offline) {
-                    self.command(Command::Enable(Target::All));
+                    self.command(Command::Enable(Target::All), clock);
                 } else if self.commanded && both(&|s| s.feedback.state == AxisState::Ready) {
                     self.next(Phase::Homing);
-                    self.command(Command::Home(Target::All));
+                    self.command(Command::Home(Target::All), clock);
                 }
             }
             Phase::Homing => {
@@ -470,12 +488,15 @@ impl<'t> Controller<'t> {
                     self.next(Phase::Moving);
                     let mut positions = [0; MAX_GROUP_AXES];
                     positions[..2].copy_from_slice(&MOVE_TARGETS);
-                    self.command(Command::MoveGroup {
-                        group: 0,
-                        positions,
-                        velocity_percent: 100,
-                        buffer: BufferMode::Aborting,
-                    });
+                    self.command(
+                        Command::MoveGroup {
+                            group: 0,
+                            positions,
+                            velocity_percent: 100,
+                            buffer: BufferMode::Aborting,
+                        },
+                        clock,
+                    );
                 }
             }
             Phase::Moving => {
@@ -485,10 +506,13 @@ impl<'t> Controller<'t> {
                     .is_some_and(|g| g.motion.is_some());
                 if !moving && both(&standing) {
                     self.next(Phase::Chain);
-                    self.command(Command::StartChain {
-                        group: 0,
-                        record: CHAIN_START,
-                    });
+                    self.command(
+                        Command::StartChain {
+                            group: 0,
+                            record: CHAIN_START,
+                        },
+                        clock,
+                    );
                 }
             }
             Phase::Chain => {
