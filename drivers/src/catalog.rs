@@ -162,6 +162,8 @@ pub struct Device {
     pub heartbeat_max_ms: Option<u16>,
     /// The largest guard time 100Ch, ms; `None`: no node guarding.
     pub guard_time_max_ms: Option<u16>,
+    /// The CAN bitrates it runs at, kbit/s (its EDS's `BaudRate_` keys); empty off CANopen.
+    pub can_bitrates_kbit: &'static [u16],
     /// The drive's own record table; `None`: it has none.
     pub records: Option<Records>,
 }
@@ -299,6 +301,8 @@ pub const MTR_DCI: Device = Device {
     // No 1017h in the object list: node guarding only (§7.3); 100Ch is 0..32767 ms (§7.3).
     heartbeat_max_ms: None,
     guard_time_max_ms: Some(32767),
+    // §5.4.1: 1000, 800, 500, 250, 125, 100, 50, 20 kbit/s (100 has no CiA 306 key).
+    can_bitrates_kbit: &[20, 50, 125, 250, 500, 800, 1000],
     // Records 1..31, record 0 = homing at sub-index 1; no chaining (§4.1, §4.3).
     records: Some(Records {
         last: 31,
@@ -322,6 +326,9 @@ pub const EMCA: Device = Device {
     // "Heartbeat is not mentioned"; 100Ch is u16 ms (§5.1 "Node guarding").
     heartbeat_max_ms: None,
     guard_time_max_ms: Some(u16::MAX),
+    // The manual sets the bit rate through FCT without listing the rates (seed-002 p.16):
+    // the CiA set is assumed.
+    can_bitrates_kbit: &[10, 20, 50, 125, 250, 500, 800, 1000],
     // 64 records, sub-index 1..64 = record number, with chaining (§3.1, §3.2).
     records: Some(Records {
         last: 64,
@@ -357,6 +364,7 @@ pub const CMMO_ST: Device = Device {
     // Supervised by its Modbus connection timeout instead (§1.2).
     heartbeat_max_ms: None,
     guard_time_max_ms: None,
+    can_bitrates_kbit: &[],
     // 64 records 1..64 at sub-index = record number, with chaining (§4.1, §4.2).
     records: Some(Records {
         last: 64,
@@ -391,6 +399,8 @@ pub const TLC5XX: Device = Device {
     // 1017h and 100Ch are U16 ms, heartbeat or guarding, not both (§2.7, §5.1).
     heartbeat_max_ms: Some(u16::MAX),
     guard_time_max_ms: Some(u16::MAX),
+    // "the CiA set 10-1000 kbit/s" (seed-003 §4.2.1, an assumption of the digest).
+    can_bitrates_kbit: &[10, 20, 50, 125, 250, 500, 800, 1000],
     // Record processing is "only for TLC4xx" (§4.2): the TLC5xx has no record table.
     records: None,
 };

@@ -33,6 +33,7 @@ use drivers::can::Bus;
 use drivers::can::shm_bus::ShmBus;
 use drivers::can::station::Station;
 use drivers::canopen::NodeId;
+use drivers::canopen::eds_write::{DeviceInfo, write_eds};
 use drivers::canopen::endpoint::Endpoint;
 use drivers::cli_number::Allowed;
 use drivers::fhpp::state::State as FhppState;
@@ -88,7 +89,7 @@ enum ProfileArg {
 /// Simulated drives as their own process: the drives of a coordinator configuration
 /// (`--config`), or drives of one kind (`--device`).
 #[derive(Debug, Parser)]
-#[command(version, group(ArgGroup::new("what").required(true).args(["config", "device"])))]
+#[command(version, group(ArgGroup::new("what").required(true).args(["config", "device", "eds"])))]
 struct Cli {
     /// A coordinator configuration: start every drive it dials (the axes on `vbus` buses and
     /// the CMMO-STs without `simulated = true`).
@@ -100,6 +101,11 @@ struct Cli {
     /// The device to simulate.
     #[arg(long, value_enum)]
     device: Option<DeviceArg>,
+    /// Print the CiA 306 EDS of this device (its simulator's object dictionary, as a freshly
+    /// powered drive has it; COB-IDs relative to $NODEID) and exit. With `--profile` for the
+    /// MTR-DCI's CiA 402 face.
+    #[arg(long, value_enum, value_name = "DEVICE", conflicts_with_all = ["config", "device", "bus", "nodes", "modbus", "bitrate", "duration"])]
+    eds: Option<DeviceArg>,
     /// The CAN bus: `vbus:NAME` (the shared-memory virtual bus).
     #[arg(long, required_if_eq_any([("device", "mtr-dci"), ("device", "emca"), ("device", "tlc5xx")]))]
     bus: Option<String>,
@@ -203,25 +209,12 @@ fn timing(cli: &Cli) -> Result<(Option<Duration>, Option<Duration>), String> {
 }
 
 /// The plan of `--device ...`.
-fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
-    let kind = device.kind();
-    if kind.is_modbus() {
-        let addr = cli
-            .modbus
-            .ok_or("the CMMO-ST speaks Modbus TCP: give --modbus ADDR")?;
-        return Ok(Plan {
-            can: Vec::new(),
-            modbus: vec![ModbusSpec {
-                axis: None,
-                text: addr.to_string(),
-                addr,
-            }],
-        });
-    }
+/// The profile `asked` for, or the device's first; refused where the device lacks it.
+fn chosen_profile(kind: DeviceKind, asked: Option<ProfileArg>) -> Result<Profile, String> {
     // The device catalog says which profiles a device offers; the first is its default.
     let first = kind.profiles().next().unwrap_or(Profile::Fhpp);
-    let profile = match cli.profile {
-        None => first,
+    match asked {
+        None => Ok(first),
         Some(p) => {
             let wanted = match p {
                 ProfileArg::Fhpp => Profile::Fhpp,
@@ -239,9 +232,27 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
                     offered.join(" and ")
                 ));
             }
-            wanted
+            Ok(wanted)
         }
-    };
+    }
+}
+
+fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
+    let kind = device.kind();
+    if kind.is_modbus() {
+        let addr = cli
+            .modbus
+            .ok_or("the CMMO-ST speaks Modbus TCP: give --modbus ADDR")?;
+        return Ok(Plan {
+            can: Vec::new(),
+            modbus: vec![ModbusSpec {
+                axis: None,
+                text: addr.to_string(),
+                addr,
+            }],
+        });
+    }
+    let profile = chosen_profile(kind, cli.profile)?;
     let bus = cli.bus.as_deref().ok_or("give --bus vbus:NAME")?;
     let name = match bus.strip_prefix("vbus:") {
         Some(n) if !n.is_empty() => n,
@@ -418,6 +429,8 @@ fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
 trait SimDrive: Endpoint {
     /// NMT and drive state, position, fault: for people.
     fn status(&self) -> String;
+    /// The CiA 306 EDS of the drive's object dictionary as it is now.
+    fn eds(&self, node: NodeId, info: &DeviceInfo<'_>) -> String;
 }
 
 impl SimDrive for Tlc5xx {
@@ -429,6 +442,9 @@ impl SimDrive for Tlc5xx {
             self.statusword(),
             self.actual_usr()
         )
+    }
+    fn eds(&self, node: NodeId, info: &DeviceInfo<'_>) -> String {
+        write_eds(self.od(), node, info)
     }
 }
 
@@ -487,11 +503,17 @@ impl SimDrive for MtrDci {
     fn status(&self) -> String {
         festo_node_status(self, DeviceKind::MtrDci)
     }
+    fn eds(&self, node: NodeId, info: &DeviceInfo<'_>) -> String {
+        write_eds(self.device().od(), node, info)
+    }
 }
 
 impl SimDrive for Emca {
     fn status(&self) -> String {
         festo_node_status(self, DeviceKind::Emca)
+    }
+    fn eds(&self, node: NodeId, info: &DeviceInfo<'_>) -> String {
+        write_eds(self.device().od(), node, info)
     }
 }
 
@@ -743,8 +765,67 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     Ok(())
 }
 
+/// `--eds DEVICE`: the EDS of a freshly built simulator of that device.
+fn eds_of(device: DeviceArg, profile: Option<ProfileArg>) -> Result<String, String> {
+    let kind = device.kind();
+    let facts = kind.device();
+    if kind.is_modbus() {
+        return Err(format!(
+            "--eds {}: the {} speaks Modbus TCP, not CANopen; it has no EDS",
+            facts.id, facts.name
+        ));
+    }
+    let profile = chosen_profile(kind, profile)?;
+    // Built at node 1; the writer gives the COB-IDs relative to $NODEID.
+    let node = NodeId::new(1).ok_or("node 1")?;
+    let spec = CanSpec {
+        axis: None,
+        kind,
+        profile,
+        node,
+        bus: String::new(),
+        bitrate: 1_000_000,
+    };
+    let drive = build_can_drive(&spec, Instant::ZERO)?;
+    let file_name = format!(
+        "{}-{}.eds",
+        facts.id,
+        profile_name(profile).to_lowercase().replace(' ', "")
+    );
+    let description = format!(
+        "{} {} ({}), as the motion coordinator's simulator models it",
+        facts.vendor,
+        facts.name,
+        profile_name(profile)
+    );
+    let info = DeviceInfo {
+        file_name: &file_name,
+        description: &description,
+        vendor_name: facts.vendor,
+        product_name: facts.name,
+        baud_rates_kbit: facts.can_bitrates_kbit,
+        lss: false,
+        created_by: concat!("drive-sim ", env!("CARGO_PKG_VERSION")),
+    };
+    Ok(drive.eds(node, &info))
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Some(device) = cli.eds {
+        return match eds_of(device, cli.profile) {
+            Ok(text) => {
+                // A closed pipe (`| head`) is the reader's choice, not an error.
+                use std::io::Write as _;
+                let _ = std::io::stdout().lock().write_all(text.as_bytes());
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("drive-sim: error: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     let result = timing(&cli).and_then(|(duration, every)| {
         let plan = match (&cli.config, cli.device) {
             (Some(file), _) => plan_from_config(file, &cli.only)?,

@@ -7,6 +7,8 @@ mod cob;
 pub mod device;
 #[cfg(feature = "std")]
 pub mod eds;
+#[cfg(feature = "std")]
+pub mod eds_write;
 pub mod emcy;
 pub mod endpoint;
 pub mod example;
