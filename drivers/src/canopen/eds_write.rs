@@ -36,35 +36,36 @@ pub struct DeviceInfo<'a> {
     pub created_by: &'a str,
 }
 
-/// Names of the standard objects that have sub-indices (CiA 301 and CiA 402), for their
-/// object sections; the entries name only their sub-indices.
-fn standard_name(index: u16) -> Option<&'static str> {
+/// The standard objects with sub-indices (CiA 301 and CiA 402): their names (the entries name
+/// only their sub-indices) and whether the standard makes them an ARRAY (else a RECORD). Tools
+/// act on the difference: python-canopen sizes an ARRAY by reading its sub-index 0 from the
+/// device, a RECORD by its description.
+fn standard_object(index: u16) -> Option<(&'static str, bool)> {
     Some(match index {
-        0x1003 => "Pre-defined error field",
-        0x1010 => "Store parameters",
-        0x1011 => "Restore default parameters",
-        0x1016 => "Consumer heartbeat time",
-        0x1018 => "Identity object",
-        0x1029 => "Error behaviour",
-        0x1200..=0x127F => "SDO server parameter",
-        0x1280..=0x12FF => "SDO client parameter",
-        0x1400..=0x15FF => "RPDO communication parameter",
-        0x1600..=0x17FF => "RPDO mapping parameter",
-        0x1800..=0x19FF => "TPDO communication parameter",
-        0x1A00..=0x1BFF => "TPDO mapping parameter",
-        0x6007 => "Abort connection option code",
-        0x607B => "Position range limit",
-        0x607D => "Software position limit",
-        0x608F => "Position encoder resolution",
-        0x6091 => "Gear ratio",
-        0x6092 => "Feed constant",
-        0x6093 => "Position factor",
-        0x6094 => "Velocity encoder factor",
-        0x6097 => "Acceleration factor",
-        0x6099 => "Homing speeds",
-        0x60C1 => "Interpolation data record",
-        0x60C2 => "Interpolation time period",
-        0x60FE => "Digital outputs",
+        0x1003 => ("Pre-defined error field", true),
+        0x1010 => ("Store parameters", true),
+        0x1011 => ("Restore default parameters", true),
+        0x1016 => ("Consumer heartbeat time", true),
+        0x1018 => ("Identity object", false),
+        0x1029 => ("Error behaviour", true),
+        0x1200..=0x127F => ("SDO server parameter", false),
+        0x1280..=0x12FF => ("SDO client parameter", false),
+        0x1400..=0x15FF => ("RPDO communication parameter", false),
+        0x1600..=0x17FF => ("RPDO mapping parameter", false),
+        0x1800..=0x19FF => ("TPDO communication parameter", false),
+        0x1A00..=0x1BFF => ("TPDO mapping parameter", false),
+        0x607B => ("Position range limit", true),
+        0x607D => ("Software position limit", true),
+        0x608F => ("Position encoder resolution", true),
+        0x6091 => ("Gear ratio", true),
+        0x6092 => ("Feed constant", true),
+        0x6093 => ("Position factor", true),
+        0x6094 => ("Velocity encoder factor", true),
+        0x6097 => ("Acceleration factor", true),
+        0x6099 => ("Homing speeds", true),
+        0x60C1 => ("Interpolation data record", true),
+        0x60C2 => ("Interpolation time period", false),
+        0x60FE => ("Digital outputs", true),
         _ => return None,
     })
 }
@@ -250,12 +251,16 @@ pub fn write_eds<const N: usize, const B: usize>(
             continue;
         }
         let above: Vec<&&EntryDef<'_>> = subs.iter().filter(|e| e.addr.sub > 0).collect();
-        let array = above
-            .first()
-            .is_some_and(|f| above.iter().all(|e| e.data_type == f.data_type));
-        let name = standard_name(*index)
-            .map(str::to_owned)
-            .unwrap_or_else(|| object_name(&above));
+        // A manufacturer object is an ARRAY when its sub-indices share one type.
+        let (name, array) = match standard_object(*index) {
+            Some((name, array)) => (name.to_owned(), array),
+            None => (
+                object_name(&above),
+                above
+                    .first()
+                    .is_some_and(|f| above.iter().all(|e| e.data_type == f.data_type)),
+            ),
+        };
         let _ = writeln!(out, "[{index:04X}]");
         let _ = writeln!(out, "ParameterName={name}");
         let _ = writeln!(out, "ObjectType=0x{}", if array { 8 } else { 9 });

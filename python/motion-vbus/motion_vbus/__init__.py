@@ -144,6 +144,9 @@ class VbusBus(can.BusABC):
         self.bitrate = bitrate
         self.channel_info = f"vbus:{name} at {bitrate} bit/s"
         self._sender = _unique_sender_id()
+        # Frames carry CLOCK_MONOTONIC times; python-can's (and `canbus dump`'s logs) are Unix
+        # epoch seconds: shift by the difference of the two clocks, taken once, as canbus does.
+        self.wall_offset_ns = time.time_ns() - _monotonic_ns()
         self._tx_end = 0
         self._max_backlog = -(-worst_case_bits(True, 8) * TX_BACKLOG_FRAMES * 1_000_000_000 // bitrate)
         # python-canopen sends from its own threads while a Notifier thread receives: one lock
@@ -203,7 +206,7 @@ class VbusBus(can.BusABC):
             remote = bool(s.can_id & CAN_RTR_FLAG)
             self.received += 1
             return can.Message(
-                timestamp=s.timestamp_ns / 1e9,
+                timestamp=(s.timestamp_ns + self.wall_offset_ns) / 1e9,
                 arbitration_id=s.can_id & (0x1FFF_FFFF if extended else 0x7FF),
                 is_extended_id=extended,
                 is_remote_frame=remote,
