@@ -170,3 +170,24 @@ pub fn workspace_bin(package: &str, name: &str) -> std::path::PathBuf {
     }
     dir.join(name)
 }
+
+/// A test that needs something outside Rust (QEMU, a Python package) and found it missing:
+/// fails when `MOTION_REQUIRE_ALL=1` (as `.ci/run` sets it, having installed everything),
+/// otherwise prints `SKIPPED test: why` straight to stderr (the harness captures
+/// `eprintln!` of a passing test) and the caller returns.
+pub fn skip_or_fail(test: &str, why: &str) {
+    assert!(
+        std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
+        "{test}: {why}, and MOTION_REQUIRE_ALL=1"
+    );
+    use std::io::Write as _;
+    let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {why}");
+}
+
+/// The repository's root (the folder above this crate's).
+pub fn repo_root() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ is in the workspace")
+        .to_path_buf()
+}

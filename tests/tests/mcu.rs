@@ -15,21 +15,14 @@ use std::time::{Duration, Instant};
 const QEMU_TIMEOUT: Duration = Duration::from_secs(300);
 
 fn skip_or_fail(why: &str) {
-    assert!(
-        std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
-        "{why} and MOTION_REQUIRE_ALL=1"
-    );
-    let _ = writeln!(
-        std::io::stderr(),
-        "SKIPPED the_microcontroller_computes_the_same_cycles_as_the_host: {why} (.ci/run installs it)"
+    integration_tests::skip_or_fail(
+        "the_microcontroller_computes_the_same_cycles_as_the_host",
+        &format!("{why} (.ci/run installs it)"),
     );
 }
 
 fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("tests/ is in the workspace")
-        .to_path_buf()
+    integration_tests::repo_root()
 }
 
 /// Whether rustc has the standard library for `thumbv7m-none-eabi`.
