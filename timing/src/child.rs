@@ -206,10 +206,12 @@ mod tests {
 
     #[test]
     fn sigint_stops_it_and_a_deaf_one_is_killed() {
-        // A shell that ends cleanly on SIGINT.
+        // A shell that ends cleanly on SIGINT. It loops on builtins: looping on a `sleep`
+        // child, dash once did not run its trap within the 10 s grace on a loaded host (the
+        // suite under `timing load`); a shell runs a pending trap between builtins at once.
         let mut k = Kept::spawn(
             "the listener",
-            sh("trap 'echo bye; exit 0' INT; echo ready; while :; do sleep 0.05; done"),
+            sh("trap 'echo bye; exit 0' INT; echo ready; while :; do :; done"),
         )
         .unwrap();
         k.wait_output("ready", Duration::from_secs(10)).unwrap();

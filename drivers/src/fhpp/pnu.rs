@@ -1984,7 +1984,12 @@ pub static FHPP_FAMILY: &[ParamDef] = &[
 pub static EMCA: &[ParamDef] = &[
     // Digest 002 §6: 1 major, 2 minor, 3 revision, 4 build; the type is not given (one
     // number each: u8 here), nor the simulated firmware's numbers (0).
-    ro(100, (1, 4), "Firmware version (major, minor, revision, build)", U8),
+    ro(
+        100,
+        (1, 4),
+        "Firmware version (major, minor, revision, build)",
+        U8,
+    ),
     p(
         40,
         (1, 10),
