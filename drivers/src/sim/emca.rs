@@ -50,7 +50,9 @@ impl Emca {
         if cfg.variant != Variant::Emca {
             return Err(SimError::Profile(cfg.variant));
         }
-        FestoNode::build(node, &EMCA_FHPP, cfg, false, now).map(Emca)
+        // The EMCA manual lists no 1008h..100Ah (digest 002 §5.1): its firmware version is the
+        // FHPP parameter PNU 100.
+        FestoNode::build(node, &EMCA_FHPP, &[], cfg, false, now).map(Emca)
     }
 }
 

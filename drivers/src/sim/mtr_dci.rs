@@ -132,6 +132,43 @@ pub const FPC_IN: [Address; 4] = [
     Address::new(0x3033, 0),
 ];
 
+/// The MTR-DCI's name and versions, visible strings, read only (§7.3: 1008h, 1009h, 100Ah;
+/// the versions written "V.xx.yy"). The name is the manual's example type code; the version
+/// numbers are the simulator's (the manual gives only their form).
+const MTR_DCI_STRINGS: [EntryDef<'static>; 3] = {
+    const NAME: &[u8] = b"MTR-DCI-42S-VCSC-EG14-H2CO";
+    const VERSION: &[u8] = b"V.01.00";
+    [
+        sub(
+            0x1008,
+            0,
+            "manufacturer device name",
+            DataType::VisibleString,
+            AccessType::Ro,
+        )
+        .capacity(NAME.len())
+        .default_value(Value::Bytes(NAME)),
+        sub(
+            0x1009,
+            0,
+            "manufacturer hardware version",
+            DataType::VisibleString,
+            AccessType::Ro,
+        )
+        .capacity(VERSION.len())
+        .default_value(Value::Bytes(VERSION)),
+        sub(
+            0x100A,
+            0,
+            "manufacturer software version",
+            DataType::VisibleString,
+            AccessType::Ro,
+        )
+        .capacity(VERSION.len())
+        .default_value(Value::Bytes(VERSION)),
+    ]
+};
+
 const FHPP_OBJECTS: [EntryDef<'static>; 18] = {
     use AccessType::{Ro, Wo};
     use DataType::{Integer32 as I32, Unsigned8 as U8, Unsigned16 as U16, Unsigned32 as U32};
@@ -505,17 +542,20 @@ impl core::fmt::Debug for FestoDevice {
 }
 
 impl FestoNode {
-    /// Builds and powers on a node: `comm` the communication objects, `drive` the device core,
-    /// `cia402` whether it speaks the CiA 402 face instead of FHPP.
+    /// Builds and powers on a node: `comm` the communication objects, `device` the objects
+    /// its manual adds to them, `drive` the device core, `cia402` whether it speaks the CiA 402
+    /// face instead of FHPP.
     pub fn build(
         node: NodeId,
         comm: &CommProfile,
+        device: &[EntryDef<'static>],
         drive: DriveConfig,
         cia402: bool,
         now: Instant,
     ) -> Result<FestoNode, SimError> {
         let mut od = FestoOd::new();
         insert_communication_objects(&mut od, node, comm)?;
+        od.insert_all(device)?;
         if cia402 {
             od.insert_all(&CIA402_OBJECTS)?;
         } else {
@@ -1188,7 +1228,7 @@ impl MtrDci {
             Profile::Fhpp => (&MTR_DCI_FHPP, false),
             Profile::Cia402 => (&MTR_DCI_CIA402, true),
         };
-        FestoNode::build(node, comm, cfg, cia, now).map(MtrDci)
+        FestoNode::build(node, comm, &MTR_DCI_STRINGS, cfg, cia, now).map(MtrDci)
     }
 }
 
