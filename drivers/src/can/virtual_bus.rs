@@ -400,6 +400,23 @@ impl Core {
         }
     }
 
+    /// See [`VirtualBus::advance_to_next_event`].
+    fn advance_to_next_event(&mut self, now: Instant, bound: Instant) -> Instant {
+        let t = match self.cfg.clock {
+            ClockMode::Virtual => {
+                let next = self.next_event().map_or(bound, |t| t.min(bound));
+                if next <= now {
+                    now + Duration::from_nanos(1)
+                } else {
+                    next
+                }
+            }
+            ClockMode::Real => monotonic_now(),
+        };
+        self.run_to(t);
+        t
+    }
+
     fn slot(&self, port: usize) -> Result<&PortSlot, BusError> {
         match self.ports.get(port) {
             Some(p) if p.attached => Ok(p),
@@ -573,20 +590,18 @@ impl VirtualBus {
     /// [`VirtualBus::advance_to`] do in two calls, under one lock (a virtual-time station loop
     /// does it once per event). Real time: as [`VirtualBus::advance_to`].
     pub fn advance_to_next_event(&self, now: Instant, bound: Instant) -> Instant {
-        let mut c = self.lock();
-        let t = match c.cfg.clock {
-            ClockMode::Virtual => {
-                let next = c.next_event().map_or(bound, |t| t.min(bound));
-                if next <= now {
-                    now + Duration::from_nanos(1)
-                } else {
-                    next
-                }
-            }
-            ClockMode::Real => monotonic_now(),
-        };
-        c.run_to(t);
-        t
+        self.lock().advance_to_next_event(now, bound)
+    }
+
+    /// Takes the bus for a stretch of single-threaded work (a virtual-time station loop):
+    /// the frames its ports exchange through the [`HeldBus`] and the bus's own advances then
+    /// take the lock once for the whole stretch instead of once per call. Meant for virtual
+    /// time; in real time another thread's port waits while the bus is held.
+    pub fn hold(&self) -> HeldBus<'_> {
+        HeldBus {
+            bus: self,
+            guard: None,
+        }
     }
 
     /// Virtual time: runs the bus for `d`. Real time: as [`VirtualBus::advance_to`].
@@ -703,6 +718,76 @@ impl VirtualBus {
     }
 }
 
+/// A [`VirtualBus`] held by one caller ([`VirtualBus::hold`]): its ports' frames go through
+/// [`HeldBus::try_recv`] and [`HeldBus::send`], which run the same code as the ports' own
+/// calls under a lock taken once, at the first call, and kept until [`HeldBus::release`] or
+/// the drop. The one-thread virtual clock so takes one lock per bus and station run instead
+/// of one per frame and event (each lock is two atomic read-modify-writes); the real-clock,
+/// multi-threaded mode keeps the per-call lock of the ports.
+pub struct HeldBus<'a> {
+    bus: &'a VirtualBus,
+    guard: Option<MutexGuard<'a, Core>>,
+}
+
+impl core::fmt::Debug for HeldBus<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("HeldBus")
+            .field("held", &self.guard.is_some())
+            .finish()
+    }
+}
+
+impl HeldBus<'_> {
+    fn core(&mut self) -> &mut Core {
+        let bus = self.bus;
+        self.guard.get_or_insert_with(|| bus.lock())
+    }
+
+    /// Lets go of the lock (taken again by the next call): before anything else uses the bus
+    /// through its own handles, which would otherwise wait for it.
+    pub fn release(&mut self) {
+        self.guard = None;
+    }
+
+    /// The bus held.
+    pub fn bus(&self) -> &VirtualBus {
+        self.bus
+    }
+
+    /// Whether `port` is attached to the bus held.
+    pub fn owns(&self, port: &VirtualPort) -> bool {
+        Arc::ptr_eq(&self.bus.shared, &port.bus.shared)
+    }
+
+    /// [`Bus::try_recv`] of `port`, a port of the bus held ([`HeldBus::owns`]; else the port's
+    /// own call, with the lock let go first).
+    pub fn try_recv(&mut self, port: &mut VirtualPort) -> Result<Option<Frame>, BusError> {
+        if !self.owns(port) || port.bus.cfg.clock != ClockMode::Virtual {
+            self.release();
+            return port.try_recv();
+        }
+        if !port.maybe_rx.load(Ordering::Acquire) {
+            return Ok(None);
+        }
+        recv_one(self.core(), port.id)
+    }
+
+    /// [`Bus::send`] of `port`, a port of the bus held (else the port's own call, with the
+    /// lock let go first).
+    pub fn send(&mut self, port: &mut VirtualPort, frame: &Frame) -> Result<(), BusError> {
+        if !self.owns(port) || port.bus.cfg.clock != ClockMode::Virtual {
+            self.release();
+            return port.send(frame);
+        }
+        send_locked(self.core(), port.id, core::slice::from_ref(frame)).map(|_| ())
+    }
+
+    /// [`VirtualBus::advance_to_next_event`] under the lock held.
+    pub fn advance_to_next_event(&mut self, now: Instant, bound: Instant) -> Instant {
+        self.core().advance_to_next_event(now, bound)
+    }
+}
+
 /// One endpoint of a [`VirtualBus`]. Dropping it detaches it.
 pub struct VirtualPort {
     bus: VirtualBus,
@@ -780,6 +865,9 @@ impl VirtualPort {
                 None => break,
             }
         }
+        if p.rx.is_empty() {
+            p.maybe_rx.store(false, Ordering::Release);
+        }
         Ok(n)
     }
 
@@ -797,6 +885,16 @@ fn recv_slot(c: &mut Core, id: usize) -> Result<&mut PortSlot, BusError> {
         return Err(BusError::Disconnected);
     }
     Ok(p)
+}
+
+/// A port's `try_recv` under the lock.
+fn recv_one(c: &mut Core, id: usize) -> Result<Option<Frame>, BusError> {
+    let p = recv_slot(c, id)?;
+    let f = p.rx.pop_front();
+    if p.rx.is_empty() {
+        p.maybe_rx.store(false, Ordering::Release);
+    }
+    Ok(f)
 }
 
 fn send_locked(c: &mut Core, id: usize, frames: &[Frame]) -> Result<usize, BusError> {
@@ -858,13 +956,7 @@ impl Bus for VirtualPort {
         if self.bus.cfg.clock == ClockMode::Virtual && !self.maybe_rx.load(Ordering::Acquire) {
             return Ok(None);
         }
-        let mut c = self.bus.lock_current();
-        let p = recv_slot(&mut c, self.id)?;
-        let f = p.rx.pop_front();
-        if p.rx.is_empty() {
-            p.maybe_rx.store(false, Ordering::Release);
-        }
-        Ok(f)
+        recv_one(&mut self.bus.lock_current(), self.id)
     }
 
     fn recv_until(&mut self, deadline: Instant) -> Result<Option<Frame>, BusError> {
@@ -922,6 +1014,10 @@ impl Bus for VirtualPort {
     fn counters(&self) -> BusCounters {
         let c = self.bus.lock_current();
         c.ports.get(self.id).map(|p| p.counters).unwrap_or_default()
+    }
+
+    fn virtual_port(&mut self) -> Option<&mut VirtualPort> {
+        Some(self)
     }
 }
 
