@@ -208,6 +208,14 @@ struct Core {
     stats: BusStats,
     /// Frames in all transmit queues: with none, an idle wire has nothing to arbitrate.
     queued: usize,
+    /// The ports a frame is delivered to (attached, not monitors, connected), in attach order:
+    /// also the only ports that can have frames queued. Kept by attach, drop and disconnect,
+    /// so a frame's arbitration and delivery visit these instead of every port.
+    receivers: Vec<usize>,
+    /// The attached monitor ports.
+    monitors: Vec<usize>,
+    /// Some port was ever put into bus-off: arbitration then checks for lost frames.
+    any_bus_off: bool,
     /// `now`, readable without the lock (virtual time).
     now_shared: Arc<AtomicU64>,
 }
@@ -254,6 +262,9 @@ impl Core {
 
     /// Arbitration on an idle wire: puts the winning head on the wire if it starts by `until`.
     fn start_next(&mut self, until: Instant) {
+        if !self.any_bus_off {
+            return self.start_next_no_bus_off(until);
+        }
         loop {
             let earliest = self
                 .ports
@@ -311,6 +322,51 @@ impl Core {
         }
     }
 
+    /// [`Core::start_next`] when no port was ever bus-off (no queued frame can have been lost):
+    /// one pass over the ports that can have frames queued, in attach order. The arbitration
+    /// starts at `t0 = max(earliest submission, idle_since)` among the heads submitted by
+    /// `t0`: those submitted by `idle_since` if any (then `t0 = idle_since`), else those
+    /// submitted at the earliest instant after it (then `t0` is that instant).
+    fn start_next_no_bus_off(&mut self, until: Instant) {
+        let idle = self.idle_since;
+        // (key, port) of the best head submitted by `idle`, and (submitted, key, port) of the
+        // best among the earliest submitted after it; ties to the port attached first.
+        let mut by_idle: Option<(u64, usize)> = None;
+        let mut after: Option<(Instant, u64, usize)> = None;
+        for &i in &self.receivers {
+            let Some(h) = self.ports[i].tx.front() else {
+                continue;
+            };
+            let key = h.frame.arbitration_key();
+            if h.submitted <= idle {
+                if by_idle.is_none_or(|(k, _)| key < k) {
+                    by_idle = Some((key, i));
+                }
+            } else if after.is_none_or(|(t, k, _)| h.submitted < t || (h.submitted == t && key < k))
+            {
+                after = Some((h.submitted, key, i));
+            }
+        }
+        let (t0, key, port) = match (by_idle, after) {
+            (Some((k, i)), _) => (idle, k, i),
+            (None, Some(a)) => a,
+            (None, None) => return,
+        };
+        if t0 > until {
+            return;
+        }
+        let Some(head) = self.ports.get(port).and_then(|p| p.tx.front()) else {
+            return;
+        };
+        let end = t0 + bit_timing::frame_duration(&head.frame, self.cfg.bitrate);
+        self.on_wire = Some(OnWire {
+            port,
+            key,
+            start: t0,
+            end,
+        });
+    }
+
     fn complete(&mut self) {
         let Some(w) = self.on_wire.take() else { return };
         self.idle_since = w.end;
@@ -344,13 +400,13 @@ impl Core {
         let loopback = self.cfg.loopback;
         // Monitors capture the wire, before any receiver-side fault.
         let cap = self.cfg.rx_capacity;
-        for p in self.ports.iter_mut().filter(|p| p.monitor && p.attached) {
-            push_rx(p, frame, cap);
+        for &i in &self.monitors {
+            push_rx(&mut self.ports[i], frame, cap);
         }
         if outcome.drop {
-            for (i, p) in self.ports.iter_mut().enumerate() {
-                if is_receiver(p, i, w.port, loopback) {
-                    p.counters.dropped += 1;
+            for &i in &self.receivers {
+                if i != w.port || loopback {
+                    self.ports[i].counters.dropped += 1;
                 }
             }
             return;
@@ -369,9 +425,9 @@ impl Core {
                     frame: frame.with_timestamp(at),
                 }));
             } else {
-                for (i, p) in self.ports.iter_mut().enumerate() {
-                    if is_receiver(p, i, w.port, loopback) {
-                        p.counters.dropped += 1;
+                for &i in &self.receivers {
+                    if i != w.port || loopback {
+                        self.ports[i].counters.dropped += 1;
                     }
                 }
             }
@@ -388,10 +444,11 @@ impl Core {
     fn deliver(&mut self, frame: Frame, from: usize, at: Instant) {
         let loopback = self.cfg.loopback;
         let cap = self.cfg.rx_capacity;
-        for (i, p) in self.ports.iter_mut().enumerate() {
-            if !is_receiver(p, i, from, loopback) {
+        for &i in &self.receivers {
+            if i == from && !loopback {
                 continue;
             }
+            let p = &mut self.ports[i];
             if p.bus_off_at(at) {
                 p.counters.dropped += 1;
             } else {
@@ -423,10 +480,6 @@ impl Core {
             _ => Err(BusError::Disconnected),
         }
     }
-}
-
-fn is_receiver(p: &PortSlot, i: usize, from: usize, loopback: bool) -> bool {
-    p.attached && !p.monitor && !p.disconnected && (i != from || loopback)
 }
 
 /// Queues a received frame, or counts it dropped when the queue is at its configured limit
@@ -490,6 +543,9 @@ impl VirtualBus {
         let core = Core {
             cfg,
             queued: 0,
+            receivers: Vec::new(),
+            monitors: Vec::new(),
+            any_bus_off: false,
             now_shared: now.clone(),
             now: start,
             idle_since: start,
@@ -534,6 +590,11 @@ impl VirtualBus {
         let mut c = self.lock();
         let id = c.ports.len();
         let maybe_rx = Arc::new(AtomicBool::new(false));
+        if monitor {
+            c.monitors.push(id);
+        } else {
+            c.receivers.push(id);
+        }
         c.ports.push(PortSlot {
             attached: true,
             monitor,
@@ -683,6 +744,19 @@ impl VirtualBus {
             return;
         };
         p.disconnected = disconnected;
+        let listed = p.attached && !p.monitor && !disconnected;
+        // Reconnected: back in the delivery list, in attach order.
+        if let Err(at) = c.receivers.binary_search(&port.0)
+            && listed
+        {
+            c.receivers.insert(at, port.0);
+        }
+        if !listed {
+            c.receivers.retain(|&i| i != port.0);
+        }
+        let Some(p) = c.ports.get_mut(port.0) else {
+            return;
+        };
         if disconnected {
             p.maybe_rx.store(true, Ordering::Release);
             let dropped = p.tx.len();
@@ -709,6 +783,7 @@ impl VirtualBus {
         let mut c = self.lock_current();
         if let Some(p) = c.ports.get_mut(port.0) {
             p.bus_off = Some(window);
+            c.any_bus_off = true;
         }
     }
 
@@ -813,6 +888,12 @@ impl Drop for VirtualPort {
         let now = c.clock_now();
         if let Some(p) = c.ports.get_mut(self.id) {
             p.attached = false;
+            let id = self.id;
+            c.receivers.retain(|&i| i != id);
+            c.monitors.retain(|&i| i != id);
+            let Some(p) = c.ports.get_mut(self.id) else {
+                return;
+            };
             let dropped = p.tx.len();
             p.tx.clear();
             p.rx.clear();
