@@ -72,6 +72,14 @@ pub trait Bus {
 
     /// Traffic counters of this endpoint.
     fn counters(&self) -> BusCounters;
+
+    /// The in-process virtual bus port this endpoint is, if it is one: a virtual-time loop
+    /// holding that port's bus ([`super::virtual_bus::HeldBus`]) then moves its frames without
+    /// a lock per frame. `None` by default.
+    #[cfg(feature = "std")]
+    fn virtual_port(&mut self) -> Option<&mut super::VirtualPort> {
+        None
+    }
 }
 
 impl<B: Bus + ?Sized> Bus for &mut B {
@@ -92,6 +100,10 @@ impl<B: Bus + ?Sized> Bus for &mut B {
     }
     fn counters(&self) -> BusCounters {
         (**self).counters()
+    }
+    #[cfg(feature = "std")]
+    fn virtual_port(&mut self) -> Option<&mut super::VirtualPort> {
+        (**self).virtual_port()
     }
 }
 
@@ -114,5 +126,9 @@ impl<B: Bus + ?Sized> Bus for Box<B> {
     }
     fn counters(&self) -> BusCounters {
         (**self).counters()
+    }
+    #[cfg(feature = "std")]
+    fn virtual_port(&mut self) -> Option<&mut super::VirtualPort> {
+        (**self).virtual_port()
     }
 }

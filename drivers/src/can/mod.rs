@@ -32,5 +32,5 @@ pub mod virtual_bus;
 pub use fault::{FaultAction, FaultId, FaultRule, IdMatch, TimeWindow};
 #[cfg(feature = "std")]
 pub use virtual_bus::{
-    ClockMode, PortId, VirtualBus, VirtualBusConfig, VirtualBusError, VirtualPort,
+    ClockMode, HeldBus, PortId, VirtualBus, VirtualBusConfig, VirtualBusError, VirtualPort,
 };

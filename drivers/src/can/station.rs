@@ -25,7 +25,7 @@
 //! assert_eq!(e.outcome, Ok(Completion::Uploaded(&0x59u32.to_le_bytes()[..])));
 //! ```
 
-use super::{Bus, BusError, Frame, VirtualBus};
+use super::{Bus, BusError, Frame, HeldBus, VirtualBus};
 use crate::canopen::endpoint::Endpoint;
 use crate::time::Instant;
 
@@ -69,15 +69,39 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
     /// virtual-time loop: asking the bus again costs its lock).
     pub fn step_at(&mut self, now: Instant) -> usize {
         self.known = None;
-        self.exchange(now)
+        self.exchange(now, None)
+    }
+
+    /// The port's `try_recv`, through `held` when the port is a virtual port of that bus.
+    fn recv(&mut self, held: &mut Option<&mut HeldBus<'_>>) -> Result<Option<Frame>, BusError> {
+        if let Some(h) = held {
+            match self.bus.virtual_port() {
+                Some(p) => return h.try_recv(p),
+                // Another kind of bus might reach the held one through its own handles.
+                None => h.release(),
+            }
+        }
+        self.bus.try_recv()
+    }
+
+    /// The port's `send`, through `held` as [`Station::recv`].
+    fn send(&mut self, f: &Frame, held: &mut Option<&mut HeldBus<'_>>) -> Result<(), BusError> {
+        if let Some(h) = held {
+            match self.bus.virtual_port() {
+                Some(p) => return h.send(p, f),
+                None => h.release(),
+            }
+        }
+        self.bus.send(f)
     }
 
     /// [`Station::step_at`] remembering the endpoint's deadline for the rest of a
-    /// [`run_until`] (an endpoint's `poll_timeout` is asked several times per event otherwise).
-    fn exchange(&mut self, now: Instant) -> usize {
+    /// [`run_until`] (an endpoint's `poll_timeout` is asked several times per event otherwise),
+    /// its frames through `held` when given.
+    fn exchange(&mut self, now: Instant, mut held: Option<&mut HeldBus<'_>>) -> usize {
         let mut moved = 0;
         loop {
-            match self.bus.try_recv() {
+            match self.recv(&mut held) {
                 Ok(Some(f)) => {
                     self.endpoint.handle_frame(&f, f.timestamp());
                     moved += 1;
@@ -103,7 +127,7 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
             .take()
             .or_else(|| self.endpoint.poll_transmit(now))
         {
-            match self.bus.send(&f) {
+            match self.send(&f, &mut held) {
                 Ok(()) => moved += 1,
                 Err(BusError::WouldBlock) => {
                     self.pending = Some(f);
@@ -155,6 +179,13 @@ pub trait Steppable {
     fn deadline_in_run(&self) -> Option<Instant> {
         self.next_deadline()
     }
+    /// [`Steppable::step_in_run`] with the run's bus held: a [`Station`] on a virtual port of
+    /// that bus moves its frames under the lock already held. By default the lock is let go
+    /// and [`Steppable::step_in_run`] runs as without it.
+    fn step_held(&mut self, now: Instant, held: &mut HeldBus<'_>) -> usize {
+        held.release();
+        self.step_in_run(now)
+    }
 }
 
 impl<B: Bus, E: Endpoint> Steppable for Station<B, E> {
@@ -172,7 +203,10 @@ impl<B: Bus, E: Endpoint> Steppable for Station<B, E> {
         self.known = Some(self.endpoint.poll_timeout());
     }
     fn step_in_run(&mut self, now: Instant) -> usize {
-        self.exchange(now)
+        self.exchange(now, None)
+    }
+    fn step_held(&mut self, now: Instant, held: &mut HeldBus<'_>) -> usize {
+        self.exchange(now, Some(held))
     }
     fn deadline_in_run(&self) -> Option<Instant> {
         match self.known {
@@ -225,8 +259,8 @@ pub fn next_event(bus: &VirtualBus, stations: &[&mut dyn Steppable], until: Inst
 /// only after it, and an endpoint that had nothing more to send has nothing more at the same
 /// instant without a frame or a timer: the other stations' steps would move nothing (they
 /// would only take the bus's lock to find that out).
-fn settle_virtual(now: Instant, stations: &mut [&mut dyn Steppable]) {
-    let mut moved: usize = stations.iter_mut().map(|s| s.step_in_run(now)).sum();
+fn settle_virtual(now: Instant, stations: &mut [&mut dyn Steppable], held: &mut HeldBus<'_>) {
+    let mut moved: usize = stations.iter_mut().map(|s| s.step_held(now, held)).sum();
     for _ in 1..10_000 {
         if moved == 0 {
             break;
@@ -234,7 +268,7 @@ fn settle_virtual(now: Instant, stations: &mut [&mut dyn Steppable]) {
         moved = stations
             .iter_mut()
             .filter(|s| s.deadline_in_run().is_some_and(|t| t <= now))
-            .map(|s| s.step_in_run(now))
+            .map(|s| s.step_held(now, held))
             .sum();
     }
 }
@@ -254,10 +288,13 @@ pub fn run_until(bus: &VirtualBus, stations: &mut [&mut dyn Steppable], until: I
     for s in stations.iter_mut() {
         s.begin_run();
     }
+    // One thread runs the bus and its stations here: one lock for the whole run (taken at the
+    // first frame or advance, let go when the run returns).
+    let mut held = bus.hold();
     loop {
         // Virtual time moves only with `advance_to`: one reading per event.
         let now = bus.now();
-        settle_virtual(now, stations);
+        settle_virtual(now, stations, &mut held);
         if now >= until {
             return;
         }
@@ -268,6 +305,6 @@ pub fn run_until(bus: &VirtualBus, stations: &mut [&mut dyn Steppable], until: I
                 bound = bound.min(t);
             }
         }
-        bus.advance_to_next_event(now, bound);
+        held.advance_to_next_event(now, bound);
     }
 }

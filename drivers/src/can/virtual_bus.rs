@@ -208,6 +208,14 @@ struct Core {
     stats: BusStats,
     /// Frames in all transmit queues: with none, an idle wire has nothing to arbitrate.
     queued: usize,
+    /// The ports a frame is delivered to (attached, not monitors, connected), in attach order:
+    /// also the only ports that can have frames queued. Kept by attach, drop and disconnect,
+    /// so a frame's arbitration and delivery visit these instead of every port.
+    receivers: Vec<usize>,
+    /// The attached monitor ports.
+    monitors: Vec<usize>,
+    /// Some port was ever put into bus-off: arbitration then checks for lost frames.
+    any_bus_off: bool,
     /// `now`, readable without the lock (virtual time).
     now_shared: Arc<AtomicU64>,
 }
@@ -254,6 +262,9 @@ impl Core {
 
     /// Arbitration on an idle wire: puts the winning head on the wire if it starts by `until`.
     fn start_next(&mut self, until: Instant) {
+        if !self.any_bus_off {
+            return self.start_next_no_bus_off(until);
+        }
         loop {
             let earliest = self
                 .ports
@@ -311,6 +322,51 @@ impl Core {
         }
     }
 
+    /// [`Core::start_next`] when no port was ever bus-off (no queued frame can have been lost):
+    /// one pass over the ports that can have frames queued, in attach order. The arbitration
+    /// starts at `t0 = max(earliest submission, idle_since)` among the heads submitted by
+    /// `t0`: those submitted by `idle_since` if any (then `t0 = idle_since`), else those
+    /// submitted at the earliest instant after it (then `t0` is that instant).
+    fn start_next_no_bus_off(&mut self, until: Instant) {
+        let idle = self.idle_since;
+        // (key, port) of the best head submitted by `idle`, and (submitted, key, port) of the
+        // best among the earliest submitted after it; ties to the port attached first.
+        let mut by_idle: Option<(u64, usize)> = None;
+        let mut after: Option<(Instant, u64, usize)> = None;
+        for &i in &self.receivers {
+            let Some(h) = self.ports[i].tx.front() else {
+                continue;
+            };
+            let key = h.frame.arbitration_key();
+            if h.submitted <= idle {
+                if by_idle.is_none_or(|(k, _)| key < k) {
+                    by_idle = Some((key, i));
+                }
+            } else if after.is_none_or(|(t, k, _)| h.submitted < t || (h.submitted == t && key < k))
+            {
+                after = Some((h.submitted, key, i));
+            }
+        }
+        let (t0, key, port) = match (by_idle, after) {
+            (Some((k, i)), _) => (idle, k, i),
+            (None, Some(a)) => a,
+            (None, None) => return,
+        };
+        if t0 > until {
+            return;
+        }
+        let Some(head) = self.ports.get(port).and_then(|p| p.tx.front()) else {
+            return;
+        };
+        let end = t0 + bit_timing::frame_duration(&head.frame, self.cfg.bitrate);
+        self.on_wire = Some(OnWire {
+            port,
+            key,
+            start: t0,
+            end,
+        });
+    }
+
     fn complete(&mut self) {
         let Some(w) = self.on_wire.take() else { return };
         self.idle_since = w.end;
@@ -344,13 +400,13 @@ impl Core {
         let loopback = self.cfg.loopback;
         // Monitors capture the wire, before any receiver-side fault.
         let cap = self.cfg.rx_capacity;
-        for p in self.ports.iter_mut().filter(|p| p.monitor && p.attached) {
-            push_rx(p, frame, cap);
+        for &i in &self.monitors {
+            push_rx(&mut self.ports[i], frame, cap);
         }
         if outcome.drop {
-            for (i, p) in self.ports.iter_mut().enumerate() {
-                if is_receiver(p, i, w.port, loopback) {
-                    p.counters.dropped += 1;
+            for &i in &self.receivers {
+                if i != w.port || loopback {
+                    self.ports[i].counters.dropped += 1;
                 }
             }
             return;
@@ -369,9 +425,9 @@ impl Core {
                     frame: frame.with_timestamp(at),
                 }));
             } else {
-                for (i, p) in self.ports.iter_mut().enumerate() {
-                    if is_receiver(p, i, w.port, loopback) {
-                        p.counters.dropped += 1;
+                for &i in &self.receivers {
+                    if i != w.port || loopback {
+                        self.ports[i].counters.dropped += 1;
                     }
                 }
             }
@@ -388,10 +444,11 @@ impl Core {
     fn deliver(&mut self, frame: Frame, from: usize, at: Instant) {
         let loopback = self.cfg.loopback;
         let cap = self.cfg.rx_capacity;
-        for (i, p) in self.ports.iter_mut().enumerate() {
-            if !is_receiver(p, i, from, loopback) {
+        for &i in &self.receivers {
+            if i == from && !loopback {
                 continue;
             }
+            let p = &mut self.ports[i];
             if p.bus_off_at(at) {
                 p.counters.dropped += 1;
             } else {
@@ -400,16 +457,29 @@ impl Core {
         }
     }
 
+    /// See [`VirtualBus::advance_to_next_event`].
+    fn advance_to_next_event(&mut self, now: Instant, bound: Instant) -> Instant {
+        let t = match self.cfg.clock {
+            ClockMode::Virtual => {
+                let next = self.next_event().map_or(bound, |t| t.min(bound));
+                if next <= now {
+                    now + Duration::from_nanos(1)
+                } else {
+                    next
+                }
+            }
+            ClockMode::Real => monotonic_now(),
+        };
+        self.run_to(t);
+        t
+    }
+
     fn slot(&self, port: usize) -> Result<&PortSlot, BusError> {
         match self.ports.get(port) {
             Some(p) if p.attached => Ok(p),
             _ => Err(BusError::Disconnected),
         }
     }
-}
-
-fn is_receiver(p: &PortSlot, i: usize, from: usize, loopback: bool) -> bool {
-    p.attached && !p.monitor && !p.disconnected && (i != from || loopback)
 }
 
 /// Queues a received frame, or counts it dropped when the queue is at its configured limit
@@ -473,6 +543,9 @@ impl VirtualBus {
         let core = Core {
             cfg,
             queued: 0,
+            receivers: Vec::new(),
+            monitors: Vec::new(),
+            any_bus_off: false,
             now_shared: now.clone(),
             now: start,
             idle_since: start,
@@ -517,6 +590,11 @@ impl VirtualBus {
         let mut c = self.lock();
         let id = c.ports.len();
         let maybe_rx = Arc::new(AtomicBool::new(false));
+        if monitor {
+            c.monitors.push(id);
+        } else {
+            c.receivers.push(id);
+        }
         c.ports.push(PortSlot {
             attached: true,
             monitor,
@@ -573,20 +651,18 @@ impl VirtualBus {
     /// [`VirtualBus::advance_to`] do in two calls, under one lock (a virtual-time station loop
     /// does it once per event). Real time: as [`VirtualBus::advance_to`].
     pub fn advance_to_next_event(&self, now: Instant, bound: Instant) -> Instant {
-        let mut c = self.lock();
-        let t = match c.cfg.clock {
-            ClockMode::Virtual => {
-                let next = c.next_event().map_or(bound, |t| t.min(bound));
-                if next <= now {
-                    now + Duration::from_nanos(1)
-                } else {
-                    next
-                }
-            }
-            ClockMode::Real => monotonic_now(),
-        };
-        c.run_to(t);
-        t
+        self.lock().advance_to_next_event(now, bound)
+    }
+
+    /// Takes the bus for a stretch of single-threaded work (a virtual-time station loop):
+    /// the frames its ports exchange through the [`HeldBus`] and the bus's own advances then
+    /// take the lock once for the whole stretch instead of once per call. Meant for virtual
+    /// time; in real time another thread's port waits while the bus is held.
+    pub fn hold(&self) -> HeldBus<'_> {
+        HeldBus {
+            bus: self,
+            guard: None,
+        }
     }
 
     /// Virtual time: runs the bus for `d`. Real time: as [`VirtualBus::advance_to`].
@@ -668,6 +744,19 @@ impl VirtualBus {
             return;
         };
         p.disconnected = disconnected;
+        let listed = p.attached && !p.monitor && !disconnected;
+        // Reconnected: back in the delivery list, in attach order.
+        if let Err(at) = c.receivers.binary_search(&port.0)
+            && listed
+        {
+            c.receivers.insert(at, port.0);
+        }
+        if !listed {
+            c.receivers.retain(|&i| i != port.0);
+        }
+        let Some(p) = c.ports.get_mut(port.0) else {
+            return;
+        };
         if disconnected {
             p.maybe_rx.store(true, Ordering::Release);
             let dropped = p.tx.len();
@@ -694,12 +783,83 @@ impl VirtualBus {
         let mut c = self.lock_current();
         if let Some(p) = c.ports.get_mut(port.0) {
             p.bus_off = Some(window);
+            c.any_bus_off = true;
         }
     }
 
     /// Counters of a port; `None` for an unknown port.
     pub fn counters(&self, port: PortId) -> Option<BusCounters> {
         self.lock_current().ports.get(port.0).map(|p| p.counters)
+    }
+}
+
+/// A [`VirtualBus`] held by one caller ([`VirtualBus::hold`]): its ports' frames go through
+/// [`HeldBus::try_recv`] and [`HeldBus::send`], which run the same code as the ports' own
+/// calls under a lock taken once, at the first call, and kept until [`HeldBus::release`] or
+/// the drop. The one-thread virtual clock so takes one lock per bus and station run instead
+/// of one per frame and event (each lock is two atomic read-modify-writes); the real-clock,
+/// multi-threaded mode keeps the per-call lock of the ports.
+pub struct HeldBus<'a> {
+    bus: &'a VirtualBus,
+    guard: Option<MutexGuard<'a, Core>>,
+}
+
+impl core::fmt::Debug for HeldBus<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("HeldBus")
+            .field("held", &self.guard.is_some())
+            .finish()
+    }
+}
+
+impl HeldBus<'_> {
+    fn core(&mut self) -> &mut Core {
+        let bus = self.bus;
+        self.guard.get_or_insert_with(|| bus.lock())
+    }
+
+    /// Lets go of the lock (taken again by the next call): before anything else uses the bus
+    /// through its own handles, which would otherwise wait for it.
+    pub fn release(&mut self) {
+        self.guard = None;
+    }
+
+    /// The bus held.
+    pub fn bus(&self) -> &VirtualBus {
+        self.bus
+    }
+
+    /// Whether `port` is attached to the bus held.
+    pub fn owns(&self, port: &VirtualPort) -> bool {
+        Arc::ptr_eq(&self.bus.shared, &port.bus.shared)
+    }
+
+    /// [`Bus::try_recv`] of `port`, a port of the bus held ([`HeldBus::owns`]; else the port's
+    /// own call, with the lock let go first).
+    pub fn try_recv(&mut self, port: &mut VirtualPort) -> Result<Option<Frame>, BusError> {
+        if !self.owns(port) || port.bus.cfg.clock != ClockMode::Virtual {
+            self.release();
+            return port.try_recv();
+        }
+        if !port.maybe_rx.load(Ordering::Acquire) {
+            return Ok(None);
+        }
+        recv_one(self.core(), port.id)
+    }
+
+    /// [`Bus::send`] of `port`, a port of the bus held (else the port's own call, with the
+    /// lock let go first).
+    pub fn send(&mut self, port: &mut VirtualPort, frame: &Frame) -> Result<(), BusError> {
+        if !self.owns(port) || port.bus.cfg.clock != ClockMode::Virtual {
+            self.release();
+            return port.send(frame);
+        }
+        send_locked(self.core(), port.id, core::slice::from_ref(frame)).map(|_| ())
+    }
+
+    /// [`VirtualBus::advance_to_next_event`] under the lock held.
+    pub fn advance_to_next_event(&mut self, now: Instant, bound: Instant) -> Instant {
+        self.core().advance_to_next_event(now, bound)
     }
 }
 
@@ -728,6 +888,12 @@ impl Drop for VirtualPort {
         let now = c.clock_now();
         if let Some(p) = c.ports.get_mut(self.id) {
             p.attached = false;
+            let id = self.id;
+            c.receivers.retain(|&i| i != id);
+            c.monitors.retain(|&i| i != id);
+            let Some(p) = c.ports.get_mut(self.id) else {
+                return;
+            };
             let dropped = p.tx.len();
             p.tx.clear();
             p.rx.clear();
@@ -780,6 +946,9 @@ impl VirtualPort {
                 None => break,
             }
         }
+        if p.rx.is_empty() {
+            p.maybe_rx.store(false, Ordering::Release);
+        }
         Ok(n)
     }
 
@@ -797,6 +966,16 @@ fn recv_slot(c: &mut Core, id: usize) -> Result<&mut PortSlot, BusError> {
         return Err(BusError::Disconnected);
     }
     Ok(p)
+}
+
+/// A port's `try_recv` under the lock.
+fn recv_one(c: &mut Core, id: usize) -> Result<Option<Frame>, BusError> {
+    let p = recv_slot(c, id)?;
+    let f = p.rx.pop_front();
+    if p.rx.is_empty() {
+        p.maybe_rx.store(false, Ordering::Release);
+    }
+    Ok(f)
 }
 
 fn send_locked(c: &mut Core, id: usize, frames: &[Frame]) -> Result<usize, BusError> {
@@ -858,13 +1037,7 @@ impl Bus for VirtualPort {
         if self.bus.cfg.clock == ClockMode::Virtual && !self.maybe_rx.load(Ordering::Acquire) {
             return Ok(None);
         }
-        let mut c = self.bus.lock_current();
-        let p = recv_slot(&mut c, self.id)?;
-        let f = p.rx.pop_front();
-        if p.rx.is_empty() {
-            p.maybe_rx.store(false, Ordering::Release);
-        }
-        Ok(f)
+        recv_one(&mut self.bus.lock_current(), self.id)
     }
 
     fn recv_until(&mut self, deadline: Instant) -> Result<Option<Frame>, BusError> {
@@ -922,6 +1095,10 @@ impl Bus for VirtualPort {
     fn counters(&self) -> BusCounters {
         let c = self.bus.lock_current();
         c.ports.get(self.id).map(|p| p.counters).unwrap_or_default()
+    }
+
+    fn virtual_port(&mut self) -> Option<&mut VirtualPort> {
+        Some(self)
     }
 }
 
@@ -1115,5 +1292,104 @@ mod tests {
         assert_eq!(bus.counters(id).unwrap().received, 0);
         assert_eq!(bus.stats().frames, 1);
         assert!(bus.is_idle());
+    }
+
+    #[test]
+    fn held_bus_moves_frames_as_the_ports_do() {
+        let (plain, held_bus) = (bus_at(1_000_000), bus_at(1_000_000));
+        let (mut a1, mut b1) = (plain.attach("a"), plain.attach("b"));
+        let (mut a2, mut b2) = (held_bus.attach("a"), held_bus.attach("b"));
+        let mut got = (Vec::new(), Vec::new());
+        {
+            let mut held = held_bus.hold();
+            for id in [0x300, 0x181, 0x080] {
+                a1.send(&f8(id)).unwrap();
+                held.send(&mut a2, &f8(id)).unwrap();
+            }
+            let mut now = Instant::ZERO;
+            for _ in 0..4 {
+                let t = plain.advance_to_next_event(now, Instant::from_micros(1000));
+                assert_eq!(
+                    held.advance_to_next_event(now, Instant::from_micros(1000)),
+                    t
+                );
+                now = t;
+                while let Some(f) = b1.try_recv().unwrap() {
+                    got.0.push((f, f.timestamp()));
+                }
+                while let Some(f) = held.try_recv(&mut b2).unwrap() {
+                    got.1.push((f, f.timestamp()));
+                }
+            }
+        }
+        assert_eq!(got.0.len(), 3);
+        assert_eq!(got.0, got.1);
+        assert_eq!(plain.counters(b1.id()), held_bus.counters(b2.id()));
+    }
+
+    #[test]
+    fn held_bus_lets_go_for_other_handles() {
+        let (one, other) = (bus_at(1_000_000), bus_at(1_000_000));
+        let mut tx = one.attach("tx");
+        let mut rx = one.attach("rx");
+        let mut elsewhere = other.attach("elsewhere");
+        let mut held = one.hold();
+        held.send(&mut tx, &f8(0x181)).unwrap();
+        // A port of another bus: sent by its own call, the held lock let go first.
+        assert!(!held.owns(&elsewhere));
+        held.send(&mut elsewhere, &f8(0x182)).unwrap();
+        held.release();
+        // The bus's own handles work again once let go.
+        assert!(!one.is_idle());
+        held.advance_to_next_event(Instant::ZERO, Instant::from_micros(1000));
+        drop(held);
+        assert_eq!(rx.try_recv().unwrap().map(|f| f.raw_id()), Some(0x181));
+    }
+
+    #[test]
+    fn station_run_lets_go_for_a_steppable_of_its_own() {
+        use crate::can::station::{self, Steppable};
+        // Steps its own port on the run's bus: the held lock must be let go first.
+        struct Sender(VirtualPort, bool);
+        impl Steppable for Sender {
+            fn step(&mut self) -> usize {
+                if core::mem::take(&mut self.1) {
+                    self.0.send(&f8(0x181)).unwrap();
+                    return 1;
+                }
+                0
+            }
+            fn next_deadline(&self) -> Option<Instant> {
+                None
+            }
+        }
+        let bus = bus_at(1_000_000);
+        let mut s = Sender(bus.attach("sender"), true);
+        let mut rx = bus.attach("rx");
+        station::run_until(&bus, &mut [&mut s], Instant::from_micros(500));
+        assert_eq!(rx.try_recv().unwrap().map(|f| f.raw_id()), Some(0x181));
+    }
+
+    #[test]
+    fn reconnected_port_keeps_its_place_in_arbitration_ties() {
+        let bus = bus_at(1_000_000);
+        let mut a = bus.attach("a");
+        let mut b = bus.attach("b");
+        let mut rx = bus.attach("rx");
+        bus.set_disconnected(a.id(), true);
+        bus.set_disconnected(a.id(), false);
+        bus.advance_to(Instant::from_micros(10));
+        // Equal keys: the port attached first wins, reconnected or not.
+        let (fa, fb) = (Frame::std8(0x181, [1; 8]), Frame::std8(0x181, [2; 8]));
+        b.send(&fb).unwrap();
+        a.send(&fa).unwrap();
+        bus.run_until_idle();
+        assert_eq!(rx.try_recv().unwrap(), Some(fa));
+        assert_eq!(rx.try_recv().unwrap(), Some(fb));
+        // And it receives again.
+        b.send(&f8(0x200)).unwrap();
+        bus.run_until_idle();
+        assert_eq!(a.try_recv().unwrap(), Some(fb));
+        assert_eq!(a.try_recv().unwrap(), Some(f8(0x200)));
     }
 }
