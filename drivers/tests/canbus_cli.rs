@@ -101,8 +101,10 @@ fn a_sigkilled_participant_does_not_stop_the_others() {
     let name = unique("kill");
     let bus = format!("vbus:{name}");
     let log = temp(&format!("{name}.log"));
-    // The survivor: dumps everything for a fixed time.
-    let survivor = spawn_dump(&[&bus, "--timeout", "4", "--log", log.to_str().unwrap()]);
+    // The survivor: dumps everything until the test stops it with SIGINT (Ctrl-C), as a user
+    // would. (A fixed --timeout of 4 s once ran out on a loaded host before the last frames
+    // below were sent: each process start there can take a second.)
+    let survivor = spawn_dump(&[&bus, "--timeout", "120", "--log", log.to_str().unwrap()]);
     // Victim 1: a listener that never finishes. Victim 2: a sender killed mid-replay.
     let mut listener = spawn_dump(&[&bus]);
     let noise = temp(&format!("{name}-noise.log"));
@@ -155,6 +157,13 @@ fn a_sigkilled_participant_does_not_stop_the_others() {
     assert!(heard.is_some(), "the newcomer heard nothing");
     assert!(wait(late_sender).status.success());
 
+    // Longer than the dump's reorder window (it writes a frame once it is that old).
+    std::thread::sleep(Duration::from_millis(500));
+    let stopped = Command::new("kill")
+        .args(["-INT", &survivor.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(stopped.success(), "kill -INT the survivor");
     let out = wait(survivor);
     assert!(
         out.status.success(),
