@@ -129,7 +129,7 @@ fn wait_connected(lines: &mut std::io::Lines<std::io::BufReader<std::process::Ch
 fn client_killed_mid_run_disturbs_nobody() {
     let _g = serial();
     let p = prefix("killclient");
-    let mut standin = Standin::spawn(&p, &["--period-us", "1000", "--buffer", "256"]);
+    let standin = Standin::spawn(&p, &["--period-us", "1000", "--buffer", "256"]);
     let mut children: Vec<_> = (0..3).map(|_| spawn_child(&p, 4000)).collect();
     for (_, lines) in &mut children {
         wait_connected(lines);
@@ -152,12 +152,9 @@ fn client_killed_mid_run_disturbs_nobody() {
     let (mut victim, _) = children.remove(0);
     victim.kill().expect("SIGKILL");
     victim.wait().expect("reaping the victim");
-    assert!(
-        standin.wait_line("cleaned", WAIT).is_some(),
-        "the publisher did not clean up after the dead client"
-    );
-    // Its subscriber slot is free again (a cleanup line may also be about another process's
-    // dead node: wait for the count itself).
+    // Its subscriber slot is free again: the publisher cleans dead nodes up every 50 cycles
+    // ("cleaned N"), but any process that opens an iceoryx2 port on this machine may do it
+    // first (a parallel test's bus endpoint), so the count itself is what is waited for.
     let deadline = Instant::now() + WAIT;
     while observer.subscribers() != before - 1 {
         assert!(
@@ -169,18 +166,32 @@ fn client_killed_mid_run_disturbs_nobody() {
 
     for w in watchers {
         let seen = w.join().expect("watcher");
-        // Publisher pace: samples per equal windows before and after the kill.
-        let window = Duration::from_millis(500);
-        let count = |from: Instant, to: Instant| {
-            seen.iter().filter(|(_, t)| *t >= from && *t < to).count() as f64
+        // Publisher pace: the rate of samples before the kill and after it, each over all the
+        // watcher saw on its side. A publisher held up by the dead client would fall to a
+        // fraction of its rate; faster after the kill is the publisher catching up after the
+        // host held it (500 ms windows once read 400 then 650 samples under load), not harm.
+        let rate = |from: Instant, to: Instant| {
+            let n = seen.iter().filter(|(_, t)| *t >= from && *t < to).count() as f64;
+            n / (to - from).as_secs_f64()
         };
-        let pre = count(kill_at - window, kill_at);
-        let post = count(kill_at, kill_at + window);
-        assert!(pre > 0.0 && post > 0.0, "pre {pre} post {post}");
-        let ratio = post / pre;
+        let first = seen
+            .first()
+            .map(|(_, t)| *t)
+            .expect("the watcher saw samples");
+        let last = seen
+            .last()
+            .map(|(_, t)| *t)
+            .expect("the watcher saw samples");
         assert!(
-            (0.7..=1.43).contains(&ratio),
-            "pace changed after the kill: {pre} samples before, {post} after"
+            first < kill_at && last > kill_at,
+            "the watcher's samples span the kill"
+        );
+        let pre = rate(first, kill_at);
+        let post = rate(kill_at, last);
+        assert!(pre > 0.0 && post > 0.0, "pre {pre} post {post}");
+        assert!(
+            post / pre >= 0.5,
+            "pace fell after the kill: {pre:.0} samples/s before, {post:.0} after"
         );
     }
     for (mut c, _) in children {
