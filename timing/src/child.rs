@@ -28,6 +28,19 @@ impl Kept {
     /// Starts `cmd` (stdin closed, stdout and stderr kept); `label` names it in messages
     /// ("the coordinator").
     pub fn spawn(label: &str, mut cmd: Command) -> Result<Kept, String> {
+        use std::os::unix::process::CommandExt as _;
+        // SIGINT is how [`Kept::stop`] asks a child to end. A process started from a
+        // non-interactive shell's background job (`timing ... &` in a script) has SIGINT
+        // ignored, and an ignored signal stays ignored across exec: a shell child can then not
+        // even trap it. The child gets the default disposition, whatever this process has.
+        // SAFETY: the closure runs in the forked child before exec and calls only
+        // signal(2), which is async-signal-safe; it touches no memory of the parent.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::signal(libc::SIGINT, libc::SIG_DFL);
+                Ok(())
+            });
+        }
         let mut child = cmd
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -206,12 +219,11 @@ mod tests {
 
     #[test]
     fn sigint_stops_it_and_a_deaf_one_is_killed() {
-        // A shell that ends cleanly on SIGINT. It loops on builtins: looping on a `sleep`
-        // child, dash once did not run its trap within the 10 s grace on a loaded host (the
-        // suite under `timing load`); a shell runs a pending trap between builtins at once.
+        // A shell that ends cleanly on SIGINT (also when this test runs in a background job,
+        // where SIGINT arrives ignored: `Kept::spawn` restores it for the child).
         let mut k = Kept::spawn(
             "the listener",
-            sh("trap 'echo bye; exit 0' INT; echo ready; while :; do :; done"),
+            sh("trap 'echo bye; exit 0' INT; echo ready; while :; do sleep 0.05; done"),
         )
         .unwrap();
         k.wait_output("ready", Duration::from_secs(10)).unwrap();
