@@ -133,23 +133,25 @@ fn ready(c: &mut Client) -> Result<(), String> {
             return Ok(());
         }
         last = describe(&s);
-        // On a loaded host the simulated drives can miss their TPDOs during the start-up and
-        // be faulted (as a real drive that fell silent would be); the demonstration does not
-        // acknowledge for itself. Recover as an operator would: acknowledge, enable, home.
+        // On a loaded host the simulated drives can miss their TPDOs and be faulted (as a real
+        // drive that fell silent would be); the demonstration does not acknowledge for itself.
+        // Recover as an operator would: acknowledge, enable, home, each axis that needs it on
+        // its own (a command to all is refused while the demonstration moves the others).
         if Instant::now() >= next_step {
             next_step = Instant::now() + Duration::from_secs(1);
             let t = Duration::from_secs(2);
-            let step = if axes.iter().any(|a| a.fault != 0) {
-                Some(CommandRequest::acknowledge(Target::All))
-            } else if axes.iter().any(|a| a.flags & axis_flags::ENABLED == 0) {
-                Some(CommandRequest::enable(Target::All))
-            } else if axes.iter().any(|a| a.flags & axis_flags::HOMED == 0) {
-                Some(CommandRequest::home(Target::All))
-            } else {
-                None
-            };
-            // A refusal (the script is still enabling or homing) is no failure here.
-            if let Some(step) = step {
+            for (i, a) in axes.iter().enumerate() {
+                let axis = Target::Axis(i as u16);
+                let step = if a.fault != 0 {
+                    CommandRequest::acknowledge(axis)
+                } else if a.flags & axis_flags::ENABLED == 0 {
+                    CommandRequest::enable(axis)
+                } else if a.flags & axis_flags::HOMED == 0 {
+                    CommandRequest::home(axis)
+                } else {
+                    continue;
+                };
+                // A refusal (the script is still enabling or homing it) is no failure here.
                 let _ = c.command(&step, t);
             }
         }
