@@ -308,16 +308,7 @@ impl Core {
                 }
             }
             let Some((key, port)) = best else { return };
-            let Some(head) = self.ports.get(port).and_then(|p| p.tx.front()) else {
-                return;
-            };
-            let end = t0 + bit_timing::frame_duration(&head.frame, self.cfg.bitrate);
-            self.on_wire = Some(OnWire {
-                port,
-                key,
-                start: t0,
-                end,
-            });
+            self.put_on_wire(port, key, t0);
             return;
         }
     }
@@ -355,6 +346,11 @@ impl Core {
         if t0 > until {
             return;
         }
+        self.put_on_wire(port, key, t0);
+    }
+
+    /// `port`'s head frame, which won the arbitration with `key`, on the wire from `t0`.
+    fn put_on_wire(&mut self, port: usize, key: u64, t0: Instant) {
         let Some(head) = self.ports.get(port).and_then(|p| p.tx.front()) else {
             return;
         };
