@@ -191,3 +191,59 @@ pub fn repo_root() -> std::path::PathBuf {
         .expect("tests/ is in the workspace")
         .to_path_buf()
 }
+
+/// How a process run by [`run_to_end`] ended.
+pub struct Ended {
+    /// Its exit status; `None` when it ran past the limit and was killed.
+    pub status: Option<std::process::ExitStatus>,
+    /// Everything it wrote to standard output.
+    pub stdout: String,
+    /// Everything it wrote to standard error.
+    pub stderr: String,
+}
+
+impl Ended {
+    /// Its exit code; `None` when it was killed (by the limit or a signal).
+    pub fn code(&self) -> Option<i32> {
+        self.status.and_then(|s| s.code())
+    }
+}
+
+/// Runs `cmd` with no input and both outputs collected, killing it if it runs longer than
+/// `limit`: a hung process fails its test with the output it wrote instead of hanging the suite.
+pub fn run_to_end(cmd: &mut std::process::Command, limit: Duration) -> Ended {
+    use std::process::Stdio;
+    let mut child = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("starting {:?}: {e}", cmd.get_program()));
+    // Both pipes are drained while it runs, so a talkative process never blocks on a full pipe.
+    let drain = |mut r: Box<dyn std::io::Read + Send>| {
+        std::thread::spawn(move || {
+            let mut s = String::new();
+            let _ = r.read_to_string(&mut s);
+            s
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().expect("piped")));
+    let err = drain(Box::new(child.stderr.take().expect("piped")));
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("waiting for the child") {
+            break Some(s);
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    Ended {
+        status,
+        stdout: out.join().unwrap_or_default(),
+        stderr: err.join().unwrap_or_default(),
+    }
+}

@@ -5,10 +5,9 @@
 //! Every case runs the real binary as a user would. A case that is accepted, panics, hangs, or
 //! refuses without naming what was wrong fails the test with the command and its whole output.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use integration_tests::workspace_bin;
 
@@ -45,44 +44,9 @@ fn run(exe: &Path, args: &[String], dir: &Path, offline: bool) -> (Option<i32>, 
     } else {
         Command::new(exe)
     };
-    let mut child = cmd
-        .args(args)
-        .current_dir(dir)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap_or_else(|e| panic!("starting {}: {e}", exe.display()));
-    let mut out = child.stdout.take().expect("stdout");
-    let mut err = child.stderr.take().expect("stderr");
-    let reader = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = out.read_to_string(&mut s);
-        s
-    });
-    let err_reader = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = err.read_to_string(&mut s);
-        s
-    });
-    let start = Instant::now();
-    let code = loop {
-        if let Some(status) = child.try_wait().expect("waiting") {
-            break status.code();
-        }
-        if start.elapsed() > LIMIT {
-            let _ = child.kill();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    };
-    let text = format!(
-        "{}{}",
-        reader.join().unwrap_or_default(),
-        err_reader.join().unwrap_or_default()
-    );
-    (code, text)
+    let ended = integration_tests::run_to_end(cmd.args(args).current_dir(dir), LIMIT);
+    let code = ended.code();
+    (code, ended.stdout + &ended.stderr)
 }
 
 /// The example configuration with `from` replaced by `to` (once; `from` must be there).

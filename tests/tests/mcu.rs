@@ -6,10 +6,10 @@
 //! Skips with a notice where `qemu-system-arm` or the `thumbv7m-none-eabi` target is missing,
 //! unless `MOTION_REQUIRE_ALL=1` (CI: `.ci/run` installs both). Timing is never asserted.
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 /// QEMU's run of the whole scenario takes about a second; this bounds a hung run.
 const QEMU_TIMEOUT: Duration = Duration::from_secs(300);
@@ -122,49 +122,25 @@ fn build() -> PathBuf {
 
 /// Runs the application on QEMU as mcu/.cargo/config.toml's runner does; its standard output.
 fn run(elf: &Path) -> String {
-    let mut child = Command::new("qemu-system-arm")
-        .args([
-            "-cpu",
-            "cortex-m3",
-            "-machine",
-            "mps2-an385",
-            "-nographic",
-            "-icount",
-            "shift=0,sleep=off",
-            "-semihosting-config",
-            "enable=on,target=native",
-            "-kernel",
-        ])
-        .arg(elf)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("qemu-system-arm starts");
-    let mut stdout = child.stdout.take().expect("piped");
-    let reader = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = stdout.read_to_string(&mut s);
-        s
-    });
-    let start = Instant::now();
-    let status = loop {
-        if let Some(s) = child.try_wait().expect("waiting for QEMU") {
-            break Some(s);
-        }
-        if start.elapsed() > QEMU_TIMEOUT {
-            let _ = child.kill();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let mut err = String::new();
-    if let Some(mut e) = child.stderr.take() {
-        let _ = e.read_to_string(&mut err);
-    }
-    let out = reader.join().expect("the reader thread ends");
-    match status {
+    let ended = integration_tests::run_to_end(
+        Command::new("qemu-system-arm")
+            .args([
+                "-cpu",
+                "cortex-m3",
+                "-machine",
+                "mps2-an385",
+                "-nographic",
+                "-icount",
+                "shift=0,sleep=off",
+                "-semihosting-config",
+                "enable=on,target=native",
+                "-kernel",
+            ])
+            .arg(elf),
+        QEMU_TIMEOUT,
+    );
+    let (out, err) = (ended.stdout, ended.stderr);
+    match ended.status {
         Some(s) if s.success() => out,
         Some(s) => panic!("QEMU exited with {s}:\n{out}{err}"),
         None => panic!("QEMU did not end within {QEMU_TIMEOUT:?}:\n{out}{err}"),
