@@ -405,8 +405,58 @@ pub const TLC5XX: Device = Device {
     records: None,
 };
 
+/// The generic CiA 402 drive's PDO1 for cyclic synchronous position, as the coordinator maps
+/// it: controlword and target position 607Ah (6 bytes; the mode is set by SDO, so that SYNC plus
+/// four axes fit 1 ms at 1 Mbit/s, `plcopen-and-cia402-csp.md` §9).
+pub const CIA402_CSP_RPDO1: &[u32] = &[0x6040_0010, 0x607A_0020];
+/// Its TPDO1 in every cyclic mode: statusword and position actual value 6064h (6 bytes).
+pub const CIA402_TPDO1: &[u32] = &[0x6041_0010, 0x6064_0020];
+/// Its RPDO1 for cyclic synchronous velocity: controlword and target velocity 60FFh.
+pub const CIA402_CSV_RPDO1: &[u32] = &[0x6040_0010, 0x60FF_0020];
+/// Its RPDO1 for cyclic synchronous torque: controlword and target torque 6071h.
+pub const CIA402_CST_RPDO1: &[u32] = &[0x6040_0010, 0x6071_0010];
+/// The generic drive's power-up PDO1 (the CiA 402-3 defaults: controlword / statusword).
+pub const CIA402_PDO1_POWER_UP: PdoPair = PdoPair {
+    rpdo: &[0x6040_0010],
+    tpdo: &[0x6041_0010],
+};
+/// Its vendor-ID as this project's simulator reports it, and in the built-in EDS: 0, no
+/// vendor's (a real drive's comes from its EDS).
+pub const CIA402_SIM_VENDOR_ID: u32 = 0;
+/// Its product code as the simulator reports it (1018h:02).
+pub const CIA402_SIM_PRODUCT_CODE: u32 = 0x0000_0402;
+
+/// Any CiA 402 drive, described by its EDS (`plcopen-and-cia402-csp.md` §10). The facts here
+/// are the profile's defaults and those of this project's simulator of it; a configured EDS
+/// overrides the identity, the modes and what can be mapped.
+pub const CIA402_GENERIC: Device = Device {
+    name: "CiA 402 drive",
+    id: "cia402",
+    vendor: "any",
+    link: Link::Canopen,
+    profiles: &[ProfileFacts {
+        profile: Profile::Cia402,
+        device_type: Some(CIA402_DEVICE_TYPE),
+        pdo1: Some(PdoPair {
+            rpdo: CIA402_CSP_RPDO1,
+            tpdo: CIA402_TPDO1,
+        }),
+        pdo1_power_up: Some(CIA402_PDO1_POWER_UP),
+        pdo1_static: false,
+        fpc_pdo2: None,
+    }],
+    vendor_id: Some(CIA402_SIM_VENDOR_ID),
+    product_code: Some(CIA402_SIM_PRODUCT_CODE),
+    modbus_identity: None,
+    // 1017h and 100Ch are U16 ms in CiA 301.
+    heartbeat_max_ms: Some(u16::MAX),
+    guard_time_max_ms: Some(u16::MAX),
+    can_bitrates_kbit: &[10, 20, 50, 125, 250, 500, 800, 1000],
+    records: None,
+};
+
 /// Every device kind, in the order the documentation lists them.
-pub const DEVICES: [&Device; 4] = [&MTR_DCI, &EMCA, &CMMO_ST, &TLC5XX];
+pub const DEVICES: [&Device; 5] = [&MTR_DCI, &EMCA, &CMMO_ST, &TLC5XX, &CIA402_GENERIC];
 
 /// The device with configuration name `id`.
 pub fn by_id(id: &str) -> Option<&'static Device> {

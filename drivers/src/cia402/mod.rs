@@ -110,6 +110,38 @@ pub const MTR_DCI: DeviceProfile = DeviceProfile {
     ],
 };
 
+/// A generic CiA 402 drive (`shared/reference/plcopen-and-cia402-csp.md` §6, §7, §10): the
+/// standard's transitions and bit-6 polarity (0 = absolute), change set immediately honoured,
+/// quick stop option 2 (stop, then Switch on disabled: the profile's default 605Ah), remote bit
+/// 1 under bus control; modes PP, PV, HM and the cyclic synchronous CSP, CSV, CST (6502h =
+/// 03A5h); the homing methods that need no index pulse, and 35/37. A real drive's EDS narrows
+/// the modes (its 6502h); the simulator of this profile offers them all.
+pub const GENERIC: DeviceProfile = DeviceProfile {
+    name: "CiA 402 drive",
+    flavour: Flavour::Cia402,
+    abs_rel: AbsRel::ZeroIsAbsolute,
+    change_set_immediately: true,
+    quick_stop: QuickStopOption::ToSwitchOnDisabled,
+    fault_coding: FaultCoding::Dsp402,
+    remote_under_bus_control: true,
+    modes: &[
+        OperationMode::ProfilePosition,
+        OperationMode::ProfileVelocity,
+        OperationMode::Homing,
+        OperationMode::CyclicSyncPosition,
+        OperationMode::CyclicSyncVelocity,
+        OperationMode::CyclicSyncTorque,
+    ],
+    homing_methods: &[
+        HomingMethod::NegativeLimit,
+        HomingMethod::PositiveLimit,
+        HomingMethod::HomeSwitchPositive,
+        HomingMethod::HomeSwitchNegative,
+        HomingMethod::CurrentPosition,
+        HomingMethod::CurrentPosition37,
+    ],
+};
+
 impl DeviceProfile {
     /// The statusword a device in `state` sends: the state pattern, bit 9 "remote" per the
     /// profile, and the bits of `dynamic` outside the state mask (warning, voltage enabled,
