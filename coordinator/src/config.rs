@@ -202,11 +202,20 @@ pub enum DeviceKind {
     CmmoSt,
     /// Schneider TLC5xx (CANopen; CiA 402).
     Tlc5xx,
+    /// Any CiA 402 drive, described by its EDS (`eds`); without one, this project's simulator
+    /// of a generic drive.
+    Cia402,
 }
 
 impl DeviceKind {
     /// Every kind, in the catalog's order.
-    pub const ALL: [DeviceKind; 4] = [Self::MtrDci, Self::Emca, Self::CmmoSt, Self::Tlc5xx];
+    pub const ALL: [DeviceKind; 5] = [
+        Self::MtrDci,
+        Self::Emca,
+        Self::CmmoSt,
+        Self::Tlc5xx,
+        Self::Cia402,
+    ];
 
     /// The axis layer's kind.
     pub const fn axis_kind(self) -> crate::axis::DeviceKind {
@@ -215,6 +224,7 @@ impl DeviceKind {
             Self::Emca => crate::axis::DeviceKind::Emca,
             Self::CmmoSt => crate::axis::DeviceKind::CmmoSt,
             Self::Tlc5xx => crate::axis::DeviceKind::Tlc5xx,
+            Self::Cia402 => crate::axis::DeviceKind::Cia402,
         }
     }
 
@@ -256,6 +266,33 @@ impl DeviceKind {
 impl fmt::Display for DeviceKind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
+    }
+}
+
+/// How a CiA 402 axis is commanded cyclically (`mode`): the configuration's names of
+/// [`crate::axis::CyclicMode`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModeConfig {
+    /// Profile position, set-points streamed through the handshake.
+    Pp,
+    /// Cyclic synchronous position.
+    Csp,
+    /// Cyclic synchronous velocity.
+    Csv,
+    /// Cyclic synchronous torque.
+    Cst,
+}
+
+impl From<ModeConfig> for crate::axis::CyclicMode {
+    fn from(m: ModeConfig) -> Self {
+        use crate::axis::CyclicMode as C;
+        match m {
+            ModeConfig::Pp => C::Pp,
+            ModeConfig::Csp => C::Csp,
+            ModeConfig::Csv => C::Csv,
+            ModeConfig::Cst => C::Cst,
+        }
     }
 }
 
@@ -306,6 +343,95 @@ pub fn axis_pdos(device: DeviceKind, profile: Profile, fpc: bool) -> Vec<Pdo> {
         .flatten()
         .map(|p| Pdo::every_sync(p.rpdo_bytes() as u8))
         .collect()
+}
+
+/// `mode` and `eds` of a CANopen axis: a mode its device takes (and its EDS allows), an EDS
+/// only on a `cia402` axis.
+fn check_mode(key: &str, a: &AxisConfig, cycle_us: u32, err: &mut Errors) {
+    use crate::axis::CyclicMode;
+    let mode = a.mode();
+    let refuse = |err: &mut Errors, why: String| {
+        err.push(
+            format!("{key}.mode"),
+            Problem::Mode {
+                mode,
+                id: mode.id(),
+                why,
+            },
+        )
+    };
+    if a.profile() != Profile::Cia402 {
+        if a.mode.is_some() {
+            refuse(
+                err,
+                "modes of operation are CiA 402's; remove `mode` (the FHPP profile has none)"
+                    .into(),
+            );
+        }
+    } else if a.device != DeviceKind::Cia402 && mode != CyclicMode::Pp {
+        refuse(
+            err,
+            format!(
+                "the {} streams profile position only (\"pp\"); cyclic synchronous modes need a `cia402` drive that offers them",
+                a.device.device().name
+            ),
+        );
+    } else if mode != CyclicMode::Pp
+        && drivers::cia402::modes::interpolation_time_period(core::time::Duration::from_micros(
+            cycle_us.into(),
+        ))
+        .is_none()
+    {
+        refuse(
+            err,
+            format!(
+                "the cycle of {cycle_us} µs cannot be given to the drive in 60C2h (interpolation time period: 1..=255 × 10^-6..=0 s exactly, such as 1000 or 1500 µs)"
+            ),
+        );
+    } else if let Some(eds) = &a.eds_read {
+        let lacks = eds.lacks(mode);
+        if !lacks.is_empty() {
+            refuse(
+                err,
+                format!(
+                    "the drive's EDS {}: {}",
+                    eds.path.display(),
+                    lacks.join("; ")
+                ),
+            );
+        }
+    }
+    if a.eds.is_some() && a.device != DeviceKind::Cia402 {
+        err.push(
+            format!("{key}.eds"),
+            Problem::NotAllowed {
+                device: a.device,
+                reason: "is described by the device catalog; `eds` is for device = \"cia402\"",
+            },
+        );
+    }
+}
+
+/// The PDOs of one axis commanded in `mode` on a CAN bus: (RPDOs, TPDOs), from the mapping the
+/// boot writes ([`crate::axis::pdo_mapping_in`]), so the budget counts a CST axis's 5-byte RPDO
+/// as 5 bytes; PDO2 for the FPC as in [`axis_pdos`].
+pub fn axis_pdos_in(
+    device: DeviceKind,
+    profile: Profile,
+    mode: crate::axis::CyclicMode,
+    fpc: bool,
+) -> (Vec<Pdo>, Vec<Pdo>) {
+    let map = crate::axis::pdo_mapping_in(device.axis_kind(), profile.into(), mode);
+    let (Some(r), Some(t)) = (map.rpdo, map.tpdo) else {
+        return (Vec::new(), Vec::new());
+    };
+    let mut rpdos = vec![Pdo::every_sync(r.len() as u8)];
+    let mut tpdos = vec![Pdo::every_sync(t.len() as u8)];
+    let both = axis_pdos(device, profile, fpc);
+    // PDO2 (the FPC), equally long both ways.
+    rpdos.extend(both.iter().skip(1).copied());
+    tpdos.extend(both.iter().skip(1).copied());
+    (rpdos, tpdos)
 }
 
 /// Motion limits in user units (the axis's `unit`, per second, per second squared...).
@@ -364,6 +490,15 @@ pub struct AxisConfig {
     /// Largest |setpoint - actual| while following a path, in units, before the axis faults;
     /// default: the distance covered at the velocity limit in 100 ms plus 6 cycles.
     pub following_error: Option<f64>,
+    /// How a CiA 402 axis is commanded cyclically; default: `csp` for a `cia402` drive, `pp`
+    /// for the TLC5xx and the MTR-DCI (their only one).
+    pub mode: Option<ModeConfig>,
+    /// The EDS of a `cia402` drive, relative to the configuration file's folder; without one,
+    /// the drive is taken to be this project's generic drive (`drive-sim --device cia402`).
+    pub eds: Option<String>,
+    /// The EDS read by [`Config::load_eds`].
+    #[serde(skip)]
+    pub eds_read: Option<crate::drive_eds::DriveEds>,
 }
 
 fn default_unit() -> String {
@@ -374,6 +509,16 @@ impl AxisConfig {
     /// The exact scale of `increments_per_unit` (refused as [`Config::check`] refuses it).
     pub fn scale(&self) -> Result<Scale, ScaleError> {
         Scale::from_f64(self.increments_per_unit)
+    }
+
+    /// The cyclic mode in use (the configured one or the device's default).
+    pub fn mode(&self) -> crate::axis::CyclicMode {
+        use crate::axis::CyclicMode;
+        match (self.mode, self.device) {
+            (Some(m), _) => m.into(),
+            (None, DeviceKind::Cia402) => CyclicMode::Csp,
+            (None, _) => CyclicMode::Pp,
+        }
     }
 
     /// The profile in use (the configured one or the device's default).
@@ -632,6 +777,19 @@ pub enum Problem {
     /// The text is not valid TOML for this schema (unknown key, wrong type, missing key).
     #[error("{0}")]
     Parse(String),
+    /// A `mode` the drive cannot be commanded in.
+    #[error("\"{id}\" ({mode}) is not for this axis: {why}")]
+    Mode {
+        /// The mode.
+        mode: crate::axis::CyclicMode,
+        /// Its configuration name.
+        id: &'static str,
+        /// Why, in words.
+        why: String,
+    },
+    /// An EDS that could not be read or used.
+    #[error("{0}")]
+    Eds(String),
     /// A node-ID outside 1..=127.
     #[error("{0} is not a CANopen node-ID (1..=127)")]
     NodeId(i64),
@@ -964,7 +1122,8 @@ impl Errors {
 /// The per-bus traffic lists the budget borrows.
 #[derive(Default)]
 struct BusPlan {
-    pdos: Vec<Pdo>,
+    rpdos: Vec<Pdo>,
+    tpdos: Vec<Pdo>,
     nodes: Vec<Supervision>,
 }
 
@@ -987,6 +1146,28 @@ impl Config {
     /// The SYNC period of bus `i` in microseconds.
     fn bus_cycle_us(&self, bus: &BusConfig) -> u32 {
         bus.cycle_us.unwrap_or(self.cycle_us)
+    }
+
+    /// Reads the EDS of every `cia402` axis that names one (`eds`, relative to `dir`, the
+    /// configuration file's folder) into [`AxisConfig::eds_read`], for [`Config::check`] and the
+    /// boot. Kept out of `check`, which does no I/O. An EDS that cannot be read or parsed is an
+    /// error naming `axes[i].eds`.
+    pub fn load_eds(&mut self, dir: &std::path::Path) -> Vec<ConfigError> {
+        let mut errors = Vec::new();
+        for (i, a) in self.axes.iter_mut().enumerate() {
+            let Some(file) = &a.eds else { continue };
+            if a.device != DeviceKind::Cia402 {
+                continue;
+            }
+            match crate::drive_eds::DriveEds::read(&dir.join(file)) {
+                Ok(e) => a.eds_read = Some(e),
+                Err(e) => errors.push(ConfigError {
+                    key: format!("axes[{i}].eds"),
+                    problem: Problem::Eds(e),
+                }),
+            }
+        }
+        errors
     }
 
     /// Resolves the host of every Modbus drive the coordinator would dial, as `run` will
@@ -1234,8 +1415,11 @@ impl Config {
                 };
                 let cycle_us = bus.map_or(self.cycle_us, |bi| self.bus_cycle_us(&self.buses[bi]));
                 check_supervision(&key, a, cycle_us, &mut err);
+                check_mode(&key, a, cycle_us, &mut err);
                 if let Some(bi) = bus {
-                    plans[bi].pdos.extend(axis_pdos(device, profile, a.fpc));
+                    let (r, t) = axis_pdos_in(device, profile, a.mode(), a.fpc);
+                    plans[bi].rpdos.extend(r);
+                    plans[bi].tpdos.extend(t);
                     plans[bi].nodes.push(a.supervision());
                     if let Some(n) = node {
                         let bus_name = self.buses[bi].name.as_str();
@@ -1274,8 +1458,8 @@ impl Config {
                 bitrate: b.bitrate,
                 cycle: Duration::from_micros(self.bus_cycle_us(b).into()),
                 sync_counter: b.sync_counter,
-                rpdos: &plan.pdos,
-                tpdos: &plan.pdos,
+                rpdos: &plan.rpdos,
+                tpdos: &plan.tpdos,
                 nodes: &plan.nodes,
                 emcy_per_cycle: b.emcy_per_cycle,
                 sdo_slots: b.sdo_slots,
@@ -2287,6 +2471,84 @@ mod tests {
               over the 80.0 % limit"
             ]
         );
+    }
+
+    /// A machine of `n` generic CiA 402 axes on one 1 Mbit/s bus, `extra` keys on each axis.
+    fn cia402_machine(n: usize, cycle_us: u32, extra: &str) -> String {
+        let mut t = format!(
+            "cycle_us = {cycle_us}\n[[buses]]\nname = \"can0\"\nkind = \"simulated\"\nbitrate = 1000000\n"
+        );
+        for i in 1..=n {
+            t += &format!(
+                "[[axes]]\nname = \"a{i}\"\ndevice = \"cia402\"\nbus = \"can0\"\nnode = {i}\n\
+                 increments_per_unit = 1000\n{extra}\n\
+                 limits = {{ position_min = -100, position_max = 100, velocity = 100, acceleration = 1000 }}\n"
+            );
+        }
+        t
+    }
+
+    #[test]
+    fn cyclic_modes_are_checked_against_the_device_and_its_eds() {
+        // The generic drive defaults to CSP and takes every mode; the budget counts its PDOs.
+        let c = Config::parse(&cia402_machine(1, 1000, "")).unwrap();
+        assert_eq!(c.axes[0].mode(), crate::axis::CyclicMode::Csp);
+        assert!(c.check().is_ok(), "{}", c.check());
+        for m in ["pp", "csv", "cst"] {
+            let c = Config::parse(&cia402_machine(1, 1000, &format!("mode = \"{m}\""))).unwrap();
+            assert!(c.check().is_ok(), "{m}: {}", c.check());
+        }
+        // One axis more than 1 ms at 1 Mbit/s holds is refused with the numbers.
+        assert_eq!(
+            errors(&cia402_machine(2, 1000, "")),
+            [
+                "buses[0]: bus can0: 10 frames, 1090 us per 1000 us cycle = 109.0 %, does not fit the cycle"
+            ]
+        );
+        // The seed devices stream profile position only; FHPP has no modes; EDS only on cia402.
+        assert_eq!(
+            errors(&edited(&[("node = 3", "node = 3\nmode = \"csp\"")])),
+            [
+                "axes[2].mode: \"csp\" (cyclic synchronous position) is not for this axis: the TLC5xx \
+              streams profile position only (\"pp\"); cyclic synchronous modes need a `cia402` drive \
+              that offers them"
+            ]
+        );
+        let e = errors(&edited(&[("node = 1", "node = 1\nmode = \"pp\"")]));
+        assert!(e[0].starts_with("axes[0].mode: \"pp\""), "{e:?}");
+        assert!(e[0].contains("remove `mode`"), "{e:?}");
+        assert_eq!(
+            errors(&edited(&[("node = 3", "node = 3\neds = \"x.eds\"")])),
+            [
+                "axes[2].eds: a tlc5xx axis is described by the device catalog; `eds` is for device = \"cia402\""
+            ]
+        );
+        // A cycle 60C2h cannot hold exactly.
+        let e = errors(&cia402_machine(1, 1257, ""));
+        assert!(
+            e.iter()
+                .any(|e| e.starts_with("axes[0].mode:") && e.contains("60C2h")),
+            "{e:?}"
+        );
+        // An EDS without CSV in 6502h and with 60FFh not mappable: both named.
+        let eds = "[6502]\nParameterName=Supported drive modes\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x000000A5\n\
+                   [60FF]\nParameterName=Target velocity\nDataType=0x0004\nAccessType=rww\nPDOMapping=0\n";
+        let mut c = Config::parse(&cia402_machine(1, 1000, "mode = \"csv\"")).unwrap();
+        c.axes[0].eds_read = Some(
+            crate::drive_eds::DriveEds::parse(eds, std::path::Path::new("drive.eds")).unwrap(),
+        );
+        let e: Vec<String> = c.check().errors.iter().map(|e| e.to_string()).collect();
+        assert_eq!(e.len(), 1, "{e:?}");
+        for part in [
+            "axes[0].mode: \"csv\"",
+            "EDS drive.eds",
+            "6502h (supported drive modes = 000000A5h) has no cyclic synchronous velocity (mode 9)",
+            "60FFh sub 0 is not PDO-mappable",
+            "6040h sub 0 is not PDO-mappable",
+            "no writable 60C2h sub 1",
+        ] {
+            assert!(e[0].contains(part), "{part} in {}", e[0]);
+        }
     }
 
     #[test]

@@ -32,7 +32,9 @@ use heapless::{Deque, Vec};
 use crate::admission::{
     self, Admit, AxisActivity, AxisVerb, BufferMode, GroupActivity, GroupVerb, Refusal,
 };
-use crate::axis::{AxisError, AxisState, Demand, DeviceKind, DriveAxis, Feedback, Image, Profile};
+use crate::axis::{
+    AxisError, AxisState, CyclicMode, Demand, DeviceKind, DriveAxis, Feedback, Image, Profile,
+};
 use crate::command::{AxisId, Command, GroupId, Rejected, Reply, Target};
 use crate::event::Event;
 use crate::fault::{FaultReason, OverrunReaction, Reaction};
@@ -124,6 +126,8 @@ pub struct AxisSetup {
     pub late_cycles: u16,
     /// The FHPP parameter channel is mapped on PDO2 (Festo drives over CANopen).
     pub fpc: bool,
+    /// How a CiA 402 drive is commanded cyclically (profile position for the others).
+    pub mode: CyclicMode,
 }
 
 /// One group, as the cycle needs it.
@@ -557,7 +561,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
                 *slot = Some(id);
             }
-            let drive = DriveAxis::new(s.kind, s.profile, setup.cycle_ns)
+            let drive = DriveAxis::in_mode(s.kind, s.profile, s.mode, setup.cycle_ns)
                 .map_err(|e| SetupError::Axis(id, e))?;
             c.axes
                 .push(AxisRt {
@@ -2223,6 +2227,7 @@ mod tests {
             following_error: 10_000,
             late_cycles: 3,
             fpc: false,
+            mode: CyclicMode::Pp,
         }
     }
 

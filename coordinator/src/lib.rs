@@ -26,6 +26,8 @@ pub mod comparator;
 #[cfg(feature = "std")]
 pub mod config;
 pub mod cycle;
+#[cfg(feature = "std")]
+pub mod drive_eds;
 pub mod event;
 pub mod fault;
 pub mod ids;

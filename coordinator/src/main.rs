@@ -188,13 +188,24 @@ fn main() -> ExitCode {
                 },
                 None => coordinator::config::EXAMPLE.to_string(),
             };
-            let cfg = match coordinator::config::Config::parse(&text) {
+            let mut cfg = match coordinator::config::Config::parse(&text) {
                 Ok(c) => c,
                 Err(e) => {
                     eprintln!("error: {e}");
                     return ExitCode::FAILURE;
                 }
             };
+            let dir = config
+                .as_deref()
+                .and_then(std::path::Path::parent)
+                .unwrap_or(std::path::Path::new("."));
+            let eds_errors = cfg.load_eds(dir);
+            if !eds_errors.is_empty() {
+                for e in eds_errors {
+                    eprintln!("error: {e}");
+                }
+                return ExitCode::FAILURE;
+            }
             let opts = RunOptions {
                 duration: duration.map(Duration::from_secs_f64),
                 virtual_time,
@@ -287,14 +298,16 @@ fn check(file: &std::path::Path) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let config = match coordinator::config::Config::parse(&text) {
+    let mut config = match coordinator::config::Config::parse(&text) {
         Ok(c) => c,
         Err(e) => {
             println!("error: {}: {e}", file.display());
             return ExitCode::FAILURE;
         }
     };
+    let eds_errors = config.load_eds(file.parent().unwrap_or(std::path::Path::new(".")));
     let mut report = config.check();
+    report.errors.extend(eds_errors);
     report.errors.extend(config.resolve_addresses());
     print!("{report}");
     if report.is_ok() {

@@ -405,16 +405,17 @@ pub const TLC5XX: Device = Device {
     records: None,
 };
 
-/// The generic CiA 402 drive's PDO1 for cyclic synchronous position, as the coordinator maps
-/// it: controlword and target position 607Ah (6 bytes; the mode is set by SDO, so that SYNC plus
-/// four axes fit 1 ms at 1 Mbit/s, `plcopen-and-cia402-csp.md` §9).
-pub const CIA402_CSP_RPDO1: &[u32] = &[0x6040_0010, 0x607A_0020];
-/// Its TPDO1 in every cyclic mode: statusword and position actual value 6064h (6 bytes).
-pub const CIA402_TPDO1: &[u32] = &[0x6041_0010, 0x6064_0020];
-/// Its RPDO1 for cyclic synchronous velocity: controlword and target velocity 60FFh.
-pub const CIA402_CSV_RPDO1: &[u32] = &[0x6040_0010, 0x60FF_0020];
-/// Its RPDO1 for cyclic synchronous torque: controlword and target torque 6071h.
-pub const CIA402_CST_RPDO1: &[u32] = &[0x6040_0010, 0x6071_0010];
+/// The generic CiA 402 drive's RPDO1 for cyclic synchronous (and profile) position, as the
+/// coordinator maps it: controlword, target position 607Ah, modes of operation 6060h (7 bytes:
+/// the mode travels in the PDO, so homing and a mode change need no SDO mid-run; SYNC plus
+/// three such axes fit 1 ms at 1 Mbit/s, `plcopen-and-cia402-csp.md` §9).
+pub const CIA402_CSP_RPDO1: &[u32] = &[0x6040_0010, 0x607A_0020, 0x6060_0008];
+/// Its TPDO1 in every mode: statusword, position actual value 6064h, modes display 6061h.
+pub const CIA402_TPDO1: &[u32] = &[0x6041_0010, 0x6064_0020, 0x6061_0008];
+/// Its RPDO1 for cyclic synchronous velocity: 60FFh target velocity in place of 607Ah.
+pub const CIA402_CSV_RPDO1: &[u32] = &[0x6040_0010, 0x60FF_0020, 0x6060_0008];
+/// Its RPDO1 for cyclic synchronous torque: 6071h target torque (16 bits), 5 bytes.
+pub const CIA402_CST_RPDO1: &[u32] = &[0x6040_0010, 0x6071_0010, 0x6060_0008];
 /// The generic drive's power-up PDO1 (the CiA 402-3 defaults: controlword / statusword).
 pub const CIA402_PDO1_POWER_UP: PdoPair = PdoPair {
     rpdo: &[0x6040_0010],

@@ -4,7 +4,7 @@
 
 use core::time::Duration;
 
-use coordinator::axis::{AxisState, DeviceKind, Image, Profile, pdo_mapping};
+use coordinator::axis::{AxisState, CyclicMode, DeviceKind, Image, Profile, pdo_mapping};
 use coordinator::command::{BufferMode, Command, Reply, Target};
 use coordinator::cycle::{
     AxisSetup, BusFrame, Cycle, CycleInput, CycleOutput, CycleSetup, GroupSetup, Supervision,
@@ -79,6 +79,7 @@ pub fn axis_setups() -> [AxisSetup; AXES] {
         following_error: (limits.velocity * 112 / 1000) as i64,
         late_cycles: 3,
         fpc: false,
+        mode: CyclicMode::Pp,
     };
     [
         setup(DeviceKind::MtrDci, X_NODE, x_limits, 160_000),

@@ -538,6 +538,8 @@ pub mod device {
     pub const CMMO_ST: u8 = 3;
     /// Schneider TLC5xx (CANopen; CiA 402).
     pub const TLC5XX: u8 = 4;
+    /// Any CiA 402 drive, described by its EDS (CANopen; CiA 402).
+    pub const CIA402: u8 = 5;
 }
 
 /// The device profile an axis is driven with ([`AxisDescription::profile`]).

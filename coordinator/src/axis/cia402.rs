@@ -46,15 +46,19 @@ use drivers::cia402::homing::HomingStatus;
 use drivers::cia402::modes::{OperationMode, PpEvent, PpMaster, PpMasterState, SetPointRequest};
 use drivers::cia402::state::{State, next_controlword};
 use drivers::cia402::statusword::Statusword;
-use drivers::cia402::{DeviceProfile, MTR_DCI, TLC5XX};
+use drivers::cia402::{DeviceProfile, GENERIC, MTR_DCI, TLC5XX};
 
-use super::{AxisError, AxisState, Demand, Feedback, IMAGE_BYTES, Image};
+use super::{AxisError, AxisState, CyclicMode, Demand, Feedback, IMAGE_BYTES, Image};
 use crate::profile::fixed_point::div_i128;
 
 /// The fewest cycles a streamed set-point is placed ahead of the path.
 pub const MIN_LEAD_CYCLES: u32 = 2;
 /// The most cycles a streamed set-point is placed ahead of the path.
 pub const MAX_LEAD_CYCLES: u32 = 8;
+
+/// Cycles over which cyclic synchronous velocity corrects a position error: short enough to
+/// hold a path, long enough to stay stable behind the two cycles of transport delay.
+pub const CSV_CORRECTION_CYCLES: u32 = 8;
 
 /// Images with bit 4 high before a stale "homing completed" is believed.
 const HOMING_STALE_IMAGES: u32 = 3;
@@ -66,25 +70,40 @@ pub enum Layout {
     Tlc5xx,
     /// MTR-DCI CiA 402 profile: the static 8-byte PDO1 (§7.4).
     MtrDci,
+    /// A generic CiA 402 drive commanded in this mode (`super::pdo_mapping_in`): the TLC5xx's
+    /// image with the mode's set-point object in place of 607Ah (60FFh for CSV, 6071h as 2
+    /// bytes for CST, so its RPDO is 5 bytes).
+    Generic(CyclicMode),
 }
 
 impl Layout {
     /// Bytes of the input image (TPDO1).
     pub const fn rx_len(self) -> usize {
         match self {
-            Layout::Tlc5xx => 7,
+            Layout::Tlc5xx | Layout::Generic(_) => 7,
             Layout::MtrDci => 8,
         }
     }
     /// Bytes of the output image (RPDO1).
     pub const fn tx_len(self) -> usize {
-        self.rx_len()
+        match self {
+            Layout::Generic(CyclicMode::Cst) => 5,
+            l => l.rx_len(),
+        }
     }
     /// How the device implements CiA 402 (bit 6 polarity, change set immediately).
     pub const fn profile(self) -> DeviceProfile {
         match self {
             Layout::Tlc5xx => TLC5XX,
             Layout::MtrDci => MTR_DCI,
+            Layout::Generic(_) => GENERIC,
+        }
+    }
+    /// Bytes of the RPDO's set-point (2 for a CST torque, 4 otherwise).
+    const fn setpoint_len(self) -> usize {
+        match self {
+            Layout::Generic(CyclicMode::Cst) => 2,
+            _ => 4,
         }
     }
 }
@@ -107,7 +126,8 @@ pub struct Input {
 pub struct Output {
     /// 6040h.
     pub controlword: Controlword,
-    /// 607Ah target position.
+    /// The set-point: 607Ah target position; a generic drive's 60FFh target velocity in CSV,
+    /// 6071h target torque (‰, sent as 16 bits) in CST.
     pub target: i32,
     /// 6060h modes of operation.
     pub mode: i8,
@@ -137,7 +157,7 @@ pub fn decode_input(layout: Layout, bytes: &[u8]) -> Result<Input, AxisError> {
     let e = || short(layout, bytes.len());
     let statusword = Statusword(le_u16(bytes, 0).ok_or_else(e)?);
     match layout {
-        Layout::Tlc5xx => Ok(Input {
+        Layout::Tlc5xx | Layout::Generic(_) => Ok(Input {
             statusword,
             position: le_i32(bytes, 2).ok_or_else(e)?,
             mode: *bytes.get(6).ok_or_else(e)? as i8,
@@ -160,9 +180,11 @@ impl Output {
         let t = self.target.to_le_bytes();
         data[..2].copy_from_slice(&cw);
         match layout {
-            Layout::Tlc5xx => {
-                data[2..6].copy_from_slice(&t);
-                data[6] = self.mode as u8;
+            Layout::Tlc5xx | Layout::Generic(_) => {
+                let n = layout.setpoint_len();
+                // A torque is 16 bits: the axis keeps it within i16 (`clamp_i16`).
+                data[2..2 + n].copy_from_slice(&t[..n]);
+                data[2 + n] = self.mode as u8;
             }
             Layout::MtrDci => {
                 data[2] = self.record;
@@ -181,10 +203,17 @@ impl Output {
         let e = || short(layout, bytes.len());
         let controlword = Controlword(le_u16(bytes, 0).ok_or_else(e)?);
         match layout {
-            Layout::Tlc5xx => Ok(Output {
+            Layout::Tlc5xx
+            | Layout::Generic(CyclicMode::Pp | CyclicMode::Csp | CyclicMode::Csv) => Ok(Output {
                 controlword,
                 target: le_i32(bytes, 2).ok_or_else(e)?,
                 mode: *bytes.get(6).ok_or_else(e)? as i8,
+                record: 0,
+            }),
+            Layout::Generic(CyclicMode::Cst) => Ok(Output {
+                controlword,
+                target: i32::from(le_u16(bytes, 2).ok_or_else(e)? as i16),
+                mode: *bytes.get(4).ok_or_else(e)? as i8,
                 record: 0,
             }),
             Layout::MtrDci => Ok(Output {
@@ -224,6 +253,8 @@ enum Step {
     HomeRaised { images: u32, running: bool },
     /// Acknowledge: fault-reset edges are being sent.
     Resetting,
+    /// A cyclic synchronous stream is running (the drive takes a set-point every cycle).
+    Running,
     /// Carried out.
     Done,
     /// Failed.
@@ -235,7 +266,7 @@ enum Step {
 pub struct Cia402Axis {
     layout: Layout,
     profile: DeviceProfile,
-    csp: bool,
+    cyclic: CyclicMode,
     cycle_ns: u32,
     settings: Cia402Settings,
     input: Option<Input>,
@@ -263,14 +294,17 @@ pub struct Cia402Axis {
 }
 
 impl Cia402Axis {
-    /// The master side of a drive with `layout`, exchanged every `cycle_ns`; without cyclic
-    /// synchronous position (see [`Cia402Axis::with_csp`]).
+    /// The master side of a drive with `layout`, exchanged every `cycle_ns`; commanded in the
+    /// generic layout's mode, otherwise in profile position (see [`Cia402Axis::with_csp`]).
     pub fn new(layout: Layout, cycle_ns: u32) -> Cia402Axis {
         let profile = layout.profile();
         Cia402Axis {
             layout,
             profile,
-            csp: false,
+            cyclic: match layout {
+                Layout::Generic(m) => m,
+                _ => CyclicMode::Pp,
+            },
             cycle_ns: cycle_ns.max(1),
             settings: Cia402Settings::default(),
             input: None,
@@ -295,7 +329,7 @@ impl Cia402Axis {
     /// The same axis streaming `Follow` in cyclic synchronous position (mode 8), for a drive
     /// that offers it (neither reference device does).
     pub fn with_csp(mut self) -> Cia402Axis {
-        self.csp = true;
+        self.cyclic = CyclicMode::Csp;
         self
     }
 
@@ -317,13 +351,18 @@ impl Cia402Axis {
 
     /// Whether `Follow` uses cyclic synchronous position.
     pub fn csp(&self) -> bool {
-        self.csp
+        self.cyclic == CyclicMode::Csp
+    }
+
+    /// The mode paths, jogs and forces are commanded in.
+    pub fn cyclic(&self) -> CyclicMode {
+        self.cyclic
     }
 
     /// Forgets the drive's state: offline until the next image.
     pub fn reset(&mut self) {
         *self = Cia402Axis {
-            csp: self.csp,
+            cyclic: self.cyclic,
             settings: self.settings,
             ..Cia402Axis::new(self.layout, self.cycle_ns)
         };
@@ -359,7 +398,7 @@ impl Cia402Axis {
             self.begin(demand);
         }
         self.demand = *demand;
-        if let Err(e) = check(demand) {
+        if let Err(e) = check(self.cyclic, demand) {
             self.step = Step::Failed;
             self.write_safe(out);
             self.update_feedback();
@@ -499,14 +538,16 @@ impl Cia402Axis {
                 None => {}
             },
             Demand::Home => self.home(fresh),
-            Demand::Follow { position, velocity } => {
-                if self.csp {
-                    self.csp_follow(position, velocity);
-                } else {
+            Demand::Follow { position, velocity } => match self.cyclic {
+                CyclicMode::Csp => self.csp_follow(position, velocity),
+                CyclicMode::Csv => self.csv_follow(position, velocity),
+                // Refused by `check`.
+                CyclicMode::Cst => {}
+                CyclicMode::Pp => {
                     self.mode = OperationMode::ProfilePosition;
                     self.stream(fresh, position, velocity, Some(position));
                 }
-            }
+            },
             Demand::Jog { positive, velocity } => {
                 let v = if positive {
                     velocity.saturating_abs()
@@ -516,6 +557,9 @@ impl Cia402Axis {
                 self.jog(fresh, v);
             }
             Demand::Velocity { velocity } => self.jog(fresh, velocity),
+            Demand::Force { permille, .. } if self.cyclic == CyclicMode::Cst => {
+                self.cst_force(permille);
+            }
             Demand::Halt => {
                 self.cw = self
                     .cw
@@ -602,8 +646,16 @@ impl Cia402Axis {
         p.clamp(i128::from(i32::MIN), i128::from(i32::MAX)) as i32
     }
 
-    /// Jog and velocity: PP set-points streamed from an integrated position.
+    /// Jog and velocity: PP set-points streamed from an integrated position; in CSP that
+    /// position every cycle; in CSV the velocity itself.
     fn jog(&mut self, fresh: bool, velocity: i64) {
+        if self.cyclic == CyclicMode::Csv {
+            self.csv_velocity(velocity);
+            if self.step == Step::Start && self.power() && self.mode_active() {
+                self.step = Step::Done;
+            }
+            return;
+        }
         self.mode = OperationMode::ProfilePosition;
         let start = self.feedback.position;
         let moving = self.state() == Some(State::OperationEnabled);
@@ -613,6 +665,15 @@ impl Cia402Axis {
         }
         self.jog_nano = Some(nano);
         let here = div_i128(nano, 1_000_000_000) as i64;
+        if self.cyclic == CyclicMode::Csp {
+            self.csp_follow(here, velocity);
+            self.step = if self.mode_active() && moving {
+                Step::Done
+            } else {
+                Step::Start
+            };
+            return;
+        }
         self.stream(fresh, here, velocity, None);
         if self.acked.is_some() {
             self.step = Step::Done;
@@ -692,6 +753,63 @@ impl Cia402Axis {
         };
     }
 
+    /// Cyclic synchronous velocity following a path: the path's velocity plus a correction
+    /// of the position error over [`CSV_CORRECTION_CYCLES`], so the position loop closed here
+    /// keeps the following error bounded (the drive closes only the velocity loop).
+    fn csv_follow(&mut self, position: i64, velocity: i64) {
+        let error = i128::from(position) - i128::from(self.feedback.position);
+        let span = i128::from(CSV_CORRECTION_CYCLES) * i128::from(self.cycle_ns);
+        let correction = div_i128(error * 1_000_000_000, span.max(1));
+        let v =
+            (i128::from(velocity) + correction).clamp(i128::from(i32::MIN), i128::from(i32::MAX));
+        self.csv_velocity(v as i64);
+        if self.step == Step::Start {
+            return;
+        }
+        let near =
+            self.feedback.position.abs_diff(position) <= u64::from(self.settings.position_window);
+        self.step = if velocity == 0 && near {
+            Step::Done
+        } else {
+            Step::Running
+        };
+    }
+
+    /// Cyclic synchronous velocity: 60FFh every cycle, no handshake.
+    fn csv_velocity(&mut self, velocity: i64) {
+        self.mode = OperationMode::CyclicSyncVelocity;
+        if !self.power() || !self.mode_active() {
+            // The first set-point the drive takes is a standstill.
+            self.target = 0;
+            if self.state() == Some(State::OperationEnabled) {
+                self.cw = Self::enable_op();
+            }
+            self.step = Step::Start;
+            return;
+        }
+        self.target = clamp_i32(velocity);
+        self.cw = Self::enable_op();
+        if self.step == Step::Start {
+            self.step = Step::Running;
+        }
+    }
+
+    /// Cyclic synchronous torque: 6071h (‰ of the rated torque) every cycle.
+    fn cst_force(&mut self, permille: i32) {
+        self.mode = OperationMode::CyclicSyncTorque;
+        if !self.power() || !self.mode_active() {
+            self.target = 0;
+            if self.state() == Some(State::OperationEnabled) {
+                self.cw = Self::enable_op();
+            }
+            self.step = Step::Start;
+            return;
+        }
+        self.target = permille.clamp(i32::from(i16::MIN), i32::from(i16::MAX));
+        self.cw = Self::enable_op();
+        self.step = Step::Done;
+    }
+
     fn update_feedback(&mut self) {
         let state = self.state();
         let f = &mut self.feedback;
@@ -738,10 +856,20 @@ impl Cia402Axis {
     }
 }
 
-/// Refuses what CiA 402 (as mapped here) cannot do.
-fn check(demand: &Demand) -> Result<(), AxisError> {
+/// Refuses what CiA 402 (as mapped here, in `cyclic`) cannot do.
+fn check(cyclic: CyclicMode, demand: &Demand) -> Result<(), AxisError> {
     match demand {
-        Demand::Force { .. } => Err(AxisError::Unsupported("force on a CiA 402 drive")),
+        Demand::Force { .. } if cyclic == CyclicMode::Cst => Ok(()),
+        Demand::Force { .. } => Err(AxisError::Unsupported(
+            "force on a CiA 402 drive outside cyclic synchronous torque",
+        )),
+        Demand::Follow { .. } | Demand::Jog { .. } | Demand::Velocity { .. }
+            if cyclic == CyclicMode::Cst =>
+        {
+            Err(AxisError::Unsupported(
+                "a path, jog or velocity on a cyclic synchronous torque axis",
+            ))
+        }
         Demand::DriveRecord { .. } => Err(AxisError::Unsupported("drive records in CiA 402")),
         Demand::Teach => Err(AxisError::Unsupported("teach in CiA 402")),
         _ => Ok(()),
@@ -980,6 +1108,79 @@ mod tests {
             },
         );
         assert!(fb.motion_complete);
+    }
+
+    #[test]
+    fn generic_layouts_carry_the_mode_setpoint() {
+        let o = Output {
+            controlword: Controlword(0x000F),
+            target: -300,
+            mode: 10,
+            record: 0,
+        };
+        let cst = Layout::Generic(CyclicMode::Cst);
+        let img = o.to_image(cst);
+        assert_eq!(img.bytes(), &[0x0F, 0, 0xD4, 0xFE, 10]);
+        assert_eq!(Output::from_bytes(cst, img.bytes()), Ok(o));
+        let csv = Layout::Generic(CyclicMode::Csv);
+        let o = Output { mode: 9, ..o };
+        assert_eq!(
+            o.to_image(csv).bytes(),
+            &[0x0F, 0, 0xD4, 0xFE, 0xFF, 0xFF, 9]
+        );
+        assert_eq!(Output::from_bytes(csv, o.to_image(csv).bytes()), Ok(o));
+        // The input image is the TLC5xx's in every mode.
+        let i = decode_input(cst, &tpdo(0x1637, 5, 10)).unwrap();
+        assert_eq!((i.position, i.mode), (5, 10));
+    }
+
+    #[test]
+    fn csv_follows_a_path_with_a_position_correction() {
+        let mut a = Cia402Axis::new(Layout::Generic(CyclicMode::Csv), CYCLE);
+        let follow = |position, velocity| Demand::Follow { position, velocity };
+        // Mode 9 requested; until the drive shows it, the set-point is a standstill.
+        let (o, _) = ex(&mut a, &tpdo(0x0637, 0, 1), follow(0, 1000));
+        assert_eq!((o.mode, o.target), (9, 0));
+        // At the path: the path's velocity.
+        let (o, _) = ex(&mut a, &tpdo(0x1637, 0, 9), follow(0, 1000));
+        assert_eq!((o.controlword.0, o.target), (0x000F, 1000));
+        // 80 increments behind: corrected over 8 cycles of 1 ms, +10 000 inc/s.
+        let (o, fb) = ex(&mut a, &tpdo(0x1637, 20, 9), follow(100, 1000));
+        assert_eq!(o.target, 11_000);
+        assert!(!fb.motion_complete);
+        // At rest at the end.
+        let (o, fb) = ex(&mut a, &tpdo(0x1637, 100, 9), follow(100, 0));
+        assert_eq!(o.target, 0);
+        assert!(fb.motion_complete);
+    }
+
+    #[test]
+    fn cst_takes_forces_and_refuses_paths() {
+        let mut a = Cia402Axis::new(Layout::Generic(CyclicMode::Cst), CYCLE);
+        let force = Demand::Force {
+            permille: 40_000,
+            velocity_limit: 100,
+        };
+        let (o, _) = ex(&mut a, &tpdo(0x0637, 0, 1), force);
+        assert_eq!((o.mode, o.target), (10, 0));
+        // Clamped to the 16 bits of 6071h.
+        let (o, fb) = ex(&mut a, &tpdo(0x1637, 0, 10), force);
+        assert_eq!((o.controlword.0, o.target), (0x000F, i32::from(i16::MAX)));
+        assert!(fb.done);
+        let mut out = Image::default();
+        let e = a.exchange(
+            Some(&tpdo(0x1637, 0, 10)),
+            &Demand::Follow {
+                position: 5,
+                velocity: 0,
+            },
+            &mut out,
+        );
+        assert!(matches!(e, Err(AxisError::Unsupported(_))));
+        // A profile-position axis still refuses forces.
+        let mut pp = axis();
+        let e = pp.exchange(Some(&tpdo(0x0027, 0, 1)), &force, &mut out);
+        assert!(matches!(e, Err(AxisError::Unsupported(_))));
     }
 
     #[test]

@@ -67,15 +67,18 @@ pub enum DeviceKind {
     CmmoSt,
     /// Schneider TLC5xx (CANopen; CiA 402).
     Tlc5xx,
+    /// Any CiA 402 drive (CANopen; its facts from its EDS).
+    Cia402,
 }
 
 impl DeviceKind {
     /// Every kind, in the catalog's order.
-    pub const ALL: [DeviceKind; 4] = [
+    pub const ALL: [DeviceKind; 5] = [
         DeviceKind::MtrDci,
         DeviceKind::Emca,
         DeviceKind::CmmoSt,
         DeviceKind::Tlc5xx,
+        DeviceKind::Cia402,
     ];
 
     /// The device's facts (`drivers::catalog`).
@@ -85,6 +88,7 @@ impl DeviceKind {
             DeviceKind::Emca => &catalog::EMCA,
             DeviceKind::CmmoSt => &catalog::CMMO_ST,
             DeviceKind::Tlc5xx => &catalog::TLC5XX,
+            DeviceKind::Cia402 => &catalog::CIA402_GENERIC,
         }
     }
 
@@ -97,6 +101,75 @@ impl DeviceKind {
 impl core::fmt::Display for DeviceKind {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(self.label())
+    }
+}
+
+/// How a CiA 402 axis is commanded cyclically: the mode of operation its paths, jogs and
+/// forces use (`shared/reference/plcopen-and-cia402-csp.md` §7, §8). The configuration's
+/// `mode`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum CyclicMode {
+    /// Profile position (mode 1): set-points streamed through the handshake of bits 4/12,
+    /// as fast as the drive acknowledges them. The only mode of the TLC5xx and the MTR-DCI here.
+    #[default]
+    Pp,
+    /// Cyclic synchronous position (mode 8): 607Ah every cycle, latched at SYNC.
+    Csp,
+    /// Cyclic synchronous velocity (mode 9): 60FFh every cycle; the coordinator closes the
+    /// position loop of a path.
+    Csv,
+    /// Cyclic synchronous torque (mode 10): 6071h every cycle, from force demands.
+    Cst,
+}
+
+impl CyclicMode {
+    /// Every mode, in the order of their CiA 402 codes.
+    pub const ALL: [CyclicMode; 4] = [
+        CyclicMode::Pp,
+        CyclicMode::Csp,
+        CyclicMode::Csv,
+        CyclicMode::Cst,
+    ];
+
+    /// The name in the configuration.
+    pub const fn id(self) -> &'static str {
+        match self {
+            CyclicMode::Pp => "pp",
+            CyclicMode::Csp => "csp",
+            CyclicMode::Csv => "csv",
+            CyclicMode::Cst => "cst",
+        }
+    }
+
+    /// The CiA 402 mode of operation (6060h).
+    pub const fn operation_mode(self) -> drivers::cia402::modes::OperationMode {
+        use drivers::cia402::modes::OperationMode as M;
+        match self {
+            CyclicMode::Pp => M::ProfilePosition,
+            CyclicMode::Csp => M::CyclicSyncPosition,
+            CyclicMode::Csv => M::CyclicSyncVelocity,
+            CyclicMode::Cst => M::CyclicSyncTorque,
+        }
+    }
+
+    /// The object the RPDO carries the set-point in, with its bits (607Ah, 60FFh, 6071h).
+    pub const fn setpoint_entry(self) -> u32 {
+        match self {
+            CyclicMode::Pp | CyclicMode::Csp => 0x607A_0020,
+            CyclicMode::Csv => 0x60FF_0020,
+            CyclicMode::Cst => 0x6071_0010,
+        }
+    }
+}
+
+impl core::fmt::Display for CyclicMode {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            CyclicMode::Pp => "profile position",
+            CyclicMode::Csp => "cyclic synchronous position",
+            CyclicMode::Csv => "cyclic synchronous velocity",
+            CyclicMode::Cst => "cyclic synchronous torque",
+        })
     }
 }
 
@@ -300,9 +373,33 @@ impl DriveAxis {
             (DeviceKind::MtrDci, Profile::Cia402) => Ok(DriveAxis::Cia402(
                 cia402::Cia402Axis::new(cia402::Layout::MtrDci, cycle_ns),
             )),
+            (DeviceKind::Cia402, Profile::Cia402) => Ok(DriveAxis::Cia402(
+                cia402::Cia402Axis::new(cia402::Layout::Generic(CyclicMode::Csp), cycle_ns),
+            )),
             // Offered by the catalog without a master side here: refused the same way
             // (`images_match_the_catalog_pdo1` keeps this arm unreachable).
             _ => Err(unsupported),
+        }
+    }
+
+    /// The master side of a `kind` drive in `profile` commanded in `mode` (see
+    /// [`DriveAxis::new`]); refuses a mode the device does not take cyclically: the TLC5xx and
+    /// the MTR-DCI stream profile position only, FHPP has no such modes.
+    pub fn in_mode(
+        kind: DeviceKind,
+        profile: Profile,
+        mode: CyclicMode,
+        cycle_ns: u32,
+    ) -> Result<DriveAxis, AxisError> {
+        let axis = DriveAxis::new(kind, profile, cycle_ns)?;
+        match (kind, profile, mode) {
+            (DeviceKind::Cia402, Profile::Cia402, m) => Ok(DriveAxis::Cia402(
+                cia402::Cia402Axis::new(cia402::Layout::Generic(m), cycle_ns),
+            )),
+            (_, _, CyclicMode::Pp) => Ok(axis),
+            _ => Err(AxisError::Unsupported(
+                "a cyclic synchronous mode on a drive that offers profile position only",
+            )),
         }
     }
 
@@ -427,6 +524,24 @@ pub fn fpc_codec(kind: DeviceKind) -> Option<drivers::fhpp::fpc::Codec> {
     Some(Codec::new(v.parameter_channel(), ByteOrder::Little))
 }
 
+/// The cyclic PDOs for a `kind` drive in `profile` commanded in `mode`: [`pdo_mapping`], with
+/// a generic CiA 402 drive's RPDO carrying the mode's set-point object (the catalog's
+/// `CIA402_*_RPDO1`).
+pub fn pdo_mapping_in(kind: DeviceKind, profile: Profile, mode: CyclicMode) -> PdoMap {
+    use drivers::catalog::{CIA402_CSP_RPDO1, CIA402_CST_RPDO1, CIA402_CSV_RPDO1};
+    let mut map = pdo_mapping(kind, profile);
+    if kind == DeviceKind::Cia402
+        && let Some(r) = &mut map.rpdo
+    {
+        r.mapping = match mode {
+            CyclicMode::Pp | CyclicMode::Csp => CIA402_CSP_RPDO1,
+            CyclicMode::Csv => CIA402_CSV_RPDO1,
+            CyclicMode::Cst => CIA402_CST_RPDO1,
+        };
+    }
+    map
+}
+
 /// The cyclic PDOs the coordinator configures for a `kind` drive in `profile`: the catalog's
 /// PDO1 (see [`DriveAxis::rx_len`] for the image lengths they produce). Profiles the device does
 /// not offer, and Modbus drives, get no PDOs.
@@ -455,6 +570,29 @@ pub fn pdo_mapping(kind: DeviceKind, profile: Profile) -> PdoMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// In every cyclic mode the generic drive's image is as long as the mapping the boot writes;
+    /// the seed devices take profile position only.
+    #[test]
+    fn cyclic_modes_match_their_mapping() {
+        for mode in CyclicMode::ALL {
+            let axis =
+                DriveAxis::in_mode(DeviceKind::Cia402, Profile::Cia402, mode, 1_000_000).unwrap();
+            let map = pdo_mapping_in(DeviceKind::Cia402, Profile::Cia402, mode);
+            assert_eq!(map.rpdo.map(|p| p.len()), Some(axis.tx_len()), "{mode}");
+            assert_eq!(map.tpdo.map(|p| p.len()), Some(axis.rx_len()), "{mode}");
+            assert_eq!(
+                map.rpdo.map(|p| p.mapping[1]),
+                Some(mode.setpoint_entry()),
+                "{mode}"
+            );
+            let seed_ok = mode == CyclicMode::Pp;
+            for kind in [DeviceKind::Tlc5xx, DeviceKind::MtrDci] {
+                let a = DriveAxis::in_mode(kind, Profile::Cia402, mode, 1_000_000);
+                assert_eq!(a.is_ok(), seed_ok, "{kind} {mode}");
+            }
+        }
+    }
 
     /// The codecs' image lengths are the catalog's PDO1 lengths, for every profile offered.
     #[test]

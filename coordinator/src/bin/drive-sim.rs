@@ -173,12 +173,7 @@ fn prefix(axis: &Option<String>) -> String {
 
 /// The device's name as its manual writes it.
 fn device_name(kind: DeviceKind) -> &'static str {
-    match kind {
-        DeviceKind::MtrDci => "MTR-DCI",
-        DeviceKind::Emca => "EMCA",
-        DeviceKind::CmmoSt => "CMMO-ST",
-        DeviceKind::Tlc5xx => "TLC5xx",
-    }
+    kind.device().name
 }
 
 fn profile_name(profile: Profile) -> &'static str {

@@ -190,12 +190,73 @@ fn tlc_parameters(l: &AxisLimits) -> Vec<(drivers::canopen::Address, u32, u8)> {
     ]
 }
 
+/// The generic CiA 402 drive's parameters, in its own units (increments, increments/s,
+/// increments/s²: a drive whose factor group is not 1:1 is scaled by `increments_per_unit`):
+/// 60C2h the cycle (cyclic synchronous modes), 6065h the following-error window, 607Fh the
+/// velocity limit a quarter above the axis's (CSP clamps set-point steps with it), 6081h/6083h/
+/// 6084h the profile for PP and homing as for the TLC5xx, 6098h homing method 35 (the current
+/// position). Only objects the drive's EDS lists as writable are written; without an EDS, all
+/// (this project's simulator has them).
+fn cia402_parameters(
+    a: &AxisConfig,
+    l: &AxisLimits,
+    following_error: i64,
+    period: Duration,
+) -> Result<Vec<(drivers::canopen::Address, u32, u8)>, String> {
+    use drivers::canopen::Address;
+    let quarter_above = |v: u64| v.saturating_mul(5) / 4;
+    let u32_of = |v: u64| v.min(u64::from(u32::MAX)) as u32;
+    let mut p = Vec::new();
+    if a.mode() != axis::CyclicMode::Pp {
+        let (value, index) = drivers::cia402::modes::interpolation_time_period(period)
+            .ok_or_else(|| {
+                format!(
+                    "axes.{}.mode: the cycle of {} µs cannot be written to 60C2h (value 1..=255 × 10^index s)",
+                    a.name,
+                    period.as_micros()
+                )
+            })?;
+        p.push((Address::new(0x60C2, 1), u32::from(value), 1));
+        p.push((Address::new(0x60C2, 2), u32::from(index as u8), 1));
+    }
+    p.extend([
+        (
+            Address::new(0x6065, 0),
+            u32_of(following_error.unsigned_abs()),
+            4,
+        ),
+        (
+            Address::new(0x607F, 0),
+            u32_of(quarter_above(l.velocity)),
+            4,
+        ),
+        (Address::new(0x6081, 0), u32_of(l.velocity), 4),
+        (Address::new(0x6083, 0), u32_of(l.acceleration), 4),
+        (Address::new(0x6084, 0), u32_of(l.deceleration), 4),
+        (Address::new(0x6098, 0), 35, 1),
+    ]);
+    if let Some(eds) = &a.eds_read {
+        p.retain(|(addr, _, _)| eds.writable(addr.index, addr.sub));
+    }
+    Ok(p)
+}
+
 /// The EMCA's PNU 583 "direct start condition" = 1 (interrupt), over SDO 2000h + PNU: its
 /// default 0 ignores a START while moving, and the coordinator's streamed targets are STARTs
 /// while moving (EMCA manual, PNU 583). The CMMO-ST has the same parameter but no parameter
 /// channel in the 8-byte Modbus profile: it is commissioned so (see `runtime::sim`).
 fn emca_start_interrupts() -> (drivers::canopen::Address, u32, u8) {
     (drivers::canopen::Address::new(0x2000 + 583, 1), 1, 1)
+}
+
+/// The following-error limit, increments: the configured one, or the distance covered at full
+/// speed in 100 ms plus 6 cycles. Streamed setpoints lag by a few cycles (FHPP takes one every
+/// second cycle, the TLC5xx's PP handshake one every fourth) plus the drive's own loop.
+fn following_error_limit(a: &AxisConfig, lim: &AxisLimits, s: Scale, cycle_us: u32) -> i64 {
+    let lag_ms = 100 + 6 * u64::from(cycle_us) / 1000;
+    a.following_error
+        .map_or(lim.velocity * lag_ms / 1000, |e| inc(e, s))
+        .max(1) as i64
 }
 
 /// Turns a configuration that passed [`Config::check`] into a machine plan.
@@ -276,12 +337,20 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             };
             let node = NodeId::new(n)
                 .ok_or_else(|| format!("axes.{}.node: {n} is not 1..=127", a.name))?;
-            let map = axis::pdo_mapping(k, p);
+            let map = axis::pdo_mapping_in(k, p, a.mode());
             let entries = |s: Option<axis::PdoSpec>| s.map_or(&[][..], |s| s.mapping);
             let mut bp = boot::plan_for(node, k, entries(map.rpdo), entries(map.tpdo), sp)
                 .map_err(|e| format!("axes.{}: {e}", a.name))?;
             if k == DeviceKind::Tlc5xx {
                 bp.parameters = tlc_parameters(&lim);
+            }
+            if k == DeviceKind::Cia402 {
+                let fe = following_error_limit(a, &lim, s, cycle_us);
+                bp.parameters = cia402_parameters(a, &lim, fe, period)?;
+                if let Some(eds) = &a.eds_read {
+                    bp.device_type = eds.device_type.or(bp.device_type);
+                    bp.vendor_id = eds.vendor_id.or(bp.vendor_id);
+                }
             }
             if a.fpc
                 && let Some(m) = axis::fpc_mapping(k, p)
@@ -307,14 +376,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 Some(bp),
             )
         };
-        // The default following-error limit: the distance covered at full speed in 100 ms plus
-        // 6 cycles. Streamed setpoints lag by a few cycles (FHPP takes one every second cycle,
-        // the TLC5xx's PP handshake one every fourth) plus the drive's own loop.
-        let lag_ms = 100 + 6 * u64::from(cycle_us) / 1000;
-        let fe = a
-            .following_error
-            .map_or(lim.velocity * lag_ms / 1000, |e| inc(e, s))
-            .max(1) as i64;
+        let fe = following_error_limit(a, &lim, s, cycle_us);
         let mut records: Vec<DriveRecordPlan> = cfg
             .records
             .iter()
@@ -347,6 +409,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 following_error: fe,
                 late_cycles: if a.device.is_modbus() { 0 } else { 3 },
                 fpc: a.fpc && axis::fpc_mapping(k, p).is_some(),
+                mode: a.mode(),
             },
             simulated: if a.device.is_modbus() {
                 a.simulated

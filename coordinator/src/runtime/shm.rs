@@ -267,6 +267,7 @@ pub fn describe(plan: &MachinePlan) -> Box<MachineDescription> {
             DeviceKind::Emca => wire::device::EMCA,
             DeviceKind::CmmoSt => wire::device::CMMO_ST,
             DeviceKind::Tlc5xx => wire::device::TLC5XX,
+            DeviceKind::Cia402 => wire::device::CIA402,
         };
         w.profile = match setup.profile {
             Profile::Fhpp => wire::profile::FHPP,

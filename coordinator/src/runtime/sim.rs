@@ -170,6 +170,11 @@ impl SimBus {
                     Tlc5xx::new(TlcConfig::new(id), now).map_err(|e| err(&e))?,
                 ))),
                 (DeviceKind::CmmoSt, _) => continue,
+                (DeviceKind::Cia402, _) => {
+                    return Err(err(
+                        &"the generic CiA 402 drive has no simulator inside the coordinator yet",
+                    ));
+                }
             };
             drives.push((a.name.clone(), d));
         }

@@ -127,6 +127,43 @@ impl OperationMode {
     }
 }
 
+/// 60C2h "interpolation time period" for a cycle: (sub 1 value, sub 2 index) with
+/// period = value × 10^index s, the index as large as the period allows so the value is
+/// exact (1 ms = (1, −3), 2 ms = (2, −3), 250 µs = (25, −5), 1.5 ms = (15, −4)); `None` for a
+/// period that no value of 1..=255 at an index of −6..=0 gives exactly.
+pub const fn interpolation_time_period(period: Duration) -> Option<(u8, i8)> {
+    let us = period.as_micros();
+    if us == 0 || !period.subsec_nanos().is_multiple_of(1000) {
+        return None;
+    }
+    // From seconds down to microseconds: the first exponent whose value fits 1..=255 exactly.
+    let mut index: i8 = 0;
+    let mut unit: u128 = 1_000_000;
+    while index >= -6 {
+        if us.is_multiple_of(unit) && us / unit <= 255 {
+            return Some(((us / unit) as u8, index));
+        }
+        index -= 1;
+        unit /= 10;
+    }
+    None
+}
+
+/// The period 60C2h's (value, index) stand for; `None` for an index outside −6..=0 or a zero
+/// value.
+pub const fn interpolation_period_of(value: u8, index: i8) -> Option<Duration> {
+    if value == 0 || index < -6 || index > 0 {
+        return None;
+    }
+    let mut us: u64 = value as u64 * 1_000_000;
+    let mut i = index;
+    while i < 0 {
+        us /= 10;
+        i += 1;
+    }
+    Some(Duration::from_micros(us))
+}
+
 impl DeviceProfile {
     /// The 6502h "supported drive modes" value of the device (MTR-DCI: 0x29).
     pub fn supported_drive_modes(&self) -> u32 {
@@ -547,6 +584,27 @@ impl PvMonitor {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn interpolation_time_period_is_exact_and_round_trips() {
+        let us = Duration::from_micros;
+        assert_eq!(interpolation_time_period(us(1000)), Some((1, -3)));
+        assert_eq!(interpolation_time_period(us(2000)), Some((2, -3)));
+        assert_eq!(interpolation_time_period(us(250)), Some((25, -5)));
+        assert_eq!(interpolation_time_period(us(255)), Some((255, -6)));
+        assert_eq!(interpolation_time_period(us(1500)), Some((15, -4)));
+        assert_eq!(interpolation_time_period(us(4_000_000)), Some((4, 0)));
+        // 257 µs: no value of 1..=255 gives it exactly.
+        assert_eq!(interpolation_time_period(us(257)), None);
+        assert_eq!(interpolation_time_period(Duration::from_nanos(1500)), None);
+        assert_eq!(interpolation_time_period(Duration::ZERO), None);
+        for p in [1u64, 125, 250, 500, 1000, 1500, 2000, 4000, 10_000, 100_000] {
+            let (v, i) = interpolation_time_period(us(p)).unwrap();
+            assert_eq!(interpolation_period_of(v, i), Some(us(p)), "{p} µs");
+        }
+        assert_eq!(interpolation_period_of(0, -3), None);
+        assert_eq!(interpolation_period_of(1, -7), None);
+    }
     use super::*;
     use crate::cia402::{MTR_DCI, TLC5XX};
 

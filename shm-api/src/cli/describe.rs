@@ -150,6 +150,7 @@ pub fn catalog_device(code: u8) -> Option<&'static Device> {
         device::EMCA => Some(&catalog::EMCA),
         device::CMMO_ST => Some(&catalog::CMMO_ST),
         device::TLC5XX => Some(&catalog::TLC5XX),
+        device::CIA402 => Some(&catalog::CIA402_GENERIC),
         _ => None,
     }
 }
