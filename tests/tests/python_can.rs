@@ -2,8 +2,8 @@
 //! engineer would use them: `python/motion-vbus` (the `vbus` python-can interface) under
 //! `python/motion-vbus/examples/tlc5xx_canopen.py`: NMT, SDO (expedited and segmented, both
 //! ways), PDO remapping read back, a CiA 402 profile-position move over PDOs and SYNC, and every
-//! readable object of each simulated device read by SDO against the EDS `drive-sim --eds` gives.
-//! Meanwhile `canbus dump` (Rust) logs the bus: every frame Python received is in its log, in
+//! readable object of each simulated device read by SDO against the EDS `drive-sim --write-eds`
+//! gives. Meanwhile `canbus dump` (Rust) logs the bus: every frame Python received is in its log, in
 //! the same order, with the same time.
 //!
 //! Needs python3 with python-can, python-canopen, the iceoryx2 bindings and motion-vbus
@@ -165,10 +165,10 @@ fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
     let mut eds = Vec::new();
     for kind in ["tlc5xx", "mtr-dci", "emca"] {
         let out = Command::new(&drive_sim)
-            .args(["--eds", kind])
+            .args(["--write-eds", kind])
             .output()
             .unwrap();
-        assert!(out.status.success(), "drive-sim --eds {kind}");
+        assert!(out.status.success(), "drive-sim --write-eds {kind}");
         let path = p.dir.join(format!("{kind}.eds"));
         std::fs::write(&path, &out.stdout).unwrap();
         eds.push(path);

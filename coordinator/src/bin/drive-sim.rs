@@ -89,7 +89,7 @@ enum ProfileArg {
 /// Simulated drives as their own process: the drives of a coordinator configuration
 /// (`--config`), or drives of one kind (`--device`).
 #[derive(Debug, Parser)]
-#[command(version, group(ArgGroup::new("what").required(true).args(["config", "device", "eds"])))]
+#[command(version, group(ArgGroup::new("what").required(true).args(["config", "device", "write_eds"])))]
 struct Cli {
     /// A coordinator configuration: start every drive it dials (the axes on `vbus` buses and
     /// the CMMO-STs without `simulated = true`).
@@ -105,7 +105,7 @@ struct Cli {
     /// powered drive has it; COB-IDs relative to $NODEID) and exit. With `--profile` for the
     /// MTR-DCI's CiA 402 face.
     #[arg(long, value_enum, value_name = "DEVICE", conflicts_with_all = ["config", "device", "bus", "nodes", "modbus", "bitrate", "duration"])]
-    eds: Option<DeviceArg>,
+    write_eds: Option<DeviceArg>,
     /// The CAN bus: `vbus:NAME` (the shared-memory virtual bus).
     #[arg(long, required_if_eq_any([("device", "mtr-dci"), ("device", "emca"), ("device", "tlc5xx")]))]
     bus: Option<String>,
@@ -765,13 +765,13 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     Ok(())
 }
 
-/// `--eds DEVICE`: the EDS of a freshly built simulator of that device.
+/// `--write-eds DEVICE`: the EDS of a freshly built simulator of that device.
 fn eds_of(device: DeviceArg, profile: Option<ProfileArg>) -> Result<String, String> {
     let kind = device.kind();
     let facts = kind.device();
     if kind.is_modbus() {
         return Err(format!(
-            "--eds {}: the {} speaks Modbus TCP, not CANopen; it has no EDS",
+            "--write-eds {}: the {} speaks Modbus TCP, not CANopen; it has no EDS",
             facts.id, facts.name
         ));
     }
@@ -812,7 +812,7 @@ fn eds_of(device: DeviceArg, profile: Option<ProfileArg>) -> Result<String, Stri
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    if let Some(device) = cli.eds {
+    if let Some(device) = cli.write_eds {
         return match eds_of(device, cli.profile) {
             Ok(text) => {
                 // A closed pipe (`| head`) is the reader's choice, not an error.
