@@ -596,3 +596,241 @@ fn cmmo_st_process_answers_a_modbus_client() {
     let resp = transact(&mut c, &FC17_ZERO);
     assert_eq!(resp[7], 0x17);
 }
+
+/// An expedited SDO download to `node`, which must succeed.
+fn write(st: &mut Station<ShmBus, M>, node: NodeId, index: u16, sub: u8, data: &[u8]) {
+    st.endpoint
+        .sdo(node)
+        .unwrap()
+        .download(Address::new(index, sub), data, DownloadMode::Expedited)
+        .unwrap();
+    if let Err(e) = sdo(st, node) {
+        panic!("writing {index:04X}h:{sub} = {data:02X?}: {e}");
+    }
+}
+
+/// An SDO upload of up to 4 bytes from `node`, as a little-endian number.
+fn read(st: &mut Station<ShmBus, M>, node: NodeId, index: u16, sub: u8) -> i64 {
+    st.endpoint
+        .sdo(node)
+        .unwrap()
+        .upload(Address::new(index, sub))
+        .unwrap();
+    let v = sdo(st, node).unwrap_or_else(|e| panic!("reading {index:04X}h:{sub}: {e}"));
+    let mut b = [0u8; 8];
+    b[..v.len()].copy_from_slice(&v);
+    match v.len() {
+        2 => i64::from(u16::from_le_bytes([b[0], b[1]])),
+        4 => i64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+        _ => i64::from_le_bytes(b),
+    }
+}
+
+/// What the master saw of a homing run: the last statusword, and each (position 6064h,
+/// inputs 60FDh) polled while it ran; an input counts as on when it was on both before and
+/// after the position was read (the three reads are separate SDO transfers).
+struct HomingRun {
+    statusword: i64,
+    seen: Vec<(i64, i64)>,
+}
+
+/// Enables the TLC5xx of `drive-sim ... --node 5 EXTRA` and starts homing `method` (search
+/// 600 rpm, creep 6 rpm off the switch, 60000 rpm/s), all over SDO; polls it until the
+/// statusword shows the end (bit 12 homing attained, or bit 13 error) or `until` holds.
+fn home(extra: &[&str], method: i8, mut until: impl FnMut(&HomingRun) -> bool) -> HomingRun {
+    let (_child, mut st, _) = read_device_type("tlc5xx", extra);
+    let n = NodeId::new(5).unwrap();
+    write(&mut st, n, 0x6099, 1, &600i32.to_le_bytes());
+    write(&mut st, n, 0x6099, 2, &6i32.to_le_bytes());
+    write(&mut st, n, 0x6083, 0, &60_000u32.to_le_bytes());
+    write(&mut st, n, 0x6098, 0, &[method as u8]);
+    for cw in [0x06u16, 0x07, 0x0F] {
+        write(&mut st, n, 0x6040, 0, &cw.to_le_bytes());
+    }
+    let sw = read(&mut st, n, 0x6041, 0);
+    assert_eq!(sw & 0x6F, 0x27, "operation enabled: statusword {sw:04X}h");
+    write(&mut st, n, 0x6060, 0, &[6]);
+    assert_eq!(read(&mut st, n, 0x6061, 0), 6, "homing mode displayed");
+    // Bit 4 rising starts the method of 6098h.
+    write(&mut st, n, 0x6040, 0, &0x1Fu16.to_le_bytes());
+    let mut run = HomingRun {
+        statusword: 0,
+        seen: Vec::new(),
+    };
+    let end = WallInstant::now() + PATIENCE;
+    loop {
+        run.statusword = read(&mut st, n, 0x6041, 0);
+        let before = read(&mut st, n, 0x60FD, 0);
+        let p = read(&mut st, n, 0x6064, 0);
+        let after = read(&mut st, n, 0x60FD, 0);
+        run.seen.push((p, before & after));
+        // Bit 12 comes with bit 10 once the drive stands at the reference point.
+        if run.statusword & 0x3400 == 0x1400 || run.statusword & 0x2000 != 0 || until(&run) {
+            return run;
+        }
+        assert!(
+            WallInstant::now() < end,
+            "homing method {method} neither ended nor reached the test's condition; statusword \
+             {:04X}h, last position {p}",
+            run.statusword
+        );
+    }
+}
+
+/// 60FDh digital inputs (TLC5xx manual §6.12): bit 0 LIMN, 1 LIMP, 2 REF.
+const LIMN: i64 = 1;
+const LIMP: i64 = 2;
+const REF: i64 = 4;
+
+#[test]
+fn tlc5xx_switches_let_homing_methods_finish_in_a_drive_sim_process() {
+    let limits = ["--limit-negative", "-50000", "--limit-positive", "50000"];
+    // (method, reference cam, the input it homes on, where that switch releases: the edge).
+    // 23 searches upwards onto the cam and creeps back off its lower edge; 27 searches
+    // downwards onto a cam below 0 and creeps back off its upper edge.
+    let cases: [(i8, &str, i64, i64); 4] = [
+        (17, "10000..12000", LIMN, -50_000),
+        (18, "10000..12000", LIMP, 50_000),
+        (23, "10000..12000", REF, 10_000),
+        (27, "-12000..-10000", REF, -10_000),
+    ];
+    for (method, cam, input, edge) in cases {
+        let args = [&limits[..], &["--reference", cam]].concat();
+        let run = home(&args, method, |_| false);
+        assert_eq!(
+            run.statusword & 0x3400,
+            0x1400,
+            "method {method}: homing attained and standing, no error (statusword {:04X}h)",
+            run.statusword
+        );
+        // It went onto its switch: the input was seen on, at positions past the edge (the
+        // drive counts from its power-on 0 until the reference is set).
+        let on: Vec<i64> = run
+            .seen
+            .iter()
+            .filter(|(_, i)| i & input != 0)
+            .map(|(p, _)| *p)
+            .collect();
+        assert!(
+            !on.is_empty(),
+            "method {method}: input {input} never seen on"
+        );
+        // Below 0 the switch lies below its edge (LIMN, the low cam), above 0 above it.
+        let beyond = |p: &i64| if edge < 0 { *p <= edge } else { *p >= edge };
+        assert!(
+            on.iter().all(beyond),
+            "method {method}: positions with the switch on {:?} .. {:?}, edge {edge}",
+            on.iter().min(),
+            on.iter().max()
+        );
+        // Done: the reference point is 200 increments (p_disHome 20F4h) off the edge, the
+        // switch is off there, and 6064h counts from it (home position 0).
+        let (p, inputs) = *run.seen.last().unwrap();
+        assert_eq!(p, 0, "method {method}: 6064h at the reference point");
+        assert_eq!(
+            inputs & (LIMN | LIMP | REF),
+            0,
+            "method {method}: off every switch"
+        );
+    }
+}
+
+#[test]
+fn tlc5xx_homing_without_its_switch_does_not_finish() {
+    // No switches at all: method 17 searches for LIMN and goes on searching (the simulator
+    // gives up only after 2^30 increments, hours at this speed); it never reports an end.
+    let run = home(&[], 17, |r| {
+        r.seen.len() > 3 && r.seen.last().unwrap().0 < -200_000
+    });
+    assert_eq!(
+        run.statusword & 0x3000,
+        0,
+        "still running: neither attained nor an error (statusword {:04X}h)",
+        run.statusword
+    );
+    let positions: Vec<i64> = run.seen.iter().map(|(p, _)| *p).collect();
+    assert!(
+        positions.windows(2).all(|w| w[1] <= w[0]),
+        "it keeps searching downwards"
+    );
+    assert!(run.seen.iter().all(|(_, i)| i & (LIMN | LIMP | REF) == 0));
+
+    // The limit switches but no reference: method 23 searches upwards, runs onto LIMP before
+    // any REF, and stops there with the homing error (bit 13).
+    let run = home(
+        &["--limit-negative", "-50000", "--limit-positive", "50000"],
+        23,
+        |_| false,
+    );
+    assert_eq!(
+        run.statusword & 0x3000,
+        0x2000,
+        "homing error (statusword {:04X}h)",
+        run.statusword
+    );
+    assert!(run.seen.iter().any(|(_, i)| i & LIMP != 0), "LIMP reached");
+}
+
+#[test]
+fn tlc5xx_switch_refusals_name_the_option_and_what_is_allowed() {
+    let bus = format!("vbus:{}", unique("dsw"));
+    let tlc = ["--device", "tlc5xx", "--bus", bus.as_str(), "--node", "5"];
+    for (args, expected) in [
+        (
+            &["--limit-negative", "inf"][..],
+            "--limit-negative inf: give whole motor increments, -2147483648 to 2147483647",
+        ),
+        (
+            &["--limit-negative", "NaN"],
+            "--limit-negative NaN: give whole motor increments",
+        ),
+        (
+            &["--limit-positive", "1.5"],
+            "--limit-positive 1.5: give whole motor increments",
+        ),
+        (
+            &["--limit-positive", "3e9"],
+            "--limit-positive 3e9: give whole motor increments",
+        ),
+        (
+            &["--limit-negative", "10"],
+            "--limit-negative 10: give 0 or less",
+        ),
+        (
+            &["--limit-positive", "0"],
+            "--limit-positive 0: give 1 or more",
+        ),
+        (
+            &["--reference", "10000"],
+            "--reference 10000: give FROM..TO",
+        ),
+        (
+            &["--reference", "12000..10000"],
+            "--reference 12000..10000: FROM must be below TO",
+        ),
+        (
+            &["--limit-positive", "50000", "--reference", "40000..60000"],
+            "--reference 40000..60000: the cam must lie between the limit switches (none .. 50000)",
+        ),
+    ] {
+        refused(&[&tlc[..], args].concat(), &[expected]);
+    }
+    refused(
+        &[
+            "--device",
+            "emca",
+            "--bus",
+            &bus,
+            "--node",
+            "5",
+            "--limit-negative",
+            "-100",
+        ],
+        &["--limit-negative -100: the EMCA simulator has no switches"],
+    );
+    let m = machine();
+    refused(
+        &["--config", m.file.path(), "--reference", "1..2"],
+        &["--reference 1..2: the switches are options of --device tlc5xx"],
+    );
+}
