@@ -805,6 +805,10 @@ fn tlc5xx_switch_refusals_name_the_option_and_what_is_allowed() {
             "--reference 10000: give FROM..TO",
         ),
         (
+            &["--reference", "10000..1e99"],
+            "--reference 10000..1e99: FROM and TO: give whole motor increments",
+        ),
+        (
             &["--reference", "12000..10000"],
             "--reference 12000..10000: FROM must be below TO",
         ),

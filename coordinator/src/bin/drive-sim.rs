@@ -232,7 +232,15 @@ impl Switches {
                          is active (e.g. 10000..12000)"
                     ));
                 };
-                let (from, to) = (position("--reference", a)?, position("--reference", b)?);
+                // The refusal quotes the whole FROM..TO the user wrote.
+                let whole = |_| {
+                    format!(
+                        "--reference {t}: FROM and TO: {}",
+                        SWITCH_POSITION.refusal()
+                    )
+                };
+                let from = position("--reference", a).map_err(whole)?;
+                let to = position("--reference", b).map_err(whole)?;
                 if from >= to {
                     return Err(format!(
                         "--reference {t}: FROM must be below TO (the switch is active from FROM \
