@@ -15,8 +15,14 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant as WallInstant};
 
+use coordinator::axis::{
+    AxisState, Demand, DeviceKind as AxisKind, DriveAxis, Feedback, Image, Profile as AxisProfile,
+    pdo_mapping,
+};
 use drivers::can::shm_bus::ShmBus;
 use drivers::can::station::Station;
+use drivers::can::{Bus, Frame};
+use drivers::canopen::FunctionCode;
 use drivers::canopen::master::{Master, Supervision};
 use drivers::canopen::sdo::{DownloadMode, SdoError};
 use drivers::canopen::{AbortCode, Address, NodeId};
@@ -512,6 +518,12 @@ fn option_refusals_exit_1_naming_the_option() {
 /// Starts `drive-sim --device DEVICE` as node 5 and reads 1000h from it over the shared-memory
 /// bus; returns the master station for more requests.
 fn read_device_type(device: &str, extra: &[&str]) -> (Proc, Station<ShmBus, M>, Vec<u8>) {
+    let (child, st, v, _) = start_device(device, extra);
+    (child, st, v)
+}
+
+/// [`read_device_type`], with the bus name too (without `vbus:`).
+fn start_device(device: &str, extra: &[&str]) -> (Proc, Station<ShmBus, M>, Vec<u8>, String) {
     let bus_name = unique("dsim");
     let bus_arg = format!("vbus:{bus_name}");
     let mut args = vec![
@@ -528,7 +540,7 @@ fn read_device_type(device: &str, extra: &[&str]) -> (Proc, Station<ShmBus, M>, 
     let child = Proc::spawn(&args);
     let mut st = master(&bus_name, &[5]);
     let v = device_type(&mut st, 5);
-    (child, st, v)
+    (child, st, v, bus_name)
 }
 
 #[test]
@@ -632,6 +644,8 @@ fn read(st: &mut Station<ShmBus, M>, node: NodeId, index: u16, sub: u8) -> i64 {
 struct HomingRun {
     statusword: i64,
     seen: Vec<(i64, i64)>,
+    /// 603Fh at the end (0: no error).
+    error_code: i64,
 }
 
 /// Enables the TLC5xx of `drive-sim ... --node 5 EXTRA` and starts homing `method` (search
@@ -656,6 +670,7 @@ fn home(extra: &[&str], method: i8, mut until: impl FnMut(&HomingRun) -> bool) -
     let mut run = HomingRun {
         statusword: 0,
         seen: Vec::new(),
+        error_code: 0,
     };
     let end = WallInstant::now() + PATIENCE;
     loop {
@@ -666,6 +681,12 @@ fn home(extra: &[&str], method: i8, mut until: impl FnMut(&HomingRun) -> bool) -
         run.seen.push((p, before & after));
         // Bit 12 comes with bit 10 once the drive stands at the reference point.
         if run.statusword & 0x3400 == 0x1400 || run.statusword & 0x2000 != 0 || until(&run) {
+            if run.statusword & 0x2000 != 0 {
+                // The homing error comes first; a fault it leads to follows within ticks.
+                std::thread::sleep(Duration::from_millis(200));
+                run.statusword = read(&mut st, n, 0x6041, 0);
+            }
+            run.error_code = read(&mut st, n, 0x603F, 0);
             return run;
         }
         assert!(
@@ -732,6 +753,7 @@ fn tlc5xx_switches_let_homing_methods_finish_in_a_drive_sim_process() {
             0,
             "method {method}: off every switch"
         );
+        assert_eq!(run.error_code, 0, "method {method}: 603Fh");
     }
 }
 
@@ -756,7 +778,8 @@ fn tlc5xx_homing_without_its_switch_does_not_finish() {
     assert!(run.seen.iter().all(|(_, i)| i & (LIMN | LIMP | REF) == 0));
 
     // The limit switches but no reference: method 23 searches upwards, runs onto LIMP before
-    // any REF, and stops there with the homing error (bit 13).
+    // any REF, and stops there with the homing error (bit 13) and the limit switch fault
+    // (Fault, 603Fh = FF01h).
     let run = home(
         &["--limit-negative", "-50000", "--limit-positive", "50000"],
         23,
@@ -769,6 +792,8 @@ fn tlc5xx_homing_without_its_switch_does_not_finish() {
         run.statusword
     );
     assert!(run.seen.iter().any(|(_, i)| i & LIMP != 0), "LIMP reached");
+    assert_eq!(run.statusword & 0x4F, 0x08, "Fault");
+    assert_eq!(run.error_code, 0xFF01, "603Fh: positive limit switch");
 }
 
 #[test]
@@ -836,5 +861,122 @@ fn tlc5xx_switch_refusals_name_the_option_and_what_is_allowed() {
     refused(
         &["--config", m.file.path(), "--reference", "1..2"],
         &["--reference 1..2: the switches are options of --device tlc5xx"],
+    );
+}
+
+/// The coordinator's own CiA 402 axis (`coordinator::axis::DriveAxis`, the code `coordinator
+/// run` drives a TLC5xx with) homes the TLC5xx of `drive-sim ... --node 5 EXTRA` with
+/// `method`, as `coordinator/tests/axes.rs` does with the in-process simulator: PDO1 mapped
+/// over SDO as the coordinator's boot maps it (`pdo_mapping`), 6098h written, NMT start, then
+/// per cycle a SYNC, the drive's TPDO1 into the axis and the axis's RPDO1 out. Each cycle
+/// waits for its TPDO (lockstep), so a busy host slows the test but cannot fail it. Enables
+/// (Standstill until ready), then demands Home until the axis reports it done or failed, or
+/// the drive faulted.
+fn home_with_the_coordinators_axis(extra: &[&str], method: i8) -> Feedback {
+    let (_child, mut st, _, bus_name) = start_device("tlc5xx", extra);
+    let n = NodeId::new(5).unwrap();
+    let map = pdo_mapping(AxisKind::Tlc5xx, AxisProfile::Cia402);
+    for (spec, comm, mapping) in [
+        (map.rpdo.unwrap(), 0x1400u16, 0x1600u16),
+        (map.tpdo.unwrap(), 0x1800, 0x1A00),
+    ] {
+        let cob = u32::from(spec.function.cob_id(n));
+        let comm = comm + u16::from(spec.number) - 1;
+        let mapping = mapping + u16::from(spec.number) - 1;
+        if spec.remappable {
+            write(&mut st, n, comm, 1, &(cob | 0x8000_0000).to_le_bytes());
+            write(&mut st, n, mapping, 0, &[0]);
+            for (k, e) in spec.mapping.iter().enumerate() {
+                write(&mut st, n, mapping, k as u8 + 1, &e.to_le_bytes());
+            }
+            write(&mut st, n, mapping, 0, &[spec.mapping.len() as u8]);
+        }
+        write(&mut st, n, comm, 2, &[spec.transmission]);
+        if spec.remappable {
+            write(&mut st, n, comm, 1, &cob.to_le_bytes());
+        }
+    }
+    write(&mut st, n, 0x6081, 0, &1200u32.to_le_bytes());
+    write(&mut st, n, 0x6083, 0, &60_000u32.to_le_bytes());
+    write(&mut st, n, 0x6084, 0, &60_000u32.to_le_bytes());
+    write(&mut st, n, 0x6098, 0, &[method as u8]);
+    write(&mut st, n, 0x6099, 1, &600i32.to_le_bytes());
+    write(&mut st, n, 0x6099, 2, &60i32.to_le_bytes());
+
+    let mut bus = ShmBus::open(&bus_name, 1_000_000).unwrap();
+    let send = |bus: &mut ShmBus, f: Frame| {
+        let end = WallInstant::now() + PATIENCE;
+        while let Err(e) = bus.send(&f) {
+            assert!(WallInstant::now() < end, "sending {f}: {e}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    };
+    send(&mut bus, Frame::new_std(0x000, &[0x01, 5]).unwrap());
+    let tpdo1 = FunctionCode::Tpdo(1).cob_id(n);
+    let rpdo1 = FunctionCode::Rpdo(1).cob_id(n);
+    let mut axis = DriveAxis::new(AxisKind::Tlc5xx, AxisProfile::Cia402, 10_000_000).unwrap();
+    let mut out = Image::default();
+    let mut homing = false;
+    let end = WallInstant::now() + PATIENCE;
+    loop {
+        send(&mut bus, Frame::new_std(0x080, &[]).unwrap());
+        // This cycle's TPDO1 (the drive answers the SYNC); older frames are skipped.
+        let input = loop {
+            let f = bus
+                .recv_until(monotonic_now() + Duration::from_millis(500))
+                .unwrap();
+            match f {
+                Some(f) if f.cob_id() == Some(tpdo1) => break Some(f.data().to_vec()),
+                Some(_) => continue,
+                None => break None,
+            }
+        };
+        let demand = if homing {
+            Demand::Home
+        } else {
+            Demand::Standstill
+        };
+        let fb = axis.exchange(input.as_deref(), &demand, &mut out).unwrap();
+        send(&mut bus, Frame::new_std(rpdo1, out.bytes()).unwrap());
+        if !homing && fb.done && fb.state == AxisState::Ready {
+            homing = true;
+        } else if homing && (fb.done || fb.failed || fb.state == AxisState::Fault) {
+            return fb;
+        }
+        assert!(
+            WallInstant::now() < end,
+            "method {method}: the axis did not end homing ({fb:?})"
+        );
+        // About the coordinator's 10 ms cycle; the wait for the TPDO paces it too.
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+#[test]
+fn the_coordinators_cia402_axis_homes_a_drive_sim_tlc5xx_on_its_switches() {
+    let switches = [
+        "--limit-negative",
+        "-50000",
+        "--limit-positive",
+        "50000",
+        "--reference",
+        "10000..12000",
+    ];
+    for method in [17, 18, 23] {
+        let fb = home_with_the_coordinators_axis(&switches, method);
+        assert!(
+            fb.homed && fb.motion_complete && !fb.failed,
+            "method {method}: {fb:?}"
+        );
+        // The reference point reads 0 (the home position of 6098h's methods).
+        assert_eq!(fb.position, 0, "method {method}");
+    }
+    // Without its switch homing cannot complete: 23 with no REF runs onto LIMP, where the
+    // drive reports the homing error (bit 13), then faults (limit switch). The axis ends at
+    // whichever it sees first: the demand failed, or the fault; never homed.
+    let fb = home_with_the_coordinators_axis(&switches[..4], 23);
+    assert!(
+        (fb.failed || fb.state == AxisState::Fault) && fb.status & 0x2000 != 0 && !fb.homed,
+        "{fb:?}"
     );
 }
