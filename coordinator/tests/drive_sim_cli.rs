@@ -15,8 +15,14 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant as WallInstant};
 
+use coordinator::axis::{
+    AxisState, Demand, DeviceKind as AxisKind, DriveAxis, Feedback, Image, Profile as AxisProfile,
+    pdo_mapping,
+};
 use drivers::can::shm_bus::ShmBus;
 use drivers::can::station::Station;
+use drivers::can::{Bus, Frame};
+use drivers::canopen::FunctionCode;
 use drivers::canopen::master::{Master, Supervision};
 use drivers::canopen::sdo::{DownloadMode, SdoError};
 use drivers::canopen::{AbortCode, Address, NodeId};
@@ -512,6 +518,12 @@ fn option_refusals_exit_1_naming_the_option() {
 /// Starts `drive-sim --device DEVICE` as node 5 and reads 1000h from it over the shared-memory
 /// bus; returns the master station for more requests.
 fn read_device_type(device: &str, extra: &[&str]) -> (Proc, Station<ShmBus, M>, Vec<u8>) {
+    let (child, st, v, _) = start_device(device, extra);
+    (child, st, v)
+}
+
+/// [`read_device_type`], with the bus name too (without `vbus:`).
+fn start_device(device: &str, extra: &[&str]) -> (Proc, Station<ShmBus, M>, Vec<u8>, String) {
     let bus_name = unique("dsim");
     let bus_arg = format!("vbus:{bus_name}");
     let mut args = vec![
@@ -528,7 +540,7 @@ fn read_device_type(device: &str, extra: &[&str]) -> (Proc, Station<ShmBus, M>, 
     let child = Proc::spawn(&args);
     let mut st = master(&bus_name, &[5]);
     let v = device_type(&mut st, 5);
-    (child, st, v)
+    (child, st, v, bus_name)
 }
 
 #[test]
@@ -595,4 +607,376 @@ fn cmmo_st_process_answers_a_modbus_client() {
     assert_eq!(resp, [0x00, 0x02, 0x00, 0x00, 0x00, 0x03, 0x00, 0xC2, 0x01]);
     let resp = transact(&mut c, &FC17_ZERO);
     assert_eq!(resp[7], 0x17);
+}
+
+/// An expedited SDO download to `node`, which must succeed.
+fn write(st: &mut Station<ShmBus, M>, node: NodeId, index: u16, sub: u8, data: &[u8]) {
+    st.endpoint
+        .sdo(node)
+        .unwrap()
+        .download(Address::new(index, sub), data, DownloadMode::Expedited)
+        .unwrap();
+    if let Err(e) = sdo(st, node) {
+        panic!("writing {index:04X}h:{sub} = {data:02X?}: {e}");
+    }
+}
+
+/// An SDO upload of up to 4 bytes from `node`, as a little-endian number.
+fn read(st: &mut Station<ShmBus, M>, node: NodeId, index: u16, sub: u8) -> i64 {
+    st.endpoint
+        .sdo(node)
+        .unwrap()
+        .upload(Address::new(index, sub))
+        .unwrap();
+    let v = sdo(st, node).unwrap_or_else(|e| panic!("reading {index:04X}h:{sub}: {e}"));
+    let mut b = [0u8; 8];
+    b[..v.len()].copy_from_slice(&v);
+    match v.len() {
+        2 => i64::from(u16::from_le_bytes([b[0], b[1]])),
+        4 => i64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+        _ => i64::from_le_bytes(b),
+    }
+}
+
+/// What the master saw of a homing run: the last statusword, and each (position 6064h,
+/// inputs 60FDh) polled while it ran; an input counts as on when it was on both before and
+/// after the position was read (the three reads are separate SDO transfers).
+struct HomingRun {
+    statusword: i64,
+    seen: Vec<(i64, i64)>,
+    /// 603Fh at the end (0: no error).
+    error_code: i64,
+}
+
+/// Enables the TLC5xx of `drive-sim ... --node 5 EXTRA` and starts homing `method` (search
+/// 600 rpm, creep 6 rpm off the switch, 60000 rpm/s), all over SDO; polls it until the
+/// statusword shows the end (bit 12 homing attained, or bit 13 error) or `until` holds.
+fn home(extra: &[&str], method: i8, mut until: impl FnMut(&HomingRun) -> bool) -> HomingRun {
+    let (_child, mut st, _) = read_device_type("tlc5xx", extra);
+    let n = NodeId::new(5).unwrap();
+    write(&mut st, n, 0x6099, 1, &600i32.to_le_bytes());
+    write(&mut st, n, 0x6099, 2, &6i32.to_le_bytes());
+    write(&mut st, n, 0x6083, 0, &60_000u32.to_le_bytes());
+    write(&mut st, n, 0x6098, 0, &[method as u8]);
+    for cw in [0x06u16, 0x07, 0x0F] {
+        write(&mut st, n, 0x6040, 0, &cw.to_le_bytes());
+    }
+    let sw = read(&mut st, n, 0x6041, 0);
+    assert_eq!(sw & 0x6F, 0x27, "operation enabled: statusword {sw:04X}h");
+    write(&mut st, n, 0x6060, 0, &[6]);
+    assert_eq!(read(&mut st, n, 0x6061, 0), 6, "homing mode displayed");
+    // Bit 4 rising starts the method of 6098h.
+    write(&mut st, n, 0x6040, 0, &0x1Fu16.to_le_bytes());
+    let mut run = HomingRun {
+        statusword: 0,
+        seen: Vec::new(),
+        error_code: 0,
+    };
+    let end = WallInstant::now() + PATIENCE;
+    loop {
+        run.statusword = read(&mut st, n, 0x6041, 0);
+        let before = read(&mut st, n, 0x60FD, 0);
+        let p = read(&mut st, n, 0x6064, 0);
+        let after = read(&mut st, n, 0x60FD, 0);
+        run.seen.push((p, before & after));
+        // Bit 12 comes with bit 10 once the drive stands at the reference point.
+        if run.statusword & 0x3400 == 0x1400 || run.statusword & 0x2000 != 0 || until(&run) {
+            if run.statusword & 0x2000 != 0 {
+                // The homing error comes first; a fault it leads to follows within ticks.
+                std::thread::sleep(Duration::from_millis(200));
+                run.statusword = read(&mut st, n, 0x6041, 0);
+            }
+            run.error_code = read(&mut st, n, 0x603F, 0);
+            return run;
+        }
+        assert!(
+            WallInstant::now() < end,
+            "homing method {method} neither ended nor reached the test's condition; statusword \
+             {:04X}h, last position {p}",
+            run.statusword
+        );
+    }
+}
+
+/// 60FDh digital inputs (TLC5xx manual §6.12): bit 0 LIMN, 1 LIMP, 2 REF.
+const LIMN: i64 = 1;
+const LIMP: i64 = 2;
+const REF: i64 = 4;
+
+#[test]
+fn tlc5xx_switches_let_homing_methods_finish_in_a_drive_sim_process() {
+    let limits = ["--limit-negative", "-50000", "--limit-positive", "50000"];
+    // (method, reference cam, the input it homes on, where that switch releases: the edge).
+    // 23 searches upwards onto the cam and creeps back off its lower edge; 27 searches
+    // downwards onto a cam below 0 and creeps back off its upper edge.
+    let cases: [(i8, &str, i64, i64); 4] = [
+        (17, "10000..12000", LIMN, -50_000),
+        (18, "10000..12000", LIMP, 50_000),
+        (23, "10000..12000", REF, 10_000),
+        (27, "-12000..-10000", REF, -10_000),
+    ];
+    for (method, cam, input, edge) in cases {
+        let args = [&limits[..], &["--reference", cam]].concat();
+        let run = home(&args, method, |_| false);
+        assert_eq!(
+            run.statusword & 0x3400,
+            0x1400,
+            "method {method}: homing attained and standing, no error (statusword {:04X}h)",
+            run.statusword
+        );
+        // It went onto its switch: the input was seen on, at positions past the edge (the
+        // drive counts from its power-on 0 until the reference is set).
+        let on: Vec<i64> = run
+            .seen
+            .iter()
+            .filter(|(_, i)| i & input != 0)
+            .map(|(p, _)| *p)
+            .collect();
+        assert!(
+            !on.is_empty(),
+            "method {method}: input {input} never seen on"
+        );
+        // Below 0 the switch lies below its edge (LIMN, the low cam), above 0 above it.
+        let beyond = |p: &i64| if edge < 0 { *p <= edge } else { *p >= edge };
+        assert!(
+            on.iter().all(beyond),
+            "method {method}: positions with the switch on {:?} .. {:?}, edge {edge}",
+            on.iter().min(),
+            on.iter().max()
+        );
+        // Done: the reference point is 200 increments (p_disHome 20F4h) off the edge, the
+        // switch is off there, and 6064h counts from it (home position 0).
+        let (p, inputs) = *run.seen.last().unwrap();
+        assert_eq!(p, 0, "method {method}: 6064h at the reference point");
+        assert_eq!(
+            inputs & (LIMN | LIMP | REF),
+            0,
+            "method {method}: off every switch"
+        );
+        assert_eq!(run.error_code, 0, "method {method}: 603Fh");
+    }
+}
+
+#[test]
+fn tlc5xx_homing_without_its_switch_does_not_finish() {
+    // No switches at all: method 17 searches for LIMN and goes on searching (the simulator
+    // gives up only after 2^30 increments, hours at this speed); it never reports an end.
+    let run = home(&[], 17, |r| {
+        r.seen.len() > 3 && r.seen.last().unwrap().0 < -200_000
+    });
+    assert_eq!(
+        run.statusword & 0x3000,
+        0,
+        "still running: neither attained nor an error (statusword {:04X}h)",
+        run.statusword
+    );
+    let positions: Vec<i64> = run.seen.iter().map(|(p, _)| *p).collect();
+    assert!(
+        positions.windows(2).all(|w| w[1] <= w[0]),
+        "it keeps searching downwards"
+    );
+    assert!(run.seen.iter().all(|(_, i)| i & (LIMN | LIMP | REF) == 0));
+
+    // The limit switches but no reference: method 23 searches upwards, runs onto LIMP before
+    // any REF, and stops there with the homing error (bit 13) and the limit switch fault
+    // (Fault, 603Fh = FF01h).
+    let run = home(
+        &["--limit-negative", "-50000", "--limit-positive", "50000"],
+        23,
+        |_| false,
+    );
+    assert_eq!(
+        run.statusword & 0x3000,
+        0x2000,
+        "homing error (statusword {:04X}h)",
+        run.statusword
+    );
+    assert!(run.seen.iter().any(|(_, i)| i & LIMP != 0), "LIMP reached");
+    assert_eq!(run.statusword & 0x4F, 0x08, "Fault");
+    assert_eq!(run.error_code, 0xFF01, "603Fh: positive limit switch");
+}
+
+#[test]
+fn tlc5xx_switch_refusals_name_the_option_and_what_is_allowed() {
+    let bus = format!("vbus:{}", unique("dsw"));
+    let tlc = ["--device", "tlc5xx", "--bus", bus.as_str(), "--node", "5"];
+    for (args, expected) in [
+        (
+            &["--limit-negative", "inf"][..],
+            "--limit-negative inf: give whole motor increments, -2147483648 to 2147483647",
+        ),
+        (
+            &["--limit-negative", "NaN"],
+            "--limit-negative NaN: give whole motor increments",
+        ),
+        (
+            &["--limit-positive", "1.5"],
+            "--limit-positive 1.5: give whole motor increments",
+        ),
+        (
+            &["--limit-positive", "3e9"],
+            "--limit-positive 3e9: give whole motor increments",
+        ),
+        (
+            &["--limit-negative", "10"],
+            "--limit-negative 10: give 0 or less",
+        ),
+        (
+            &["--limit-positive", "0"],
+            "--limit-positive 0: give 1 or more",
+        ),
+        (
+            &["--reference", "10000"],
+            "--reference 10000: give FROM..TO",
+        ),
+        (
+            &["--reference", "10000..1e99"],
+            "--reference 10000..1e99: FROM and TO: give whole motor increments",
+        ),
+        (
+            &["--reference", "12000..10000"],
+            "--reference 12000..10000: FROM must be below TO",
+        ),
+        (
+            &["--limit-positive", "50000", "--reference", "40000..60000"],
+            "--reference 40000..60000: the cam must lie between the limit switches (none .. 50000)",
+        ),
+    ] {
+        refused(&[&tlc[..], args].concat(), &[expected]);
+    }
+    refused(
+        &[
+            "--device",
+            "emca",
+            "--bus",
+            &bus,
+            "--node",
+            "5",
+            "--limit-negative",
+            "-100",
+        ],
+        &["--limit-negative -100: the EMCA simulator has no switches"],
+    );
+    let m = machine();
+    refused(
+        &["--config", m.file.path(), "--reference", "1..2"],
+        &["--reference 1..2: the switches are options of --device tlc5xx"],
+    );
+}
+
+/// The coordinator's own CiA 402 axis (`coordinator::axis::DriveAxis`, the code `coordinator
+/// run` drives a TLC5xx with) homes the TLC5xx of `drive-sim ... --node 5 EXTRA` with
+/// `method`, as `coordinator/tests/axes.rs` does with the in-process simulator: PDO1 mapped
+/// over SDO as the coordinator's boot maps it (`pdo_mapping`), 6098h written, NMT start, then
+/// per cycle a SYNC, the drive's TPDO1 into the axis and the axis's RPDO1 out. Each cycle
+/// waits for its TPDO (lockstep), so a busy host slows the test but cannot fail it. Enables
+/// (Standstill until ready), then demands Home until the axis reports it done or failed, or
+/// the drive faulted.
+fn home_with_the_coordinators_axis(extra: &[&str], method: i8) -> Feedback {
+    let (_child, mut st, _, bus_name) = start_device("tlc5xx", extra);
+    let n = NodeId::new(5).unwrap();
+    let map = pdo_mapping(AxisKind::Tlc5xx, AxisProfile::Cia402);
+    for (spec, comm, mapping) in [
+        (map.rpdo.unwrap(), 0x1400u16, 0x1600u16),
+        (map.tpdo.unwrap(), 0x1800, 0x1A00),
+    ] {
+        let cob = u32::from(spec.function.cob_id(n));
+        let comm = comm + u16::from(spec.number) - 1;
+        let mapping = mapping + u16::from(spec.number) - 1;
+        if spec.remappable {
+            write(&mut st, n, comm, 1, &(cob | 0x8000_0000).to_le_bytes());
+            write(&mut st, n, mapping, 0, &[0]);
+            for (k, e) in spec.mapping.iter().enumerate() {
+                write(&mut st, n, mapping, k as u8 + 1, &e.to_le_bytes());
+            }
+            write(&mut st, n, mapping, 0, &[spec.mapping.len() as u8]);
+        }
+        write(&mut st, n, comm, 2, &[spec.transmission]);
+        if spec.remappable {
+            write(&mut st, n, comm, 1, &cob.to_le_bytes());
+        }
+    }
+    write(&mut st, n, 0x6081, 0, &1200u32.to_le_bytes());
+    write(&mut st, n, 0x6083, 0, &60_000u32.to_le_bytes());
+    write(&mut st, n, 0x6084, 0, &60_000u32.to_le_bytes());
+    write(&mut st, n, 0x6098, 0, &[method as u8]);
+    write(&mut st, n, 0x6099, 1, &600i32.to_le_bytes());
+    write(&mut st, n, 0x6099, 2, &60i32.to_le_bytes());
+
+    let mut bus = ShmBus::open(&bus_name, 1_000_000).unwrap();
+    let send = |bus: &mut ShmBus, f: Frame| {
+        let end = WallInstant::now() + PATIENCE;
+        while let Err(e) = bus.send(&f) {
+            assert!(WallInstant::now() < end, "sending {f}: {e}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    };
+    send(&mut bus, Frame::new_std(0x000, &[0x01, 5]).unwrap());
+    let tpdo1 = FunctionCode::Tpdo(1).cob_id(n);
+    let rpdo1 = FunctionCode::Rpdo(1).cob_id(n);
+    let mut axis = DriveAxis::new(AxisKind::Tlc5xx, AxisProfile::Cia402, 10_000_000).unwrap();
+    let mut out = Image::default();
+    let mut homing = false;
+    let end = WallInstant::now() + PATIENCE;
+    loop {
+        send(&mut bus, Frame::new_std(0x080, &[]).unwrap());
+        // This cycle's TPDO1 (the drive answers the SYNC); older frames are skipped.
+        let input = loop {
+            let f = bus
+                .recv_until(monotonic_now() + Duration::from_millis(500))
+                .unwrap();
+            match f {
+                Some(f) if f.cob_id() == Some(tpdo1) => break Some(f.data().to_vec()),
+                Some(_) => continue,
+                None => break None,
+            }
+        };
+        let demand = if homing {
+            Demand::Home
+        } else {
+            Demand::Standstill
+        };
+        let fb = axis.exchange(input.as_deref(), &demand, &mut out).unwrap();
+        send(&mut bus, Frame::new_std(rpdo1, out.bytes()).unwrap());
+        if !homing && fb.done && fb.state == AxisState::Ready {
+            homing = true;
+        } else if homing && (fb.done || fb.failed || fb.state == AxisState::Fault) {
+            return fb;
+        }
+        assert!(
+            WallInstant::now() < end,
+            "method {method}: the axis did not end homing ({fb:?})"
+        );
+        // About the coordinator's 10 ms cycle; the wait for the TPDO paces it too.
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+#[test]
+fn the_coordinators_cia402_axis_homes_a_drive_sim_tlc5xx_on_its_switches() {
+    let switches = [
+        "--limit-negative",
+        "-50000",
+        "--limit-positive",
+        "50000",
+        "--reference",
+        "10000..12000",
+    ];
+    for method in [17, 18, 23] {
+        let fb = home_with_the_coordinators_axis(&switches, method);
+        assert!(
+            fb.homed && fb.motion_complete && !fb.failed,
+            "method {method}: {fb:?}"
+        );
+        // The reference point reads 0 (the home position of 6098h's methods).
+        assert_eq!(fb.position, 0, "method {method}");
+    }
+    // Without its switch homing cannot complete: 23 with no REF runs onto LIMP, where the
+    // drive reports the homing error (bit 13), then faults (limit switch). The axis ends at
+    // whichever it sees first: the demand failed, or the fault; never homed.
+    let fb = home_with_the_coordinators_axis(&switches[..4], 23);
+    assert!(
+        (fb.failed || fb.state == AxisState::Fault) && fb.status & 0x2000 != 0 && !fb.homed,
+        "{fb:?}"
+    );
 }

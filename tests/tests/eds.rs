@@ -1,5 +1,5 @@
-//! `drive-sim --eds DEVICE`: each simulated CANopen device's EDS, read back by our own EDS
-//! parser, is the simulator's dictionary: every entry with its name, type, access, PDO mapping,
+//! `drive-sim --write-eds DEVICE`: each simulated CANopen device's EDS, read back by our own
+//! EDS parser, is the simulator's dictionary: every entry with its name, type, access, PDO mapping,
 //! limits and value, at the node the file was made for and at another (COB-IDs follow
 //! `$NODEID`). The Python test (`python_can.rs`) has python-canopen import the same files.
 
@@ -91,13 +91,13 @@ fn each_simulated_device_s_eds_reads_back_into_its_dictionary_at_any_node() {
         let mtr402 = MtrDci::new(id, MtrProfile::Cia402, t0).unwrap();
         let emca = Emca::new(id, t0).unwrap();
         let cases: [(&[&str], &str); 4] = [
-            (&["--eds", "tlc5xx"], "tlc5xx"),
-            (&["--eds", "mtr-dci"], "mtr-dci"),
+            (&["--write-eds", "tlc5xx"], "tlc5xx"),
+            (&["--write-eds", "mtr-dci"], "mtr-dci"),
             (
-                &["--eds", "mtr-dci", "--profile", "cia402"],
+                &["--write-eds", "mtr-dci", "--profile", "cia402"],
                 "mtr-dci cia402",
             ),
-            (&["--eds", "emca"], "emca"),
+            (&["--write-eds", "emca"], "emca"),
         ];
         for (args, what) in cases {
             let (code, text, err) = eds(args);
@@ -134,14 +134,16 @@ fn each_simulated_device_s_eds_reads_back_into_its_dictionary_at_any_node() {
 
 #[test]
 fn a_modbus_device_has_no_eds_and_says_so() {
-    let (code, text, err) = eds(&["--eds", "cmmo-st"]);
+    let (code, text, err) = eds(&["--write-eds", "cmmo-st"]);
     assert_eq!(code, Some(1), "{text}{err}");
     assert!(text.is_empty());
     assert!(
-        err.contains("--eds cmmo-st: the CMMO-ST speaks Modbus TCP, not CANopen; it has no EDS"),
+        err.contains(
+            "--write-eds cmmo-st: the CMMO-ST speaks Modbus TCP, not CANopen; it has no EDS"
+        ),
         "{err}"
     );
-    let (code, _, err) = eds(&["--eds", "tlc5xx", "--profile", "fhpp"]);
+    let (code, _, err) = eds(&["--write-eds", "tlc5xx", "--profile", "fhpp"]);
     assert_eq!(code, Some(1));
     assert!(
         err.contains("--profile fhpp: the TLC5xx offers CiA 402 only"),

@@ -2,9 +2,12 @@
 //! engineer would use them: `python/motion-vbus` (the `vbus` python-can interface) under
 //! `python/motion-vbus/examples/tlc5xx_canopen.py`: NMT, SDO (expedited and segmented, both
 //! ways), PDO remapping read back, a CiA 402 profile-position move over PDOs and SYNC, and every
-//! readable object of each simulated device read by SDO against the EDS `drive-sim --eds` gives.
-//! Meanwhile `canbus dump` (Rust) logs the bus: every frame Python received is in its log, in
-//! the same order, with the same time.
+//! readable object of each simulated device read by SDO against the EDS `drive-sim --write-eds`
+//! gives. Meanwhile `canbus dump` (Rust) logs the bus: every frame Python received is in its
+//! log, in the same order, with the same time.
+//!
+//! A second test records a bus beside a running coordinator with python-can's own `can.Logger`
+//! (`python/motion-vbus/examples/record_log.py`) and plays the log back with `canbus replay`.
 //!
 //! Needs python3 with python-can, python-canopen, the iceoryx2 bindings and motion-vbus
 //! installed (`.ci/run` installs them); skipped with a notice otherwise, mandatory with
@@ -65,8 +68,12 @@ struct Procs {
 }
 
 impl Procs {
-    fn new() -> Procs {
-        let dir = std::env::temp_dir().join(format!("python-can-{}", std::process::id()));
+    fn new(test: &str) -> Procs {
+        let dir = std::env::temp_dir().join(format!(
+            "python-can-{test}-{}x{}",
+            std::process::id(),
+            rand_suffix()
+        ));
         std::fs::create_dir_all(&dir).unwrap();
         Procs {
             dir,
@@ -146,8 +153,13 @@ fn candump_line(line: &str) -> Option<(i64, String)> {
     Some((us, frame))
 }
 
+/// One test of this file at a time: each runs a machine of real-time processes, and two at once
+/// on a small shared host starve each other's drives.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     if let Some(why) = missing_python() {
         integration_tests::skip_or_fail(
             "python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus",
@@ -157,7 +169,7 @@ fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
     }
     let drive_sim = workspace_bin("coordinator", "drive-sim");
     let canbus = workspace_bin("drivers", "canbus");
-    let mut p = Procs::new();
+    let mut p = Procs::new("canopen");
     let bus = format!("pycan{}x{}", std::process::id(), rand_suffix());
     let vbus = format!("vbus:{bus}");
 
@@ -165,10 +177,10 @@ fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
     let mut eds = Vec::new();
     for kind in ["tlc5xx", "mtr-dci", "emca"] {
         let out = Command::new(&drive_sim)
-            .args(["--eds", kind])
+            .args(["--write-eds", kind])
             .output()
             .unwrap();
-        assert!(out.status.success(), "drive-sim --eds {kind}");
+        assert!(out.status.success(), "drive-sim --write-eds {kind}");
         let path = p.dir.join(format!("{kind}.eds"));
         std::fs::write(&path, &out.stdout).unwrap();
         eds.push(path);
@@ -300,4 +312,186 @@ fn rand_suffix() -> u32 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.subsec_nanos() % 100_000)
+}
+
+/// A candump log as (identifier, data) text per frame, in file order: `181#00112233`.
+fn frames_of(f: &Path) -> Vec<String> {
+    std::fs::read_to_string(f)
+        .unwrap_or_else(|e| panic!("{}: {e}", f.display()))
+        .lines()
+        .filter_map(candump_line)
+        .map(|(_, frame)| frame)
+        .collect()
+}
+
+#[test]
+fn python_can_logger_records_a_running_coordinator_and_canbus_replays_it() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let test = "python_can_logger_records_a_running_coordinator_and_canbus_replays_it";
+    if let Some(why) = missing_python() {
+        integration_tests::skip_or_fail(test, &why);
+        return;
+    }
+    let coordinator = workspace_bin("coordinator", "coordinator");
+    let drive_sim = workspace_bin("coordinator", "drive-sim");
+    let canbus = workspace_bin("drivers", "canbus");
+    let mut p = Procs::new("logger");
+    let tag = format!("{}x{}", std::process::id(), rand_suffix());
+    let (bus, other) = (format!("pylog{tag}"), format!("pyreplay{tag}"));
+    let (vbus, vother) = (format!("vbus:{bus}"), format!("vbus:{other}"));
+
+    // Two TLC5xx axes on one vbus bus at a 10 ms cycle (as tests/tests/real_drives.rs: a busy
+    // shared host must not turn into late TPDOs).
+    let limits = "limits = { position_min = 0.0, position_max = 100.0, velocity = 50.0, \
+                  acceleration = 200.0 }";
+    let config = p.dir.join("machine.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "cycle_us = 10000\n\n\
+             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+             [[axes]]\nname = \"a\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 1\n\
+             increments_per_unit = 1000.0\n{limits}\n\n\
+             [[axes]]\nname = \"b\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 2\n\
+             increments_per_unit = 1000.0\n{limits}\n"
+        ),
+    )
+    .unwrap();
+
+    // The recorders join the bus before the machine runs (a newcomer stalls the endpoints
+    // already there while it sets up its shared memory): canbus dump, and Python's can.Logger.
+    let rust_log = p.dir.join("rust.log");
+    let dump = p.spawn(
+        "canbus dump",
+        Command::new(&canbus)
+            .args(["dump", &vbus, "--log"])
+            .arg(&rust_log),
+    );
+    p.wait_output(dump, "listening on");
+    let py_log = p.dir.join("python.log");
+    let stop = p.dir.join("stop");
+    let py = p.spawn(
+        "python can.Logger",
+        Command::new("python3")
+            .arg(repo().join("python/motion-vbus/examples/record_log.py"))
+            .args(["--bus", &bus, "--seconds", "240", "--log"])
+            .arg(&py_log)
+            .arg("--stop-file")
+            .arg(&stop)
+            .env("PYTHONPATH", repo().join("python/motion-vbus")),
+    );
+    p.wait_output(py, &format!("recording {vbus}"));
+
+    let sim = p.spawn(
+        "drive-sim",
+        Command::new(&drive_sim)
+            .arg("--config")
+            .arg(&config)
+            .args(["--status-every", "5"]),
+    );
+    p.wait_output(sim, "drive(s) running");
+    let coord = p.spawn(
+        "coordinator",
+        Command::new(&coordinator)
+            .arg("run")
+            .arg("--config")
+            .arg(&config)
+            .args(["--quiet", "--shm-prefix", &format!("t-pylog-{tag}-")]),
+    );
+    p.wait_output(coord, "drive ready: node 1 (TLC5xx \"a\")");
+    p.wait_output(coord, "drive ready: node 2 (TLC5xx \"b\")");
+    // Both drives operational: a while of SYNC and PDO cycles, then the recording ends.
+    std::thread::sleep(Duration::from_secs(3));
+    std::fs::write(&stop, "").unwrap();
+    let code = p.wait(py, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "the recording script failed");
+    // The dump goes on a moment longer, so that it holds every frame Python got.
+    std::thread::sleep(Duration::from_millis(300));
+    let _ = p.procs[dump].1.kill();
+    let _ = p.procs[dump].1.wait();
+
+    let recorded = frames_of(&py_log);
+    let count = |id: &str| recorded.iter().filter(|f| f.starts_with(id)).count();
+    // SYNC, the coordinator's RPDO1 to each drive and each drive's TPDO1: the cycle ran while
+    // Python recorded (3 s at 10 ms are about 300 cycles; a starved host still makes 50).
+    for id in ["080#", "201#", "202#", "181#", "182#"] {
+        assert!(count(id) >= 50, "{} {id} frames in Python's log", count(id));
+    }
+    let out = p.output(py);
+    assert!(
+        out.contains(&format!("{} frames recorded", recorded.len())),
+        "the script counted what the log holds ({} lines):\n{out}",
+        recorded.len()
+    );
+
+    // Every frame of Python's log is in canbus dump's log of the same bus, at the same time up
+    // to the one constant offset between the two processes' wall clocks (both stamp the
+    // sender's completion time; python-can's float seconds may round the last microsecond).
+    let py_timed: Vec<(i64, String)> = std::fs::read_to_string(&py_log)
+        .unwrap()
+        .lines()
+        .filter_map(candump_line)
+        .collect();
+    let mut by_frame: std::collections::HashMap<String, Vec<i64>> = Default::default();
+    for (ts, f) in std::fs::read_to_string(&rust_log)
+        .unwrap()
+        .lines()
+        .filter_map(candump_line)
+    {
+        by_frame.entry(f).or_default().push(ts);
+    }
+    let sync_times = &by_frame["080#"];
+    let (ts0, f0) = py_timed
+        .iter()
+        .find(|(_, f)| f == "080#")
+        .expect("a SYNC in Python's log");
+    // The offset from the Rust log's SYNC nearest in time to Python's first one (the two
+    // processes' clock offsets differ by far less than the 10 ms between SYNCs).
+    let offsets: Vec<i64> = sync_times.iter().map(|t| ts0 - t).collect();
+    let offset = *offsets
+        .iter()
+        .min_by_key(|o| o.abs())
+        .unwrap_or_else(|| panic!("{f0}, Python's first SYNC, is not in canbus dump's log"));
+    for (ts, frame) in &py_timed {
+        let times = by_frame.get(frame).map_or(&[][..], |v| v.as_slice());
+        assert!(
+            times.iter().any(|rts| (ts - rts - offset).abs() <= 2),
+            "{frame} at {ts} µs, in Python's log, is not in canbus dump's log at that time \
+             (offset {offset} µs)"
+        );
+    }
+
+    // The log read back: canbus replay sends it on another bus, where canbus dump logs the
+    // same frames in the same order.
+    let replayed_log = p.dir.join("replayed.log");
+    let dump2 = p.spawn(
+        "canbus dump (replay)",
+        Command::new(&canbus)
+            .args(["dump", &vother, "--log"])
+            .arg(&replayed_log)
+            .args(["--count", &recorded.len().to_string(), "--timeout", "120"]),
+    );
+    p.wait_output(dump2, "listening on");
+    let replay = p.spawn(
+        "canbus replay",
+        Command::new(&canbus)
+            .arg("replay")
+            .arg(&py_log)
+            .args([&vother, "--speed", "4"]),
+    );
+    assert_eq!(
+        p.wait(replay, Duration::from_secs(120)),
+        Some(0),
+        "canbus replay read python-can's log and sent it"
+    );
+    assert_eq!(
+        p.wait(dump2, Duration::from_secs(120)),
+        Some(0),
+        "canbus dump got every replayed frame"
+    );
+    let replayed = frames_of(&replayed_log);
+    assert_eq!(replayed.len(), recorded.len(), "frames replayed");
+    for (i, (r, o)) in replayed.iter().zip(&recorded).enumerate() {
+        assert_eq!(r, o, "frame {i} of the replay");
+    }
 }

@@ -3,6 +3,7 @@
 //! ```text
 //! drive-sim --config machine.toml [--only AXIS]...     # the drives a configuration dials
 //! drive-sim --device tlc5xx  --bus vbus:NAME --node 1 [--node 2 ...]
+//!           [--limit-negative POS] [--limit-positive POS] [--reference FROM..TO]
 //! drive-sim --device mtr-dci --bus vbus:NAME --node 3 [--profile fhpp|cia402]
 //! drive-sim --device emca    --bus vbus:NAME --node 4
 //! drive-sim --device cmmo-st --modbus 127.0.0.1:PORT
@@ -37,6 +38,7 @@ use drivers::canopen::eds_write::{DeviceInfo, write_eds};
 use drivers::canopen::endpoint::Endpoint;
 use drivers::cli_number::Allowed;
 use drivers::fhpp::state::State as FhppState;
+use drivers::sim::axis::{SwitchZone, Switches as Inputs};
 use drivers::sim::cmmo_st::{self, Server, ServerConfig};
 use drivers::sim::emca::Emca;
 use drivers::sim::fhpp_drive::FhppDrive;
@@ -89,7 +91,7 @@ enum ProfileArg {
 /// Simulated drives as their own process: the drives of a coordinator configuration
 /// (`--config`), or drives of one kind (`--device`).
 #[derive(Debug, Parser)]
-#[command(version, group(ArgGroup::new("what").required(true).args(["config", "device", "eds"])))]
+#[command(version, group(ArgGroup::new("what").required(true).args(["config", "device", "write_eds"])))]
 struct Cli {
     /// A coordinator configuration: start every drive it dials (the axes on `vbus` buses and
     /// the CMMO-STs without `simulated = true`).
@@ -104,8 +106,8 @@ struct Cli {
     /// Print the CiA 306 EDS of this device (its simulator's object dictionary, as a freshly
     /// powered drive has it; COB-IDs relative to $NODEID) and exit. With `--profile` for the
     /// MTR-DCI's CiA 402 face.
-    #[arg(long, value_enum, value_name = "DEVICE", conflicts_with_all = ["config", "device", "bus", "nodes", "modbus", "bitrate", "duration"])]
-    eds: Option<DeviceArg>,
+    #[arg(long, value_enum, value_name = "DEVICE", conflicts_with_all = ["config", "device", "bus", "nodes", "modbus", "bitrate", "duration", "limit_negative", "limit_positive", "reference"])]
+    write_eds: Option<DeviceArg>,
     /// The CAN bus: `vbus:NAME` (the shared-memory virtual bus).
     #[arg(long, required_if_eq_any([("device", "mtr-dci"), ("device", "emca"), ("device", "tlc5xx")]))]
     bus: Option<String>,
@@ -135,6 +137,135 @@ struct Cli {
         allow_hyphen_values = true
     )]
     status_every: String,
+    /// TLC5xx only: the negative limit switch (LIMN), active below POS. Switch positions are
+    /// motor increments, 16384 per revolution, counted from where the drive powers on (0):
+    /// the TLC5xx's user unit at its factory scaling (6093h = 1/16384), so what 6064h shows
+    /// before homing moves its zero, and what a configuration's increments_per_unit counts.
+    /// Give 0 or less (the drive must not power on on the switch).
+    #[arg(long, value_name = "POS", allow_hyphen_values = true)]
+    limit_negative: Option<String>,
+    /// TLC5xx only: the positive limit switch (LIMP), active from POS upwards (motor
+    /// increments, as --limit-negative); 1 or more.
+    #[arg(long, value_name = "POS", allow_hyphen_values = true)]
+    limit_positive: Option<String>,
+    /// TLC5xx only: the reference switch (REF), a cam active from FROM up to TO (motor
+    /// increments, as --limit-negative), between the limit switches. With the switches,
+    /// homing methods 1, 2, 7, 11, 17, 18, 23 and 27 find their signal.
+    #[arg(long, value_name = "FROM..TO", allow_hyphen_values = true)]
+    reference: Option<String>,
+}
+
+/// A switch position: a whole number of motor increments, within the 32 bits of the TLC5xx's
+/// position objects.
+const SWITCH_POSITION: Allowed =
+    Allowed::new("whole motor increments", i32::MIN as f64, i32::MAX as f64)
+        .note("16384 per revolution, from the power-on position 0");
+
+/// The TLC5xx's limit and reference switches (`--limit-negative`, `--limit-positive`,
+/// `--reference`), raw positions of its simulated axis.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct Switches {
+    limit_negative: Option<i64>,
+    limit_positive: Option<i64>,
+    reference: Option<(i64, i64)>,
+}
+
+impl Switches {
+    fn any(&self) -> bool {
+        *self != Switches::default()
+    }
+
+    /// The options as given, for refusals: `--limit-negative -5000`.
+    fn given(cli: &Cli) -> Vec<String> {
+        [
+            ("--limit-negative", &cli.limit_negative),
+            ("--limit-positive", &cli.limit_positive),
+            ("--reference", &cli.reference),
+        ]
+        .into_iter()
+        .filter_map(|(flag, v)| v.as_ref().map(|v| format!("{flag} {v}")))
+        .collect()
+    }
+
+    /// Checks the options: every number whole and in range, the drive's power-on position 0
+    /// off both limit switches, the reference cam between them.
+    fn from_cli(cli: &Cli) -> Result<Switches, String> {
+        let position = |flag: &str, text: &str| -> Result<i64, String> {
+            let v = SWITCH_POSITION.parse_flag(flag, text)?;
+            if v.fract() != 0.0 {
+                return Err(format!("{flag} {text}: {}", SWITCH_POSITION.refusal()));
+            }
+            Ok(v as i64)
+        };
+        let limit_negative = match &cli.limit_negative {
+            None => None,
+            Some(t) => {
+                let v = position("--limit-negative", t)?;
+                if v > 0 {
+                    return Err(format!(
+                        "--limit-negative {t}: give 0 or less: the switch is active below the \
+                         position, and the drive powers on at 0, which must not be on it"
+                    ));
+                }
+                Some(v)
+            }
+        };
+        let limit_positive = match &cli.limit_positive {
+            None => None,
+            Some(t) => {
+                let v = position("--limit-positive", t)?;
+                if v <= 0 {
+                    return Err(format!(
+                        "--limit-positive {t}: give 1 or more: the switch is active from the \
+                         position upwards, and the drive powers on at 0, which must not be on it"
+                    ));
+                }
+                Some(v)
+            }
+        };
+        let reference = match &cli.reference {
+            None => None,
+            Some(t) => {
+                let Some((a, b)) = t.split_once("..") else {
+                    return Err(format!(
+                        "--reference {t}: give FROM..TO, the positions between which the switch \
+                         is active (e.g. 10000..12000)"
+                    ));
+                };
+                // The refusal quotes the whole FROM..TO the user wrote.
+                let whole = |_| {
+                    format!(
+                        "--reference {t}: FROM and TO: {}",
+                        SWITCH_POSITION.refusal()
+                    )
+                };
+                let from = position("--reference", a).map_err(whole)?;
+                let to = position("--reference", b).map_err(whole)?;
+                if from >= to {
+                    return Err(format!(
+                        "--reference {t}: FROM must be below TO (the switch is active from FROM \
+                         up to TO)"
+                    ));
+                }
+                let low = limit_negative.unwrap_or(i64::MIN);
+                let high = limit_positive.unwrap_or(i64::MAX);
+                if from < low || to > high {
+                    return Err(format!(
+                        "--reference {t}: the cam must lie between the limit switches ({} .. {}), \
+                         or homing could never reach it",
+                        limit_negative.map_or("none".into(), |v| v.to_string()),
+                        limit_positive.map_or("none".into(), |v| v.to_string()),
+                    ));
+                }
+                Some((from, to))
+            }
+        };
+        Ok(Switches {
+            limit_negative,
+            limit_positive,
+            reference,
+        })
+    }
 }
 
 /// A CANopen drive to start.
@@ -148,6 +279,8 @@ struct CanSpec {
     /// The bus name without `vbus:`.
     bus: String,
     bitrate: u32,
+    /// The TLC5xx's switches (none for other devices).
+    switches: Switches,
 }
 
 /// A CMMO-ST to serve.
@@ -234,6 +367,14 @@ fn chosen_profile(kind: DeviceKind, asked: Option<ProfileArg>) -> Result<Profile
 
 fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
     let kind = device.kind();
+    let switches = Switches::from_cli(cli)?;
+    if switches.any() && kind != DeviceKind::Tlc5xx {
+        return Err(format!(
+            "{}: the {} simulator has no switches to place; they are options of --device tlc5xx",
+            Switches::given(cli).join(" "),
+            device_name(kind)
+        ));
+    }
     if kind.is_modbus() {
         let addr = cli
             .modbus
@@ -279,6 +420,7 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
             node,
             bus: name.to_owned(),
             bitrate: cli.bitrate,
+            switches,
         });
     }
     Ok(Plan {
@@ -397,6 +539,7 @@ fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
             node,
             bus: bus.name.clone(),
             bitrate: bus.bitrate,
+            switches: Switches::default(),
         });
     }
     for b in consumer_buses {
@@ -430,12 +573,28 @@ trait SimDrive: Endpoint {
 
 impl SimDrive for Tlc5xx {
     fn status(&self) -> String {
+        // The switches that are on, as the manual names its inputs.
+        let on = self.axis().status().switches;
+        let switches: Vec<&str> = [
+            (Inputs::LIMIT_NEGATIVE, "LIMN"),
+            (Inputs::LIMIT_POSITIVE, "LIMP"),
+            (Inputs::REFERENCE, "REF"),
+        ]
+        .into_iter()
+        .filter(|(s, _)| on.contains(*s))
+        .map(|(_, name)| name)
+        .collect();
         format!(
-            "NMT {} | {} (statusword {:04X}h) | pos {} usr",
+            "NMT {} | {} (statusword {:04X}h) | pos {} usr{}",
             self.nmt_state().name(),
             self.drive_state().name(),
             self.statusword(),
-            self.actual_usr()
+            self.actual_usr(),
+            if switches.is_empty() {
+                String::new()
+            } else {
+                format!(" | {} on", switches.join(" "))
+            }
         )
     }
     fn eds(&self, node: NodeId, info: &DeviceInfo<'_>) -> String {
@@ -515,9 +674,17 @@ impl SimDrive for Emca {
 fn build_can_drive(spec: &CanSpec, now: Instant) -> Result<Box<dyn SimDrive>, String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
     match (spec.kind, spec.profile) {
-        (DeviceKind::Tlc5xx, _) => Tlc5xx::new(TlcConfig::new(spec.node), now)
-            .map(|d| Box::new(d) as Box<dyn SimDrive>)
-            .map_err(|e| err(&e)),
+        (DeviceKind::Tlc5xx, _) => {
+            let mut cfg = TlcConfig::new(spec.node);
+            let sw = spec.switches;
+            let env = &mut cfg.environment;
+            env.limit_negative = sw.limit_negative.map(SwitchZone::below);
+            env.limit_positive = sw.limit_positive.map(SwitchZone::above);
+            env.reference = sw.reference.map(|(from, to)| SwitchZone::cam(from, to));
+            Tlc5xx::new(cfg, now)
+                .map(|d| Box::new(d) as Box<dyn SimDrive>)
+                .map_err(|e| err(&e))
+        }
         (DeviceKind::MtrDci, p) => {
             let p = match p {
                 Profile::Fhpp => MtrProfile::Fhpp,
@@ -760,13 +927,13 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
     Ok(())
 }
 
-/// `--eds DEVICE`: the EDS of a freshly built simulator of that device.
+/// `--write-eds DEVICE`: the EDS of a freshly built simulator of that device.
 fn eds_of(device: DeviceArg, profile: Option<ProfileArg>) -> Result<String, String> {
     let kind = device.kind();
     let facts = kind.device();
     if kind.is_modbus() {
         return Err(format!(
-            "--eds {}: the {} speaks Modbus TCP, not CANopen; it has no EDS",
+            "--write-eds {}: the {} speaks Modbus TCP, not CANopen; it has no EDS",
             facts.id, facts.name
         ));
     }
@@ -780,6 +947,7 @@ fn eds_of(device: DeviceArg, profile: Option<ProfileArg>) -> Result<String, Stri
         node,
         bus: String::new(),
         bitrate: 1_000_000,
+        switches: Switches::default(),
     };
     let drive = build_can_drive(&spec, Instant::ZERO)?;
     let file_name = format!(
@@ -807,7 +975,7 @@ fn eds_of(device: DeviceArg, profile: Option<ProfileArg>) -> Result<String, Stri
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    if let Some(device) = cli.eds {
+    if let Some(device) = cli.write_eds {
         return match eds_of(device, cli.profile) {
             Ok(text) => {
                 // A closed pipe (`| head`) is the reader's choice, not an error.
@@ -823,6 +991,13 @@ fn main() -> ExitCode {
     }
     let result = timing(&cli).and_then(|(duration, every)| {
         let plan = match (&cli.config, cli.device) {
+            (Some(_), _) if Switches::from_cli(&cli)?.any() => {
+                return Err(format!(
+                    "{}: the switches are options of --device tlc5xx; the drives of --config \
+                     have none",
+                    Switches::given(&cli).join(" ")
+                ));
+            }
             (Some(file), _) => plan_from_config(file, &cli.only)?,
             (None, Some(device)) => plan_from_args(&cli, device)?,
             (None, None) => return Err("give --config FILE or --device".into()),

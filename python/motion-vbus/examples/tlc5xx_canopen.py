@@ -3,7 +3,7 @@
 Start the drive first, then this script (any bus name; the TLC5xx's node-ID 5 here):
 
     target/debug/drive-sim --device tlc5xx --bus vbus:bench --node 5
-    target/debug/drive-sim --eds tlc5xx > tlc5xx.eds
+    target/debug/drive-sim --write-eds tlc5xx > tlc5xx.eds
     python3 python/motion-vbus/examples/tlc5xx_canopen.py --bus bench --node 5 --eds tlc5xx.eds
 
 It takes the node through NMT (reset, pre-operational, operational), SDO uploads and downloads
@@ -218,7 +218,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--bus", required=True, help="the virtual bus's name (vbus:NAME)")
     p.add_argument("--node", type=int, default=5, help="the TLC5xx's node-ID")
-    p.add_argument("--eds", required=True, help="the TLC5xx's EDS (drive-sim --eds tlc5xx)")
+    p.add_argument("--eds", required=True, help="the TLC5xx's EDS (drive-sim --write-eds tlc5xx)")
     p.add_argument("--target", type=int, default=2000, help="the move's target position, user units")
     p.add_argument("--check-eds", nargs=2, action="append", default=[], metavar=("NODE", "EDS"),
                    help="also compare every readable object of the drive at NODE with EDS")
