@@ -184,7 +184,7 @@ pub enum EdsRefusal {
 }
 
 /// What every drive needs: (index, sub, name).
-const NEEDED: &[(u16, u8, &str)] = &[
+const NEEDED: &[Needed] = &[
     (0x1000, 0, "device type"),
     (0x1001, 0, "error register"),
     (0x1018, 1, "vendor-ID"),
@@ -196,8 +196,11 @@ const NEEDED: &[(u16, u8, &str)] = &[
     (0x6502, 0, "supported drive modes"),
 ];
 
+/// An object the simulator needs: index, sub-index, name.
+type Needed = (u16, u8, &'static str);
+
 /// What each mode needs on top: (mode, name, objects).
-const MODE_NEEDS: &[(OperationMode, &str, &[(u16, u8, &str)])] = &[
+const MODE_NEEDS: &[(OperationMode, &str, &[Needed])] = &[
     (
         OperationMode::ProfilePosition,
         "profile position",
@@ -246,7 +249,7 @@ const MODE_NEEDS: &[(OperationMode, &str, &[(u16, u8, &str)])] = &[
 /// Checks that `od` has what the simulator needs for the modes its 6502h offers; returns the
 /// 6502h modes the simulator runs.
 pub fn check_dictionary(od: &GenericOd) -> Result<u32, EdsRefusal> {
-    let missing = |(index, sub, name): (u16, u8, &'static str), needed_by| {
+    let missing = |(index, sub, name): Needed, needed_by| {
         od.entry(a(index, sub)).err().map(|_| EdsRefusal::Missing {
             index,
             sub,
