@@ -325,6 +325,13 @@ fn a_mode_outside_6502h_is_refused() {
     // Homing methods: only those of the profile.
     assert_eq!(rig.write(0x6098, 0, &[1]), abort(AbortCode::InvalidValue));
     rig.ok(0x6098, 0, &[17]);
+    // RPDO2 (controlword + 6060h) has no SDO check: a mode outside 6502h is ignored.
+    rig.ok(0x1401, 1, &0x301u32.to_le_bytes());
+    rig.nmt_start();
+    rig.send(&[f("301#000004")], 2 * MS);
+    assert_eq!(rig.d().mode(), OperationMode::CyclicSyncTorque);
+    rig.send(&[f("301#000009")], 2 * MS);
+    assert_eq!(rig.d().mode(), OperationMode::CyclicSyncVelocity);
 }
 
 #[test]

@@ -612,8 +612,9 @@ impl Cia402Drive {
     }
 
     /// Brings the axis to rest per an option code of 605Ah / 605Dh / 605Eh: 0 coasts (power
-    /// stage off, where `coast_allowed`), 1 and 5 the 6084h ramp, 2 and 6 the 6085h ramp, 3, 4,
-    /// 7, 8 the drive's own limit (current and voltage limit are not modelled apart).
+    /// stage off; not for a halt, which keeps the drive enabled), 1 and 5 the 6084h ramp, 2 and 6
+    /// the 6085h ramp, 3, 4, 7, 8 the drive's own limit (current and voltage limit are not
+    /// modelled apart).
     fn stop_with_option(&mut self, option: i16, halt: bool) {
         if !self.axis.is_enabled() {
             return;
@@ -850,8 +851,11 @@ impl Cia402Drive {
     fn written(&mut self, addrs: &[Address]) {
         let has = |i: u16| addrs.iter().any(|x| x.index == i);
         if has(0x6060) {
+            // An RPDO bypasses the SDO check: a mode outside 6502h is ignored here too.
             let code = self.dev.od().get_i8(a(0x6060, 0)).unwrap_or(1);
-            let _ = self.modes.request(code, &self.profile);
+            if OperationMode::from_code(code).is_ok_and(|m| self.dev.hooks().offers(m)) {
+                let _ = self.modes.request(code, &self.profile);
+            }
         }
         if has(0x6040) {
             self.controlword();

@@ -233,5 +233,7 @@ mod tests {
             SUPPORTED_MODES
         );
         assert_eq!(od.get_i8(a(0x60C2, 2)), Ok(-3));
+        // docs/simulators.md gives the count.
+        assert_eq!(od.len(), 186);
     }
 }
