@@ -7,6 +7,8 @@
 //! drive-sim --device mtr-dci --bus vbus:NAME --node 3 [--profile fhpp|cia402]
 //! drive-sim --device emca    --bus vbus:NAME --node 4
 //! drive-sim --device cmmo-st --modbus 127.0.0.1:PORT
+//! drive-sim --device cia402  --bus vbus:NAME --node 5 [--eds FILE]
+//! drive-sim --write-eds tlc5xx|mtr-dci|emca|cia402
 //! ```
 //!
 //! With `--config`, every drive the coordinator would dial starts: each CANopen axis on a bus of
@@ -39,6 +41,7 @@ use drivers::canopen::endpoint::Endpoint;
 use drivers::cli_number::Allowed;
 use drivers::fhpp::state::State as FhppState;
 use drivers::sim::axis::{SwitchZone, Switches as Inputs};
+use drivers::sim::cia402_drive::{Cia402Config, Cia402Drive};
 use drivers::sim::cmmo_st::{self, Server, ServerConfig};
 use drivers::sim::emca::Emca;
 use drivers::sim::fhpp_drive::FhppDrive;
@@ -67,16 +70,20 @@ enum DeviceArg {
     Tlc5xx,
     /// Festo CMMO-ST (Modbus TCP, FHPP).
     CmmoSt,
+    /// A generic CiA 402 drive (PP, PV, HM, CSP, CSV, CST): the built-in EDS, or `--eds FILE`.
+    Cia402,
 }
 
 impl DeviceArg {
-    fn kind(self) -> DeviceKind {
-        match self {
+    /// The catalog kind; `None` for the generic CiA 402 drive, which the EDS describes.
+    fn kind(self) -> Option<DeviceKind> {
+        Some(match self {
             DeviceArg::MtrDci => DeviceKind::MtrDci,
             DeviceArg::Emca => DeviceKind::Emca,
             DeviceArg::Tlc5xx => DeviceKind::Tlc5xx,
             DeviceArg::CmmoSt => DeviceKind::CmmoSt,
-        }
+            DeviceArg::Cia402 => return None,
+        })
     }
 }
 
@@ -105,11 +112,16 @@ struct Cli {
     device: Option<DeviceArg>,
     /// Print the CiA 306 EDS of this device (its simulator's object dictionary, as a freshly
     /// powered drive has it; COB-IDs relative to $NODEID) and exit. With `--profile` for the
-    /// MTR-DCI's CiA 402 face.
-    #[arg(long, value_enum, value_name = "DEVICE", conflicts_with_all = ["config", "device", "bus", "nodes", "modbus", "bitrate", "duration", "limit_negative", "limit_positive", "reference"])]
+    /// MTR-DCI's CiA 402 face; `cia402` is the generic drive's built-in EDS.
+    #[arg(long, value_enum, value_name = "DEVICE", conflicts_with_all = ["config", "device", "bus", "nodes", "modbus", "bitrate", "duration", "eds", "limit_negative", "limit_positive", "reference"])]
     write_eds: Option<DeviceArg>,
+    /// With `--device cia402`: the drive's CiA 306 EDS (or DCF); its objects and defaults, its
+    /// identity (1018h) and its modes (6502h) make the simulated drive. Default: the built-in
+    /// one (`--write-eds cia402`).
+    #[arg(long, value_name = "FILE", requires = "device")]
+    eds: Option<PathBuf>,
     /// The CAN bus: `vbus:NAME` (the shared-memory virtual bus).
-    #[arg(long, required_if_eq_any([("device", "mtr-dci"), ("device", "emca"), ("device", "tlc5xx")]))]
+    #[arg(long, required_if_eq_any([("device", "mtr-dci"), ("device", "emca"), ("device", "tlc5xx"), ("device", "cia402")]))]
     bus: Option<String>,
     /// Node-ID(s), 1..=127; one drive per `--node`.
     #[arg(long = "node", num_args = 1.., value_parser = clap::value_parser!(u8).range(1..=127))]
@@ -268,12 +280,33 @@ impl Switches {
     }
 }
 
+/// What a CANopen drive to start is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum CanDevice {
+    /// A device of the catalog.
+    Catalog(DeviceKind),
+    /// The generic CiA 402 drive: the built-in dictionary, or that of an EDS file.
+    Cia402 {
+        /// The EDS file, if not the built-in one.
+        eds: Option<PathBuf>,
+    },
+}
+
+impl CanDevice {
+    fn name(&self) -> &'static str {
+        match self {
+            CanDevice::Catalog(kind) => device_name(*kind),
+            CanDevice::Cia402 { .. } => "CiA 402 drive",
+        }
+    }
+}
+
 /// A CANopen drive to start.
 #[derive(Debug, Clone)]
 struct CanSpec {
     /// The axis name (`--config`), for the status lines.
     axis: Option<String>,
-    kind: DeviceKind,
+    device: CanDevice,
     profile: Profile,
     node: NodeId,
     /// The bus name without `vbus:`.
@@ -366,16 +399,34 @@ fn chosen_profile(kind: DeviceKind, asked: Option<ProfileArg>) -> Result<Profile
 }
 
 fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
-    let kind = device.kind();
+    let (can_device, profile) = match device.kind() {
+        Some(kind) => (CanDevice::Catalog(kind), chosen_profile(kind, cli.profile)?),
+        None => {
+            if cli.profile.is_some_and(|p| p != ProfileArg::Cia402) {
+                return Err("--profile: the generic drive speaks CiA 402 only".into());
+            }
+            let eds = cli.eds.clone();
+            (CanDevice::Cia402 { eds }, Profile::Cia402)
+        }
+    };
     let switches = Switches::from_cli(cli)?;
-    if switches.any() && kind != DeviceKind::Tlc5xx {
+    if switches.any() && !matches!(can_device, CanDevice::Catalog(DeviceKind::Tlc5xx)) {
         return Err(format!(
             "{}: the {} simulator has no switches to place; they are options of --device tlc5xx",
             Switches::given(cli).join(" "),
-            device_name(kind)
+            can_device.name()
         ));
     }
-    if kind.is_modbus() {
+    if cli.eds.is_some() && !matches!(can_device, CanDevice::Cia402 { .. }) {
+        return Err(
+            "--eds FILE describes a generic drive: give it with --device cia402 (the other \
+             devices' dictionaries are their simulators')"
+                .into(),
+        );
+    }
+    if let CanDevice::Catalog(kind) = can_device
+        && kind.is_modbus()
+    {
         let addr = cli
             .modbus
             .ok_or("the CMMO-ST speaks Modbus TCP: give --modbus ADDR")?;
@@ -388,7 +439,6 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
             }],
         });
     }
-    let profile = chosen_profile(kind, cli.profile)?;
     let bus = cli.bus.as_deref().ok_or("give --bus vbus:NAME")?;
     let name = match bus.strip_prefix("vbus:") {
         Some(n) if !n.is_empty() => n,
@@ -415,7 +465,7 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
         let node = NodeId::new(n).ok_or(format!("--node {n}: not a node-ID (1..=127)"))?;
         can.push(CanSpec {
             axis: None,
-            kind,
+            device: can_device.clone(),
             profile,
             node,
             bus: name.to_owned(),
@@ -431,8 +481,11 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
 
 fn read_config(file: &Path) -> Result<Config, String> {
     let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
-    let config = Config::parse(&text).map_err(|e| format!("{}: {e}", file.display()))?;
-    let report = config.check();
+    let mut config = Config::parse(&text).map_err(|e| format!("{}: {e}", file.display()))?;
+    let dir = file.parent().unwrap_or(Path::new("."));
+    let eds_errors = config.load_eds(dir);
+    let mut report = config.check();
+    report.errors.extend(eds_errors);
     if !report.is_ok() {
         // Every refusal, as `coordinator check` prints them.
         for e in &report.errors {
@@ -532,9 +585,19 @@ fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
         if bus.sync == SyncMode::Consumer && !consumer_buses.contains(&bus.name) {
             consumer_buses.push(bus.name.clone());
         }
+        let device = match a.device {
+            // The drive the coordinator expects: the configuration's EDS, as it reads it.
+            DeviceKind::Cia402 => CanDevice::Cia402 {
+                eds: a
+                    .eds
+                    .as_ref()
+                    .map(|f| file.parent().unwrap_or(Path::new(".")).join(f)),
+            },
+            kind => CanDevice::Catalog(kind),
+        };
         plan.can.push(CanSpec {
             axis: Some(a.name.clone()),
-            kind: a.device,
+            device,
             profile: a.profile(),
             node,
             bus: bus.name.clone(),
@@ -671,9 +734,61 @@ impl SimDrive for Emca {
     }
 }
 
+impl SimDrive for Cia402Drive {
+    fn status(&self) -> String {
+        let faults: Vec<String> = self
+            .faults()
+            .iter()
+            .map(|f| format!("{:04X}h", f.emcy_code()))
+            .collect();
+        format!(
+            "NMT {} | {} (statusword {:04X}h) | mode {} | pos {} inc | fault {}",
+            self.nmt_state().name(),
+            self.drive_state().name(),
+            self.statusword(),
+            self.mode().code(),
+            self.actual(),
+            if faults.is_empty() {
+                "none".to_owned()
+            } else {
+                faults.join(" ")
+            }
+        )
+    }
+    fn eds(&self, node: NodeId, info: &DeviceInfo<'_>) -> String {
+        write_eds(self.od(), node, info)
+    }
+}
+
+/// The generic CiA 402 drive at `node`: the built-in dictionary, or `eds`'s. The parsed file
+/// lives as long as the process (the dictionary borrows its names).
+fn build_cia402(
+    node: NodeId,
+    eds: Option<&Path>,
+    now: Instant,
+) -> Result<Box<dyn SimDrive>, String> {
+    let cfg = Cia402Config::new(node);
+    let Some(file) = eds else {
+        return Cia402Drive::new(cfg, now)
+            .map(|d| Box::new(d) as Box<dyn SimDrive>)
+            .map_err(|e| e.to_string());
+    };
+    let text = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+    let parsed = drivers::canopen::eds::Eds::parse(&text, Some(node))
+        .map_err(|e| format!("{}: {e}", file.display()))?;
+    let parsed: &'static drivers::canopen::eds::Eds = Box::leak(Box::new(parsed));
+    Cia402Drive::from_eds(cfg, parsed, now)
+        .map(|d| Box::new(d) as Box<dyn SimDrive>)
+        .map_err(|e| format!("{}: {e}", file.display()))
+}
+
 fn build_can_drive(spec: &CanSpec, now: Instant) -> Result<Box<dyn SimDrive>, String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    match (spec.kind, spec.profile) {
+    let kind = match &spec.device {
+        CanDevice::Catalog(kind) => *kind,
+        CanDevice::Cia402 { eds } => return build_cia402(spec.node, eds.as_deref(), now),
+    };
+    match (kind, spec.profile) {
         (DeviceKind::Tlc5xx, _) => {
             let mut cfg = TlcConfig::new(spec.node);
             let sw = spec.switches;
@@ -722,7 +837,7 @@ fn start_can(spec: &CanSpec, now: Instant) -> Result<CanRun, String> {
     let what = format!(
         "{}{} node {} on vbus:{}",
         prefix(&spec.axis),
-        device_name(spec.kind),
+        spec.device.name(),
         spec.node.get(),
         spec.bus
     );
@@ -764,7 +879,7 @@ fn can_status(r: &CanRun) -> String {
     format!(
         "{}{} node {} on vbus:{} | {}",
         prefix(&r.spec.axis),
-        device_name(r.spec.kind),
+        r.spec.device.name(),
         r.spec.node.get(),
         r.spec.bus,
         r.station.endpoint.status()
@@ -929,20 +1044,32 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
 
 /// `--write-eds DEVICE`: the EDS of a freshly built simulator of that device.
 fn eds_of(device: DeviceArg, profile: Option<ProfileArg>) -> Result<String, String> {
-    let kind = device.kind();
-    let facts = kind.device();
-    if kind.is_modbus() {
-        return Err(format!(
-            "--write-eds {}: the {} speaks Modbus TCP, not CANopen; it has no EDS",
-            facts.id, facts.name
-        ));
-    }
-    let profile = chosen_profile(kind, profile)?;
+    let (can_device, facts, profile) = match device.kind() {
+        Some(kind) => {
+            let facts = kind.device();
+            if kind.is_modbus() {
+                return Err(format!(
+                    "--write-eds {}: the {} speaks Modbus TCP, not CANopen; it has no EDS",
+                    facts.id, facts.name
+                ));
+            }
+            (
+                CanDevice::Catalog(kind),
+                facts,
+                chosen_profile(kind, profile)?,
+            )
+        }
+        None => (
+            CanDevice::Cia402 { eds: None },
+            &drivers::catalog::CIA402_GENERIC,
+            Profile::Cia402,
+        ),
+    };
     // Built at node 1; the writer gives the COB-IDs relative to $NODEID.
     let node = NodeId::new(1).ok_or("node 1")?;
     let spec = CanSpec {
         axis: None,
-        kind,
+        device: can_device,
         profile,
         node,
         bus: String::new(),

@@ -26,6 +26,7 @@
 //! ```
 
 pub mod axis;
+pub mod cia402_drive;
 #[cfg(feature = "std")]
 pub mod cmmo_st;
 pub mod comparator;
