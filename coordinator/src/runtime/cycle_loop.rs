@@ -147,6 +147,10 @@ pub struct CycleLoop<'p> {
     /// Whether the orderly end had begun when the last iteration ended (a later change came
     /// from outside the loop: recorded).
     ending_seen: bool,
+    /// Per axis: the largest |setpoint − actual position| seen while it followed a move,
+    /// increments: the quantity the cycle's following-error fault watches (this cycle's
+    /// set-point against the last position reported, so it holds the transport delay too).
+    pub following_max: Vec<i64>,
 }
 
 impl std::fmt::Debug for CycleLoop<'_> {
@@ -202,6 +206,7 @@ impl<'p> CycleLoop<'p> {
             probe: None,
             recorder: None,
             ending_seen: false,
+            following_max: vec![0; plan.axes.len()],
         })
     }
 
@@ -406,6 +411,14 @@ impl<'p> CycleLoop<'p> {
         stepper.tx_refused += refused;
         for &(slot, _, _) in &self.modbus_slots {
             io.modbus_output(self.k, slot, &stepper.modbus_output(slot));
+        }
+        for (i, m) in self.following_max.iter_mut().enumerate() {
+            if let Some(st) = stepper.cycle.axis_status(i as crate::ids::AxisId)
+                && st.moving
+                && st.feedback.state != crate::axis::AxisState::Offline
+            {
+                *m = (*m).max((st.setpoint - st.feedback.position).abs());
+            }
         }
         if let Some(st) = &mut self.state {
             let late_us = wake.late_us();

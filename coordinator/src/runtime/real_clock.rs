@@ -564,7 +564,13 @@ pub fn run_real(
                     frames_lost: (stepper.tx_refused, stepper.rx_dropped),
                     ..Summary::default()
                 };
-                finish_summary(plan, &stepper.cycle, &lp.script, &mut summary);
+                finish_summary(
+                    plan,
+                    &stepper.cycle,
+                    &lp.script,
+                    &lp.following_max,
+                    &mut summary,
+                );
                 summary.overruns = lp.overruns;
                 summary.recording = recording;
                 Ok(CycleResult {

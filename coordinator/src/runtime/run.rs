@@ -120,6 +120,9 @@ pub struct Summary {
     pub frame_hash: u64,
     /// Per axis: name, unit, final position in units, state.
     pub axes: Vec<(String, String, f64, AxisState)>,
+    /// Per axis: the largest following error seen while it moved, in its units
+    /// (`CycleLoop::following_max`); 0 for an axis that never moved.
+    pub following: Vec<f64>,
     /// The script's last phase.
     pub phase: Option<Phase>,
     /// Per axis: name, unit and increments per unit (to say faults in the axis's unit).
@@ -216,8 +219,14 @@ impl std::fmt::Display for Summary {
             };
             writeln!(f, "  fault: {a}: {text}")?;
         }
-        for (name, unit, pos, state) in &self.axes {
-            writeln!(f, "  axis {name}: {pos:.3} {unit}, {}", state)?;
+        for (i, (name, unit, pos, state)) in self.axes.iter().enumerate() {
+            match self.following.get(i).filter(|e| **e > 0.0) {
+                Some(e) => writeln!(
+                    f,
+                    "  axis {name}: {pos:.3} {unit}, {state}; largest following error {e:.3} {unit}"
+                )?,
+                None => writeln!(f, "  axis {name}: {pos:.3} {unit}, {state}")?,
+            }
         }
         write!(f, "  frame hash {:016x}", self.frame_hash)
     }
@@ -462,8 +471,15 @@ pub fn finish_summary<const A: usize, const G: usize>(
     plan: &MachinePlan,
     c: &Cycle<'_, A, G>,
     script: &Script,
+    following_max: &[i64],
     summary: &mut Summary,
 ) {
+    summary.following = plan
+        .axes
+        .iter()
+        .zip(following_max)
+        .map(|(a, e)| a.scale.to_units(*e))
+        .collect();
     summary.laps = script.laps;
     summary.refused = script.refused;
     summary.phase = Some(script.phase());

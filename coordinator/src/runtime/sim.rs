@@ -12,6 +12,7 @@ use drivers::canopen::NodeId;
 use drivers::canopen::endpoint::Endpoint;
 use drivers::canopen::sync::{SyncCobId, SyncProducer};
 use drivers::modbus::client::Client;
+use drivers::sim::cia402_drive::{Cia402Config, Cia402Drive};
 use drivers::sim::cmmo_st::mbap::MAX_ADU;
 use drivers::sim::cmmo_st::{self, Server, ServerConfig, Session};
 use drivers::sim::emca::Emca;
@@ -35,6 +36,8 @@ pub enum SimDrive {
     Emca(Box<Station<VirtualPort, Emca>>),
     /// Schneider TLC5xx.
     Tlc5xx(Box<Station<VirtualPort, Tlc5xx>>),
+    /// A generic CiA 402 drive (the built-in dictionary, or its EDS's).
+    Cia402(Box<Station<VirtualPort, Cia402Drive>>),
 }
 
 impl std::fmt::Debug for SimDrive {
@@ -43,6 +46,7 @@ impl std::fmt::Debug for SimDrive {
             SimDrive::MtrDci(_) => "MTR-DCI",
             SimDrive::Emca(_) => "EMCA",
             SimDrive::Tlc5xx(_) => "TLC5xx",
+            SimDrive::Cia402(_) => "CiA 402 drive",
         };
         write!(f, "SimDrive({kind})")
     }
@@ -54,6 +58,7 @@ impl SimDrive {
             SimDrive::MtrDci(s) => s.as_mut(),
             SimDrive::Emca(s) => s.as_mut(),
             SimDrive::Tlc5xx(s) => s.as_mut(),
+            SimDrive::Cia402(s) => s.as_mut(),
         }
     }
     /// The drive's bus port (to disconnect it in a test).
@@ -62,6 +67,7 @@ impl SimDrive {
             SimDrive::MtrDci(s) => s.bus.id(),
             SimDrive::Emca(s) => s.bus.id(),
             SimDrive::Tlc5xx(s) => s.bus.id(),
+            SimDrive::Cia402(s) => s.bus.id(),
         }
     }
     /// The FHPP behaviour of a Festo drive.
@@ -69,13 +75,20 @@ impl SimDrive {
         match self {
             SimDrive::MtrDci(s) => Some(s.endpoint.drive_mut()),
             SimDrive::Emca(s) => Some(s.endpoint.drive_mut()),
-            SimDrive::Tlc5xx(_) => None,
+            SimDrive::Tlc5xx(_) | SimDrive::Cia402(_) => None,
         }
     }
     /// The TLC5xx simulator.
     pub fn tlc_mut(&mut self) -> Option<&mut Tlc5xx> {
         match self {
             SimDrive::Tlc5xx(s) => Some(&mut s.endpoint),
+            _ => None,
+        }
+    }
+    /// The generic CiA 402 drive's simulator.
+    pub fn cia402_mut(&mut self) -> Option<&mut Cia402Drive> {
+        match self {
+            SimDrive::Cia402(s) => Some(&mut s.endpoint),
             _ => None,
         }
     }
@@ -170,11 +183,11 @@ impl SimBus {
                     Tlc5xx::new(TlcConfig::new(id), now).map_err(|e| err(&e))?,
                 ))),
                 (DeviceKind::CmmoSt, _) => continue,
-                (DeviceKind::Cia402, _) => {
-                    return Err(err(
-                        &"the generic CiA 402 drive has no simulator inside the coordinator yet",
-                    ));
-                }
+                // The built-in generic drive: a simulated bus has no EDS to take one from.
+                (DeviceKind::Cia402, _) => SimDrive::Cia402(Box::new(Station::new(
+                    port,
+                    Cia402Drive::new(Cia402Config::new(id), now).map_err(|e| err(&e))?,
+                ))),
             };
             drives.push((a.name.clone(), d));
         }

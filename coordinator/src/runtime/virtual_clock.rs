@@ -554,7 +554,13 @@ impl<'p> VirtualRun<'p> {
         summary.step_ns = self.stepper.step_figures();
         summary.frames_lost = (self.stepper.tx_refused, self.stepper.rx_dropped);
         summary.frame_hash = self.io.hash.value();
-        finish_summary(plan, &self.stepper.cycle, &self.lp.script, &mut summary);
+        finish_summary(
+            plan,
+            &self.stepper.cycle,
+            &self.lp.script,
+            &self.lp.following_max,
+            &mut summary,
+        );
         summary.recording = self.lp.finish_recording().map(|r| r.line());
         if let (Some(c), Some(dir)) = (self.io.capture.take(), &self.io.capture_dir) {
             summary.captures = capture_lines(dir, c.finish());
