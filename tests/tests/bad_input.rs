@@ -474,6 +474,55 @@ fn cases(dir: &Path, example: &str) -> Vec<Case> {
             &["--config", "/nonexistent.toml"],
             &["/nonexistent.toml"],
         ),
+        // drive-sim's TLC5xx switches: whole increments in 32 bits, in order.
+        case(
+            "coordinator",
+            "drive-sim",
+            &[
+                "--device",
+                "tlc5xx",
+                "--bus",
+                bus,
+                "--node",
+                "1",
+                "--limit-negative",
+                "NaN",
+            ],
+            &[
+                "--limit-negative NaN",
+                "whole motor increments, -2147483648 to 2147483647",
+            ],
+        ),
+        case(
+            "coordinator",
+            "drive-sim",
+            &[
+                "--device",
+                "tlc5xx",
+                "--bus",
+                bus,
+                "--node",
+                "1",
+                "--limit-positive",
+                "1e300",
+            ],
+            &["--limit-positive 1e300", "whole motor increments"],
+        ),
+        case(
+            "coordinator",
+            "drive-sim",
+            &[
+                "--device",
+                "tlc5xx",
+                "--bus",
+                bus,
+                "--node",
+                "1",
+                "--reference",
+                "5..-5",
+            ],
+            &["--reference 5..-5", "FROM must be below TO"],
+        ),
         // motion-watch, motion-cmd, motion-top: refused before anything connects.
         case(
             "shm-api",
