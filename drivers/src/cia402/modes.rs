@@ -196,7 +196,9 @@ impl ModeSelector {
         if !profile.supports_mode(mode) {
             return Err(ModeError::Unsupported(code));
         }
-        self.requested = Some(mode);
+        // The last write wins; writing the active mode again (a master that maps 6060h in its
+        // RPDO writes it every cycle) asks for no change.
+        self.requested = (mode != self.active).then_some(mode);
         Ok(())
     }
     /// Applies a pending request if the axis is at a standstill; returns the newly active mode.
