@@ -3,7 +3,7 @@
 //! `motion-watch` and `motion-cmd` processes, the client library and the Python example reading
 //! and commanding.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write as _};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -402,7 +402,11 @@ fn stop_all_from_a_client_ends_the_demonstration_for_good() {
                 "{}",
                 describe(&s)
             );
-            assert_eq!(a.setpoint, b.setpoint, "an axis moved after the stop");
+            // A drive faulted meanwhile has its setpoint re-seeded from its position: compare
+            // only axes that stayed unfaulted.
+            if a.fault == 0 && b.fault == 0 {
+                assert_eq!(a.setpoint, b.setpoint, "an axis moved after the stop");
+            }
         }
     }
     drop(coordinator);
@@ -453,12 +457,35 @@ fn the_python_example_reads_the_state_and_commands_the_coordinator() {
         );
     }
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let out = Command::new("python3")
-        .arg(root.join("shm-api/python/example_watch_and_command.py"))
-        .args(["--prefix", &p, "--all", "--timeout", "10"])
-        .env("PYTHONPATH", root.join("shm-api/python"))
-        .output()
-        .unwrap();
+    let example = || {
+        Command::new("python3")
+            .arg(root.join("shm-api/python/example_watch_and_command.py"))
+            .args(["--prefix", &p, "--all", "--timeout", "10"])
+            .env("PYTHONPATH", root.join("shm-api/python"))
+            .output()
+            .unwrap()
+    };
+    let mut out = example();
+    // On a loaded host a simulated drive can miss its TPDOs and be faulted (as a silent real
+    // drive would be); the coordinator then refuses the example's enable, rightly. Recover as
+    // an operator would and ask again, twice at most; any other refusal fails at once.
+    for _ in 0..2 {
+        let text = String::from_utf8_lossy(&out.stdout);
+        if out.status.success() || !text.contains("a fault must be acknowledged first") {
+            break;
+        }
+        let _ = writeln!(
+            std::io::stderr(),
+            "the example's enable was refused for a fault (a drive missed its TPDOs); acknowledging and asking again"
+        );
+        if let Err(e) = ready(&mut c) {
+            panic!(
+                "{e}\n--- what the coordinator printed\n{}",
+                coordinator.output_now()
+            );
+        }
+        out = example();
+    }
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
