@@ -337,11 +337,22 @@ fn a_mode_outside_6502h_is_refused() {
 #[test]
 fn pdo1_remapped_for_csp_with_read_back() {
     let mut rig = Rig::node1();
-    // CiA 301: entries change only while sub00 = 0.
+    // CiA 301: the mapping changes only while the PDO is invalid, and its entries only while
+    // sub00 = 0.
     assert_eq!(
-        rig.write(0x1600, 1, &0x607A_0020u32.to_le_bytes()),
+        rig.write(0x1600, 0, &[0]),
         abort(AbortCode::UnsupportedAccess)
     );
+    assert_eq!(
+        rig.write(0x1A00, 0, &[0]),
+        abort(AbortCode::UnsupportedAccess)
+    );
+    rig.ok(0x1401, 1, &0x8000_0301u32.to_le_bytes());
+    assert_eq!(
+        rig.write(0x1601, 1, &0x607A_0020u32.to_le_bytes()),
+        abort(AbortCode::UnsupportedAccess)
+    );
+    rig.ok(0x1601, 0, &[0]);
     // The identifier changes only while the PDO is invalid.
     assert_eq!(
         rig.write(0x1400, 1, &0x202u32.to_le_bytes()),

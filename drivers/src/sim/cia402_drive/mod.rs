@@ -284,13 +284,37 @@ pub fn check_dictionary(od: &GenericOd) -> Result<u32, EdsRefusal> {
 }
 
 /// The SDO write rules beyond the dictionary's own checks: 6060h only the modes of 6502h (and
-/// of this simulator), 6098h only the homing methods of `GENERIC`.
+/// of this simulator), 6098h only the homing methods of `GENERIC`, a PDO's mapping only while
+/// the PDO is invalid (CiA 301 §7.4.8: COB-ID bit 31 set; else 0601 0000h, as for the entries
+/// while sub 00h ≠ 0).
 #[derive(Debug, Clone, Copy)]
 pub struct GenericHooks {
     modes: u32,
+    /// RPDO 1–4, TPDO 1–4: COB-ID bit 31 clear.
+    valid: [bool; 8],
+}
+
+/// The slot of [`GenericHooks::valid`] a PDO parameter index belongs to.
+const fn pdo_slot(index: u16) -> Option<usize> {
+    match index {
+        0x1400..=0x1403 => Some((index - 0x1400) as usize),
+        0x1600..=0x1603 => Some((index - 0x1600) as usize),
+        0x1800..=0x1803 => Some(4 + (index - 0x1800) as usize),
+        0x1A00..=0x1A03 => Some(4 + (index - 0x1A00) as usize),
+        _ => None,
+    }
 }
 
 impl GenericHooks {
+    fn new(modes: u32, od: &GenericOd) -> Self {
+        let mut valid = [false; 8];
+        for (k, v) in valid.iter_mut().enumerate() {
+            let comm = if k < 4 { 0x1400 } else { 0x1800 - 4 } + k as u16;
+            *v = od.get_u32(a(comm, 1)).is_ok_and(|c| c & 0x8000_0000 == 0);
+        }
+        GenericHooks { modes, valid }
+    }
+
     fn offers(&self, mode: OperationMode) -> bool {
         mode.supported_modes_bit()
             .is_some_and(|b| self.modes & b != 0)
@@ -313,6 +337,17 @@ impl DeviceHooks for GenericHooks {
             (0x6098, 0) => match Method::from_code(v as u8 as i8) {
                 Ok(m) if GENERIC.supports_homing(m) => Ok(()),
                 _ => Err(AbortCode::InvalidValue),
+            },
+            (0x1400..=0x1403 | 0x1800..=0x1803, 1) => {
+                // Called last before the value is stored: what the PDO's state becomes.
+                if let Some(k) = pdo_slot(def.addr.index) {
+                    self.valid[k] = v & 0x8000_0000 == 0;
+                }
+                Ok(())
+            }
+            (0x1600..=0x1603 | 0x1A00..=0x1A03, _) => match pdo_slot(def.addr.index) {
+                Some(k) if self.valid[k] => Err(AbortCode::UnsupportedAccess),
+                _ => Ok(()),
             },
             _ => Ok(()),
         }
@@ -444,7 +479,8 @@ impl Cia402Drive {
             quick_stop: QuickStopOption::StayInQuickStop,
             ..GENERIC
         };
-        let mut dev = Device::new(cfg.node, od, BootUpStyle::Ds301, GenericHooks { modes });
+        let hooks = GenericHooks::new(modes, &od);
+        let mut dev = Device::new(cfg.node, od, BootUpStyle::Ds301, hooks);
         dev.power_on(now);
         let mut ac = axis::Config {
             step: cfg.tick,
@@ -999,6 +1035,8 @@ impl Cia402Drive {
                         self.reset_application();
                     }
                     self.settings = self.read_settings();
+                    let modes = self.dev.hooks().modes;
+                    *self.dev.hooks_mut() = GenericHooks::new(modes, self.dev.od());
                 }
                 DeviceEvent::LifeGuardingLost => self.raise_fault(Cia402Fault::LifeGuarding),
                 _ => {}
