@@ -980,3 +980,87 @@ fn the_coordinators_cia402_axis_homes_a_drive_sim_tlc5xx_on_its_switches() {
         "{fb:?}"
     );
 }
+
+/// `drive-sim --write-eds cia402`: the generic drive's built-in EDS.
+fn generic_eds() -> String {
+    let out = Command::new(BIN)
+        .args(["--write-eds", "cia402"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "drive-sim --write-eds cia402");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn cia402_process_runs_from_an_eds_and_refuses_one_without_what_it_needs() {
+    // The built-in drive: 1000h and 6502h.
+    let (_child, mut st, device_type) = read_device_type("cia402", &[]);
+    assert_eq!(device_type, 0x0002_0192u32.to_le_bytes());
+    let node = NodeId::new(5).unwrap();
+    let read = |st: &mut Station<ShmBus, M>, index: u16, sub: u8| {
+        st.endpoint
+            .sdo(node)
+            .unwrap()
+            .upload(Address::new(index, sub))
+            .unwrap();
+        sdo(st, node).unwrap()
+    };
+    assert_eq!(read(&mut st, 0x6502, 0), 0x03A5u32.to_le_bytes());
+    // From an EDS: its identity and its modes (PP refused where 6502h lacks it).
+    let text = generic_eds()
+        .replace("DefaultValue=0x3A5", "DefaultValue=0x380")
+        .replace("ProductNumber=0x402", "ProductNumber=0x4711");
+    let edited = text.replacen(
+        "ParameterName=product code\nObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x402",
+        "ParameterName=product code\nObjectType=0x7\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x4711",
+        1,
+    );
+    assert_ne!(edited, text, "the EDS names 1018h:02 as expected");
+    let file = TempFile::new(&edited);
+    let (_child, mut st, _) = read_device_type("cia402", &["--eds", file.path()]);
+    assert_eq!(read(&mut st, 0x1018, 2), 0x4711u32.to_le_bytes());
+    st.endpoint
+        .sdo(node)
+        .unwrap()
+        .download(Address::new(0x6060, 0), &[1], DownloadMode::Expedited)
+        .unwrap();
+    assert!(matches!(
+        sdo(&mut st, node),
+        Err(SdoError::Aborted {
+            code: AbortCode::InvalidValue,
+            ..
+        })
+    ));
+    // Without 607Ah: refused, naming it.
+    let start = text.find("[607A]").unwrap();
+    let end = start + text[start..].find("\n\n").unwrap() + 2;
+    let cut = TempFile::new(&format!("{}{}", &text[..start], &text[end..]));
+    let bus = format!("vbus:{}", unique("dse"));
+    refused(
+        &[
+            "--device",
+            "cia402",
+            "--bus",
+            &bus,
+            "--node",
+            "5",
+            "--eds",
+            cut.path(),
+        ],
+        &["607Ah", "target position"],
+    );
+    // --eds describes a generic drive only.
+    refused(
+        &[
+            "--device",
+            "tlc5xx",
+            "--bus",
+            &bus,
+            "--node",
+            "5",
+            "--eds",
+            cut.path(),
+        ],
+        &["--eds FILE", "--device cia402"],
+    );
+}

@@ -337,11 +337,22 @@ fn a_mode_outside_6502h_is_refused() {
 #[test]
 fn pdo1_remapped_for_csp_with_read_back() {
     let mut rig = Rig::node1();
-    // CiA 301: entries change only while sub00 = 0.
+    // CiA 301: the mapping changes only while the PDO is invalid, and its entries only while
+    // sub00 = 0.
     assert_eq!(
-        rig.write(0x1600, 1, &0x607A_0020u32.to_le_bytes()),
+        rig.write(0x1600, 0, &[0]),
         abort(AbortCode::UnsupportedAccess)
     );
+    assert_eq!(
+        rig.write(0x1A00, 0, &[0]),
+        abort(AbortCode::UnsupportedAccess)
+    );
+    rig.ok(0x1401, 1, &0x8000_0301u32.to_le_bytes());
+    assert_eq!(
+        rig.write(0x1601, 1, &0x607A_0020u32.to_le_bytes()),
+        abort(AbortCode::UnsupportedAccess)
+    );
+    rig.ok(0x1601, 0, &[0]);
     // The identifier changes only while the PDO is invalid.
     assert_eq!(
         rig.write(0x1400, 1, &0x202u32.to_le_bytes()),
@@ -818,4 +829,54 @@ fn the_simulator_builds_without_std() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+#[test]
+fn disable_operation_ramps_per_605ch_and_a_node_reset_restores_the_defaults() {
+    let mut rig = Rig::node1();
+    rig.cyclic(9, 0x60FF_0020, 0);
+    for _ in 0..30 {
+        rig.cycle(rpdo(0x0F, 100_000, 4));
+    }
+    // 605Ch = 1 (default): Switched on at once, the 6084h ramp, then the power stage off.
+    rig.cycle(rpdo(0x07, 100_000, 4));
+    assert_eq!(rig.d().drive_state(), State::SwitchedOn);
+    assert_eq!(rig.sw() & 0x1000, 0, "set-point ignored");
+    for _ in 0..20 {
+        rig.cycle(rpdo(0x07, 100_000, 4));
+    }
+    let v = rig.d().axis().status().velocity;
+    assert!(
+        rig.d().axis().is_enabled() && v > 50_000 && v < 100_000,
+        "{v}"
+    );
+    for _ in 0..150 {
+        rig.cycle(rpdo(0x07, 100_000, 4));
+    }
+    assert!(!rig.d().axis().is_enabled());
+    assert_eq!(rig.d().axis().status().velocity, 0);
+    // NMT reset node: boot-up, defaults again (PP, 60C2h = 1 ms, PDO1 = 6040h / 6041h).
+    let from = rig.log.len();
+    rig.send(&[f("000#8101")], 5 * MS);
+    assert_eq!(rig.frames(0x701, from), vec![f("701#00")]);
+    assert_eq!(rig.d().drive_state(), State::SwitchOnDisabled);
+    assert_eq!(rig.d().mode(), OperationMode::ProfilePosition);
+    assert_eq!(rig.read(0x6061, 0), vec![1]);
+    assert_eq!(rig.read_u32(0x1600, 1), 0x6040_0010);
+    assert_eq!(rig.read(0x1600, 0), vec![1]);
+}
+
+#[test]
+fn a_profile_position_target_is_clipped_into_607dh() {
+    let mut rig = Rig::node1();
+    rig.ok(0x607D, 2, &5_000i32.to_le_bytes());
+    rig.ok(0x607A, 0, &20_000i32.to_le_bytes());
+    rig.enable();
+    rig.send(&[f("201#1F00"), f("201#0F00")], 2 * MS);
+    assert!(
+        rig.run_until(2000 * MS, |r| r.sw() & 0x1400 == 0x0400),
+        "target reached"
+    );
+    rig.run_for(100 * MS);
+    assert_eq!(rig.d().actual(), 5_000);
 }

@@ -284,13 +284,37 @@ pub fn check_dictionary(od: &GenericOd) -> Result<u32, EdsRefusal> {
 }
 
 /// The SDO write rules beyond the dictionary's own checks: 6060h only the modes of 6502h (and
-/// of this simulator), 6098h only the homing methods of `GENERIC`.
+/// of this simulator), 6098h only the homing methods of `GENERIC`, a PDO's mapping only while
+/// the PDO is invalid (CiA 301 §7.4.8: COB-ID bit 31 set; else 0601 0000h, as for the entries
+/// while sub 00h ≠ 0).
 #[derive(Debug, Clone, Copy)]
 pub struct GenericHooks {
     modes: u32,
+    /// RPDO 1–4, TPDO 1–4: COB-ID bit 31 clear.
+    valid: [bool; 8],
+}
+
+/// The slot of [`GenericHooks::valid`] a PDO parameter index belongs to.
+const fn pdo_slot(index: u16) -> Option<usize> {
+    match index {
+        0x1400..=0x1403 => Some((index - 0x1400) as usize),
+        0x1600..=0x1603 => Some((index - 0x1600) as usize),
+        0x1800..=0x1803 => Some(4 + (index - 0x1800) as usize),
+        0x1A00..=0x1A03 => Some(4 + (index - 0x1A00) as usize),
+        _ => None,
+    }
 }
 
 impl GenericHooks {
+    fn new(modes: u32, od: &GenericOd) -> Self {
+        let mut valid = [false; 8];
+        for (k, v) in valid.iter_mut().enumerate() {
+            let comm = if k < 4 { 0x1400 } else { 0x1800 - 4 } + k as u16;
+            *v = od.get_u32(a(comm, 1)).is_ok_and(|c| c & 0x8000_0000 == 0);
+        }
+        GenericHooks { modes, valid }
+    }
+
     fn offers(&self, mode: OperationMode) -> bool {
         mode.supported_modes_bit()
             .is_some_and(|b| self.modes & b != 0)
@@ -313,6 +337,17 @@ impl DeviceHooks for GenericHooks {
             (0x6098, 0) => match Method::from_code(v as u8 as i8) {
                 Ok(m) if GENERIC.supports_homing(m) => Ok(()),
                 _ => Err(AbortCode::InvalidValue),
+            },
+            (0x1400..=0x1403 | 0x1800..=0x1803, 1) => {
+                // Called last before the value is stored: what the PDO's state becomes.
+                if let Some(k) = pdo_slot(def.addr.index) {
+                    self.valid[k] = v & 0x8000_0000 == 0;
+                }
+                Ok(())
+            }
+            (0x1600..=0x1603 | 0x1A00..=0x1A03, _) => match pdo_slot(def.addr.index) {
+                Some(k) if self.valid[k] => Err(AbortCode::UnsupportedAccess),
+                _ => Ok(()),
             },
             _ => Ok(()),
         }
@@ -347,6 +382,27 @@ struct Cyclic {
     target: i64,
 }
 
+/// The objects read every tick, as last written (they change only by SDO or RPDO writes and
+/// resets): one dictionary lookup per write instead of several per tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Settings {
+    /// 607Fh, within the motor's limit.
+    max_velocity: u32,
+    /// 6065h.
+    fe_window: u32,
+    /// 6066h.
+    fe_timeout: Duration,
+    /// 60C2h, else 1006h (`None`: neither is set).
+    sync_period: Option<Duration>,
+    /// 607Fh and the drive's acceleration limit in the axis' sub-increments per tick (and
+    /// tick²), for the cyclic reference.
+    vmax_sub: i64,
+    amax_sub: i64,
+}
+
+/// The objects [`Settings`] holds.
+const SETTINGS: [u16; 5] = [0x607F, 0x6065, 0x6066, 0x60C2, 0x1006];
+
 const fn is_cyclic(m: OperationMode) -> bool {
     matches!(
         m,
@@ -376,6 +432,7 @@ pub struct Cia402Drive {
     fe_timer: WindowTimer,
     fe_over: bool,
     cs: Cyclic,
+    settings: Settings,
     faults: heapless::Vec<Cia402Fault, 4>,
     last_error: u16,
     referenced: bool,
@@ -422,7 +479,8 @@ impl Cia402Drive {
             quick_stop: QuickStopOption::StayInQuickStop,
             ..GENERIC
         };
-        let mut dev = Device::new(cfg.node, od, BootUpStyle::Ds301, GenericHooks { modes });
+        let hooks = GenericHooks::new(modes, &od);
+        let mut dev = Device::new(cfg.node, od, BootUpStyle::Ds301, hooks);
         dev.power_on(now);
         let mut ac = axis::Config {
             step: cfg.tick,
@@ -476,6 +534,14 @@ impl Cia402Drive {
             fe_timer: WindowTimer::new(),
             fe_over: false,
             cs: Cyclic::default(),
+            settings: Settings {
+                max_velocity: cfg.max_velocity,
+                fe_window: u32::MAX,
+                fe_timeout: Duration::ZERO,
+                sync_period: None,
+                vmax_sub: 0,
+                amax_sub: 1,
+            },
             faults: heapless::Vec::new(),
             last_error: 0,
             referenced: false,
@@ -488,6 +554,7 @@ impl Cia402Drive {
             published: [None; PUBLISHED],
         };
         let _ = d.dev.od_mut().set_i8(a(0x6061, 0), initial.code());
+        d.settings = d.read_settings();
         let p = d.actual();
         d.pp.reset(p);
         d.publish();
@@ -607,8 +674,33 @@ impl Cia402Drive {
             .clamp(1, self.cfg.max_acceleration.max(1))
     }
     fn max_velocity(&self) -> u32 {
-        self.od_u32(0x607F, 0, self.cfg.max_velocity)
-            .min(self.cfg.max_velocity)
+        self.settings.max_velocity
+    }
+
+    fn read_settings(&self) -> Settings {
+        let od = self.dev.od();
+        let value = od.get_u8(a(0x60C2, 1)).unwrap_or(0) as u64;
+        let index = od.get_i8(a(0x60C2, 2)).unwrap_or(-3);
+        let sync_period = if value != 0 && (-9..=0).contains(&index) {
+            Some(Duration::from_nanos(value * 10u64.pow((9 + index) as u32)))
+        } else {
+            match self.od_u32(0x1006, 0, 0) {
+                0 => None,
+                us => Some(Duration::from_micros(us as u64)),
+            }
+        };
+        let max_velocity = self
+            .od_u32(0x607F, 0, self.cfg.max_velocity)
+            .min(self.cfg.max_velocity);
+        let sc = self.axis.scale();
+        Settings {
+            max_velocity,
+            vmax_sub: sc.velocity(max_velocity as i64),
+            amax_sub: sc.acceleration(self.cfg.max_acceleration).max(1),
+            fe_window: self.od_u32(0x6065, 0, u32::MAX),
+            fe_timeout: Duration::from_millis(self.od_u16(0x6066, 0) as u64),
+            sync_period,
+        }
     }
 
     /// Brings the axis to rest per an option code of 605Ah / 605Dh / 605Eh: 0 coasts (power
@@ -850,6 +942,9 @@ impl Cia402Drive {
     /// Objects written by SDO or an RPDO: act on them (all of one RPDO at once).
     fn written(&mut self, addrs: &[Address]) {
         let has = |i: u16| addrs.iter().any(|x| x.index == i);
+        if SETTINGS.iter().any(|&i| has(i)) {
+            self.settings = self.read_settings();
+        }
         if has(0x6060) {
             // An RPDO bypasses the SDO check: a mode outside 6502h is ignored here too.
             let code = self.dev.od().get_i8(a(0x6060, 0)).unwrap_or(1);
@@ -939,6 +1034,9 @@ impl Cia402Drive {
                     if kind == ResetKind::Node {
                         self.reset_application();
                     }
+                    self.settings = self.read_settings();
+                    let modes = self.dev.hooks().modes;
+                    *self.dev.hooks_mut() = GenericHooks::new(modes, self.dev.od());
                 }
                 DeviceEvent::LifeGuardingLost => self.raise_fault(Cia402Fault::LifeGuarding),
                 _ => {}
@@ -953,16 +1051,7 @@ impl Cia402Drive {
 
     /// The SYNC period: 60C2h (value × 10^index s), else 1006h, else the last SYNC interval.
     fn sync_period(&self) -> Option<Duration> {
-        let value = self.dev.od().get_u8(a(0x60C2, 1)).unwrap_or(0) as u64;
-        let index = self.dev.od().get_i8(a(0x60C2, 2)).unwrap_or(-3);
-        if value != 0 && (-9..=0).contains(&index) {
-            let ns = value * 10u64.pow((9 + index) as u32);
-            return Some(Duration::from_nanos(ns));
-        }
-        match self.od_u32(0x1006, 0, 0) {
-            0 => self.sync_interval,
-            us => Some(Duration::from_micros(us as u64)),
-        }
+        self.settings.sync_period.or(self.sync_interval)
     }
 
     /// The set-points as they are in the dictionary now, clipped and clamped.
@@ -1035,8 +1124,7 @@ impl Cia402Drive {
             self.cs.following = true;
         }
         let sc = self.axis.scale();
-        let amax = sc.acceleration(self.cfg.max_acceleration).max(1);
-        let vmax = sc.velocity(self.max_velocity() as i64);
+        let (amax, vmax) = (self.settings.amax_sub, self.settings.vmax_sub);
         let c = &mut self.cs;
         c.limited = false;
         let v_want = match mode {
@@ -1132,11 +1220,11 @@ impl Cia402Drive {
                 OperationMode::CyclicSyncPosition => self.cs.following,
                 _ => false,
             };
-        let window = self.od_u32(0x6065, 0, u32::MAX);
+        let window = self.settings.fe_window;
         let over = monitored
             && window != u32::MAX
             && self.following_error().unsigned_abs() > window as u64;
-        let timeout = Duration::from_millis(self.od_u16(0x6066, 0) as u64);
+        let timeout = self.settings.fe_timeout;
         if self.fe_timer.update(over, now) > timeout {
             self.fe_over = true;
             self.raise_fault(Cia402Fault::FollowingError);
