@@ -108,3 +108,32 @@ fn a_dropped_endpoint_does_not_disturb_the_others() {
     late.send(&"701#05".parse().unwrap()).unwrap();
     assert_eq!(recv(&mut a).unwrap().cob_id(), Some(0x701));
 }
+
+/// Processes that join a new bus at the same moment all get it: the one that loses the race to
+/// create the service finds it half made and asks again instead of failing (seen when two
+/// drive-sim processes started together on a loaded host).
+#[test]
+fn endpoints_joining_a_new_bus_at_once_all_get_it() {
+    use std::sync::{Arc, Barrier};
+    for round in 0..20 {
+        let name = unique_bus(&format!("race{round}"));
+        let n = 6;
+        let start = Arc::new(Barrier::new(n));
+        let joins: Vec<_> = (0..n)
+            .map(|_| {
+                let (name, start) = (name.clone(), Arc::clone(&start));
+                std::thread::spawn(move || {
+                    start.wait();
+                    ShmBus::open(&name, 1_000_000)
+                        .map(|_| ())
+                        .map_err(|e| e.to_string())
+                })
+            })
+            .collect();
+        for j in joins {
+            if let Err(e) = j.join().unwrap() {
+                panic!("round {round}: {e}");
+            }
+        }
+    }
+}

@@ -58,6 +58,9 @@ use core::time::Duration;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
 use std::sync::Once;
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -181,6 +184,62 @@ impl core::fmt::Debug for ShmBus {
     }
 }
 
+/// How often [`ShmBus::open`] asks again while another process is creating the bus (10 ms
+/// apart: two seconds).
+const OPEN_ATTEMPTS: u32 = 200;
+
+/// Whether `open_or_create` failed only because another process is creating or removing the
+/// same service at this moment.
+fn transient(e: &PublishSubscribeOpenOrCreateError) -> bool {
+    use PublishSubscribeCreateError as C;
+    use PublishSubscribeOpenError as O;
+    matches!(
+        e,
+        PublishSubscribeOpenOrCreateError::SystemInFlux
+            | PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                O::DoesNotExist | O::HangsInCreation | O::IsMarkedForDestruction
+            )
+            | PublishSubscribeOpenOrCreateError::PublishSubscribeCreateError(
+                C::AlreadyExists | C::IsBeingCreatedByAnotherInstance | C::HangsInCreation
+            )
+    )
+}
+
+/// Why the bus's service could not be opened, in words where the cause is a user's to act on.
+fn open_error_in_words(e: &PublishSubscribeOpenOrCreateError) -> String {
+    use PublishSubscribeCreateError as C;
+    use PublishSubscribeOpenError as O;
+    use PublishSubscribeOpenOrCreateError as E;
+    match e {
+        E::PublishSubscribeOpenError(O::InsufficientPermissions)
+        | E::PublishSubscribeCreateError(C::InsufficientPermissions) => {
+            "no permission for its files in /dev/shm (another user's bus?)".into()
+        }
+        E::PublishSubscribeOpenError(O::ServiceInCorruptedState)
+        | E::PublishSubscribeCreateError(C::ServiceInCorruptedState) => {
+            "its files in /dev/shm are damaged (a process crashed while creating it): remove the bus's iox2 files there".into()
+        }
+        E::PublishSubscribeOpenError(
+            O::IncompatibleTypes
+            | O::IncompatibleAttributes
+            | O::IncompatibleMessagingPattern
+            | O::IncompatibleOverflowBehavior,
+        ) => "it exists with other settings (made by another version of this software?)".into(),
+        E::PublishSubscribeOpenError(
+            O::DoesNotSupportRequestedAmountOfPublishers
+            | O::DoesNotSupportRequestedAmountOfSubscribers
+            | O::DoesNotSupportRequestedAmountOfNodes
+            | O::ExceedsMaxNumberOfNodes,
+        ) => format!("it is full: at most {MAX_NODES} processes join one bus"),
+        E::PublishSubscribeOpenError(O::DoesNotExist | O::HangsInCreation)
+        | E::SystemInFlux
+        | E::PublishSubscribeCreateError(C::IsBeingCreatedByAnotherInstance | C::HangsInCreation) => {
+            "another process kept creating or removing it for two seconds".into()
+        }
+        other => format!("iceoryx2 reports {other:?}"),
+    }
+}
+
 impl ShmBus {
     /// Joins (or creates) bus `name` at `bitrate` bit/s. Removes what crashed processes left
     /// behind first. iceoryx2 logs at `Error` level unless `IOX2_LOG_LEVEL` says otherwise, and
@@ -212,17 +271,36 @@ impl ShmBus {
         // Dead processes keep publisher/subscriber slots and shared memory until someone
         // cleans up; do it before taking slots ourselves.
         let _ = node.try_cleanup_dead_nodes();
-        let factory = node
-            .service_builder(&service)
-            .publish_subscribe::<ShmCanSample>()
-            .max_publishers(MAX_ENDPOINTS)
-            .max_subscribers(MAX_ENDPOINTS)
-            .max_nodes(MAX_NODES)
-            .history_size(0)
-            .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
-            .enable_safe_overflow(true)
-            .open_or_create()
-            .map_err(|e| fail("opening the service", &e))?;
+        // Two processes joining a new bus at once race in open_or_create: the one that loses
+        // can find the service half made (it "does not exist" yet, or "hangs in creation").
+        // Those states pass within milliseconds; ask again, for a bounded time.
+        let mut attempt = 0;
+        let factory = loop {
+            let r = node
+                .service_builder(&service)
+                .publish_subscribe::<ShmCanSample>()
+                .max_publishers(MAX_ENDPOINTS)
+                .max_subscribers(MAX_ENDPOINTS)
+                .max_nodes(MAX_NODES)
+                .history_size(0)
+                .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
+                .enable_safe_overflow(true)
+                .open_or_create();
+            match r {
+                Ok(f) => break f,
+                Err(e) if attempt < OPEN_ATTEMPTS && transient(&e) => {
+                    attempt += 1;
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                Err(e) => {
+                    return Err(ShmBusError::Iceoryx {
+                        name: name.to_owned(),
+                        step: "opening the service",
+                        reason: open_error_in_words(&e),
+                    });
+                }
+            }
+        };
         let subscriber = factory
             .subscriber_builder()
             .buffer_size(SUBSCRIBER_BUFFER)
