@@ -762,12 +762,22 @@ impl SimDrive for Cia402Drive {
 
 /// The generic CiA 402 drive at `node`: the built-in dictionary, or `eds`'s. The parsed file
 /// lives as long as the process (the dictionary borrows its names).
+/// SYNC periods without a SYNC before a generic drive in drive-sim faults with 8700h.
+const DRIVE_SIM_SYNC_LOSS_PERIODS: u32 = 10;
+
 fn build_cia402(
     node: NodeId,
     eds: Option<&Path>,
     now: Instant,
 ) -> Result<Box<dyn SimDrive>, String> {
-    let cfg = Cia402Config::new(node);
+    // A drive in a process on a shared host is not firmware: its loop and the coordinator's
+    // both pause now and then (the coordinator reports its own overruns). It faults after 10
+    // missing SYNC periods rather than the in-process simulator's 3, so that a pause of a few
+    // milliseconds is not taken for a lost master.
+    let cfg = Cia402Config {
+        sync_loss_periods: DRIVE_SIM_SYNC_LOSS_PERIODS,
+        ..Cia402Config::new(node)
+    };
     let Some(file) = eds else {
         return Cia402Drive::new(cfg, now)
             .map(|d| Box::new(d) as Box<dyn SimDrive>)
