@@ -212,7 +212,7 @@ fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
 
     // Each device's EDS, from drive-sim itself.
     let mut eds = Vec::new();
-    for kind in ["tlc5xx", "mtr-dci", "emca"] {
+    for kind in ["tlc5xx", "mtr-dci", "emca", "cia402"] {
         let out = Command::new(&drive_sim)
             .args(["--write-eds", kind])
             .output()
@@ -223,7 +223,12 @@ fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
         eds.push(path);
     }
     let mut sims = Vec::new();
-    for (kind, node) in [("tlc5xx", "5"), ("mtr-dci", "6"), ("emca", "7")] {
+    for (kind, node) in [
+        ("tlc5xx", "5"),
+        ("mtr-dci", "6"),
+        ("emca", "7"),
+        ("cia402", "8"),
+    ] {
         sims.push(p.spawn(
             &format!("drive-sim {kind}"),
             Command::new(&drive_sim).args([
@@ -264,6 +269,8 @@ fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
             .arg(&eds[1])
             .args(["--check-eds", "7"])
             .arg(&eds[2])
+            .args(["--check-eds", "8"])
+            .arg(&eds[3])
             .arg("--log")
             .arg(&py_log)
             .env("PYTHONPATH", repo().join("python/motion-vbus")),
@@ -276,6 +283,7 @@ fn python_canopen_drives_a_simulated_tlc5xx_on_the_virtual_bus() {
         "TLC5xx node 5: python-canopen imported its EDS",
         "MTR-DCI node 6: python-canopen imported its EDS",
         "EMCA node 7: python-canopen imported its EDS",
+        "node 8: python-canopen imported its EDS",
         "NMT reset communication: boot-up seen",
         "SDO upload, segmented: 1008h device name 'TLC53x'",
         "SDO download, segmented",

@@ -557,8 +557,11 @@ impl Cia402Axis {
                 self.jog(fresh, v);
             }
             Demand::Velocity { velocity } => self.jog(fresh, velocity),
-            Demand::Force { permille, .. } if self.cyclic == CyclicMode::Cst => {
-                self.cst_force(permille);
+            Demand::Force {
+                permille,
+                velocity_limit,
+            } if self.cyclic == CyclicMode::Cst => {
+                self.cst_force(permille, velocity_limit);
             }
             Demand::Halt => {
                 self.cw = self
@@ -794,8 +797,10 @@ impl Cia402Axis {
         }
     }
 
-    /// Cyclic synchronous torque: 6071h (‰ of the rated torque) every cycle.
-    fn cst_force(&mut self, permille: i32) {
+    /// Cyclic synchronous torque: 6071h (‰ of the rated torque) every cycle; no torque that
+    /// drives the axis further once it runs at `velocity_limit` (inc/s) in that direction, as
+    /// FHPP's force mode limits its speed.
+    fn cst_force(&mut self, permille: i32, velocity_limit: i64) {
         self.mode = OperationMode::CyclicSyncTorque;
         if !self.power() || !self.mode_active() {
             self.target = 0;
@@ -805,7 +810,14 @@ impl Cia402Axis {
             self.step = Step::Start;
             return;
         }
-        self.target = permille.clamp(i32::from(i16::MIN), i32::from(i16::MAX));
+        let v = self.feedback.velocity;
+        let too_fast = v.signum() == i64::from(permille.signum())
+            && v.saturating_abs() >= velocity_limit.saturating_abs();
+        self.target = if too_fast {
+            0
+        } else {
+            permille.clamp(i32::from(i16::MIN), i32::from(i16::MAX))
+        };
         self.cw = Self::enable_op();
         self.step = Step::Done;
     }
@@ -1167,6 +1179,10 @@ mod tests {
         let (o, fb) = ex(&mut a, &tpdo(0x1637, 0, 10), force);
         assert_eq!((o.controlword.0, o.target), (0x000F, i32::from(i16::MAX)));
         assert!(fb.done);
+        // 1000 increments in a 1 ms cycle: 1 000 000 inc/s, past the 100 inc/s limit in the
+        // force's direction: no more torque that way.
+        let (o, _) = ex(&mut a, &tpdo(0x1637, 1000, 10), force);
+        assert_eq!(o.target, 0);
         let mut out = Image::default();
         let e = a.exchange(
             Some(&tpdo(0x1637, 0, 10)),
