@@ -737,16 +737,10 @@ impl Cia402Axis {
 
     /// Cyclic synchronous position: the setpoint every cycle, no handshake.
     fn csp_follow(&mut self, position: i64, velocity: i64) {
-        self.mode = OperationMode::CyclicSyncPosition;
         self.target = clamp_i32(position);
-        if !self.power() || !self.mode_active() {
-            if self.state() == Some(State::OperationEnabled) {
-                self.cw = Self::enable_op();
-            }
-            self.step = Step::Start;
+        if !self.cyclic_ready(OperationMode::CyclicSyncPosition) {
             return;
         }
-        self.cw = Self::enable_op();
         let near =
             self.feedback.position.abs_diff(position) <= u64::from(self.settings.position_window);
         self.step = if velocity == 0 && near {
@@ -754,6 +748,22 @@ impl Cia402Axis {
         } else {
             Step::Start
         };
+    }
+
+    /// A cyclic synchronous mode: asks for `mode`, steps toward Operation enabled; `true` once
+    /// the drive is there with the mode active (the controlword then enables operation and the
+    /// caller's set-point is taken), `false` while on the way (the step starts over).
+    fn cyclic_ready(&mut self, mode: OperationMode) -> bool {
+        self.mode = mode;
+        if !self.power() || !self.mode_active() {
+            if self.state() == Some(State::OperationEnabled) {
+                self.cw = Self::enable_op();
+            }
+            self.step = Step::Start;
+            return false;
+        }
+        self.cw = Self::enable_op();
+        true
     }
 
     /// Cyclic synchronous velocity following a path: the path's velocity plus a correction
@@ -780,18 +790,12 @@ impl Cia402Axis {
 
     /// Cyclic synchronous velocity: 60FFh every cycle, no handshake.
     fn csv_velocity(&mut self, velocity: i64) {
-        self.mode = OperationMode::CyclicSyncVelocity;
-        if !self.power() || !self.mode_active() {
-            // The first set-point the drive takes is a standstill.
-            self.target = 0;
-            if self.state() == Some(State::OperationEnabled) {
-                self.cw = Self::enable_op();
-            }
-            self.step = Step::Start;
+        // The first set-point the drive takes is a standstill.
+        self.target = 0;
+        if !self.cyclic_ready(OperationMode::CyclicSyncVelocity) {
             return;
         }
         self.target = clamp_i32(velocity);
-        self.cw = Self::enable_op();
         if self.step == Step::Start {
             self.step = Step::Running;
         }
@@ -801,24 +805,16 @@ impl Cia402Axis {
     /// drives the axis further once it runs at `velocity_limit` (inc/s) in that direction, as
     /// FHPP's force mode limits its speed.
     fn cst_force(&mut self, permille: i32, velocity_limit: i64) {
-        self.mode = OperationMode::CyclicSyncTorque;
-        if !self.power() || !self.mode_active() {
-            self.target = 0;
-            if self.state() == Some(State::OperationEnabled) {
-                self.cw = Self::enable_op();
-            }
-            self.step = Step::Start;
+        self.target = 0;
+        if !self.cyclic_ready(OperationMode::CyclicSyncTorque) {
             return;
         }
         let v = self.feedback.velocity;
         let too_fast = v.signum() == i64::from(permille.signum())
             && v.saturating_abs() >= velocity_limit.saturating_abs();
-        self.target = if too_fast {
-            0
-        } else {
-            permille.clamp(i32::from(i16::MIN), i32::from(i16::MAX))
-        };
-        self.cw = Self::enable_op();
+        if !too_fast {
+            self.target = permille.clamp(i32::from(i16::MIN), i32::from(i16::MAX));
+        }
         self.step = Step::Done;
     }
 
