@@ -1,4 +1,5 @@
-//! The device catalog: every fact about the four supported drives that more than one place
+//! The device catalog: every fact about the supported drives (the four of the manuals and a
+//! generic CiA 402 drive) that more than one place
 //! needs (identity, profiles, PDO1, supervision, record table), in one `const` per device, each
 //! fact with the section of the manual digest (`shared/reference/seed-00N-*.md`) it comes from.
 //!
