@@ -401,6 +401,38 @@ fn check_mode(key: &str, a: &AxisConfig, cycle_us: u32, err: &mut Errors) {
             );
         }
     }
+    if let Some(m) = a.homing_method {
+        let profile = match a.device {
+            DeviceKind::Tlc5xx => Some(drivers::cia402::TLC5XX),
+            DeviceKind::Cia402 => Some(drivers::cia402::GENERIC),
+            _ => None,
+        };
+        let why = match profile {
+            None => Some(String::from(
+                "the coordinator sets the homing method (6098h) of the TLC5xx and of cia402 drives only",
+            )),
+            Some(p) => {
+                let method = i8::try_from(m)
+                    .ok()
+                    .and_then(|c| drivers::cia402::homing::HomingMethod::from_code(c).ok());
+                match method {
+                    Some(h) if p.supports_homing(h) => None,
+                    _ => Some(format!(
+                        "{m} is not a homing method of the {}: {}",
+                        a.device.device().name,
+                        p.homing_methods
+                            .iter()
+                            .map(|h| h.code().to_string())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )),
+                }
+            }
+        };
+        if let Some(why) = why {
+            err.push(format!("{key}.homing_method"), Problem::HomingMethod(why));
+        }
+    }
     if a.eds.is_some() && a.device != DeviceKind::Cia402 {
         err.push(
             format!("{key}.eds"),
@@ -496,6 +528,9 @@ pub struct AxisConfig {
     /// The EDS of a `cia402` drive, relative to the configuration file's folder; without one,
     /// the drive is taken to be this project's generic drive (`drive-sim --device cia402`).
     pub eds: Option<String>,
+    /// The CiA 402 homing method (6098h) the boot writes; default 35 (the current position is
+    /// home). TLC5xx and `cia402` axes only, and a method the drive offers.
+    pub homing_method: Option<i64>,
     /// The EDS read by [`Config::load_eds`].
     #[serde(skip)]
     pub eds_read: Option<crate::drive_eds::DriveEds>,
@@ -790,6 +825,9 @@ pub enum Problem {
     /// An EDS that could not be read or used.
     #[error("{0}")]
     Eds(String),
+    /// A homing method the drive or the coordinator does not offer.
+    #[error("{0}")]
+    HomingMethod(String),
     /// A node-ID outside 1..=127.
     #[error("{0} is not a CANopen node-ID (1..=127)")]
     NodeId(i64),
@@ -1416,6 +1454,18 @@ impl Config {
                 let cycle_us = bus.map_or(self.cycle_us, |bi| self.bus_cycle_us(&self.buses[bi]));
                 check_supervision(&key, a, cycle_us, &mut err);
                 check_mode(&key, a, cycle_us, &mut err);
+                if let Some(bi) = bus
+                    && a.eds.is_some()
+                    && device == DeviceKind::Cia402
+                    && self.buses[bi].kind == BusKind::Simulated
+                {
+                    err.push(
+                        format!("{key}.eds"),
+                        Problem::Eds(
+                            "a drive on a simulated bus is this project's built-in generic drive, not the EDS's: put the axis on a vbus bus and start `drive-sim --config`, which simulates the drive from its EDS".into(),
+                        ),
+                    );
+                }
                 if let Some(bi) = bus {
                     let (r, t) = axis_pdos_in(device, profile, a.mode(), a.fpc);
                     plans[bi].rpdos.extend(r);
@@ -2522,6 +2572,26 @@ mod tests {
             [
                 "axes[2].eds: a tlc5xx axis is described by the device catalog; `eds` is for device = \"cia402\""
             ]
+        );
+        // The homing method: the drive's, on the TLC5xx and cia402 drives only.
+        assert!(errors(&edited(&[("node = 3", "node = 3\nhoming_method = 17")])).is_empty());
+        assert_eq!(
+            errors(&edited(&[("node = 3", "node = 3\nhoming_method = 99")])),
+            [
+                "axes[2].homing_method: 99 is not a homing method of the TLC5xx: 1, 2, 7, 11, 17, 18, 23, 27, 35"
+            ]
+        );
+        let e = errors(&edited(&[("node = 1", "node = 1\nhoming_method = 17")]));
+        assert!(
+            e[0].starts_with("axes[0].homing_method: the coordinator sets"),
+            "{e:?}"
+        );
+        // An EDS on a simulated bus would not be the drive that runs.
+        let e = errors(&cia402_machine(1, 1000, "eds = \"drive.eds\""));
+        assert!(
+            e.iter()
+                .any(|e| e.starts_with("axes[0].eds: a drive on a simulated bus")),
+            "{e:?}"
         );
         // A cycle 60C2h cannot hold exactly.
         let e = errors(&cia402_machine(1, 1257, ""));

@@ -1301,3 +1301,62 @@ fn four_csp_axes_follow_their_path_in_real_time_against_a_drive_sim_process() {
         "largest following errors, mm: {errors:?}"
     );
 }
+
+/// A user's coordinator homes a TLC5xx with method 17 (`homing_method = 17`) on the negative
+/// limit switch of a standalone drive-sim (`--limit-negative`): the boot writes 6098h, the
+/// script's homing finishes at the switch.
+#[test]
+fn the_configured_homing_method_homes_a_drive_sim_tlc5xx_on_its_limit_switch() {
+    let mut sc = Scene::new("home17");
+    let bus = unique("rdh17");
+    let prefix = unique("t-real-home17-");
+    let config = sc.write(
+        "home17.toml",
+        &format!(
+            "cycle_us = {CYCLE_US}\n\n\
+             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+             [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
+             homing_method = 17\nincrements_per_unit = 1000.0\n{}\n",
+            limits(-100.0, 100.0, 50.0, 200.0)
+        ),
+    );
+    check(&config);
+    let sim = sc.spawn(
+        "drive-sim tlc5xx",
+        &drive_sim_bin(),
+        &[
+            "--device",
+            "tlc5xx",
+            "--bus",
+            &format!("vbus:{bus}"),
+            "--node",
+            "5",
+            "--limit-negative",
+            "-20000",
+            "--status-every",
+            "0.05",
+        ],
+    );
+    sc.wait_running(&[sim]);
+    let coord = sc.coordinator(
+        &config,
+        &prefix,
+        &["--demo", "--no-chains", "--duration", "8"],
+    );
+    let status = sc.wait_exit(coord);
+    let out = sc.output(coord);
+    assert_eq!(status.code(), Some(0), "a run without faults:\n{out}");
+    assert!(out.contains("axis z: "), "{out}");
+    // The drive's status lines: on its way to the switch it was below 0 (method 35 would not
+    // move at all), then homing attained and target reached (bits 12 and 10: 1427h) with the
+    // reference set at the switch's edge (position 0).
+    let sim_out = sc.output(sim);
+    let moved = sim_out.lines().position(|l| l.contains(" | pos -"));
+    let homed = sim_out
+        .lines()
+        .position(|l| l.contains("(statusword 1427h)") && l.ends_with("| pos 0 usr"));
+    assert!(
+        matches!((moved, homed), (Some(m), Some(h)) if m < h),
+        "the drive did not home on its switch:\n{sim_out}"
+    );
+}

@@ -163,15 +163,16 @@ fn limits(a: &AxisConfig, s: Scale) -> AxisLimits {
 /// profile velocity is in rpm and its accelerations in rpm/s.
 pub const TLC_INCREMENTS_PER_REV: u64 = 16384;
 
-/// The TLC5xx parameters the coordinator's use needs: homing method 35 (the current position is
-/// the reference: the embedded machine has no switches) and a profile velocity and
+/// The TLC5xx parameters the coordinator's use needs: the homing method (`homing_method`,
+/// default 35: the current position is the reference, the embedded machine has no switches)
+/// and a profile velocity and
 /// acceleration a quarter above the axis's limits, so that the profile-position set-points the
 /// coordinator streams are reached before the next one arrives.
-fn tlc_parameters(l: &AxisLimits) -> Vec<(drivers::canopen::Address, u32, u8)> {
+fn tlc_parameters(a: &AxisConfig, l: &AxisLimits) -> Vec<(drivers::canopen::Address, u32, u8)> {
     use drivers::canopen::Address;
     let rpm = |inc_per_s: u64| inc_per_s.saturating_mul(60 * 5 / 4) / TLC_INCREMENTS_PER_REV;
     vec![
-        (Address::new(0x6098, 0), 35, 1),
+        (Address::new(0x6098, 0), homing_method(a), 1),
         (
             Address::new(0x6081, 0),
             rpm(l.velocity).clamp(1, 3000) as u32,
@@ -233,12 +234,22 @@ fn cia402_parameters(
         (Address::new(0x6081, 0), u32_of(l.velocity), 4),
         (Address::new(0x6083, 0), u32_of(l.acceleration), 4),
         (Address::new(0x6084, 0), u32_of(l.deceleration), 4),
-        (Address::new(0x6098, 0), 35, 1),
+        (Address::new(0x6098, 0), homing_method(a), 1),
     ]);
     if let Some(eds) = &a.eds_read {
         p.retain(|(addr, _, _)| eds.writable(addr.index, addr.sub));
     }
     Ok(p)
+}
+
+/// The homing method 6098h the boot writes (INTEGER8, sent as its byte): the configured one
+/// (`check` kept it to the drive's), else 35.
+fn homing_method(a: &AxisConfig) -> u32 {
+    let m = a
+        .homing_method
+        .and_then(|m| i8::try_from(m).ok())
+        .unwrap_or(35);
+    u32::from(m as u8)
 }
 
 /// The EMCA's PNU 583 "direct start condition" = 1 (interrupt), over SDO 2000h + PNU: its
@@ -342,7 +353,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             let mut bp = boot::plan_for(node, k, entries(map.rpdo), entries(map.tpdo), sp)
                 .map_err(|e| format!("axes.{}: {e}", a.name))?;
             if k == DeviceKind::Tlc5xx {
-                bp.parameters = tlc_parameters(&lim);
+                bp.parameters = tlc_parameters(a, &lim);
             }
             if k == DeviceKind::Cia402 {
                 let fe = following_error_limit(a, &lim, s, cycle_us);
