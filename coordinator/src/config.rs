@@ -1372,6 +1372,12 @@ impl Config {
                 if a.fpc {
                     err.push(format!("{key}.fpc"), not("has no CANopen PDO2 for the FPC"));
                 }
+                if a.homing_method.is_some() {
+                    err.push(
+                        format!("{key}.homing_method"),
+                        not("is homed by FHPP, which has no CiA 402 homing method (6098h)"),
+                    );
+                }
                 if a.heartbeat_ms.is_some() || a.guard_time_ms.is_some() {
                     let k = if a.heartbeat_ms.is_some() {
                         "heartbeat_ms"
@@ -2580,6 +2586,14 @@ mod tests {
             [
                 "axes[2].homing_method: 99 is not a homing method of the TLC5xx: 1, 2, 7, 11, 17, 18, 23, 27, 35"
             ]
+        );
+        let e = errors(&edited(&[(
+            "simulated = true",
+            "simulated = true\nhoming_method = 17",
+        )]));
+        assert!(
+            e[0].starts_with("axes[3].homing_method: a cmmo-st axis is homed by FHPP"),
+            "{e:?}"
         );
         let e = errors(&edited(&[("node = 1", "node = 1\nhoming_method = 17")]));
         assert!(
