@@ -128,3 +128,62 @@ fn csv_axes_follow_the_same_path_with_the_position_loop_closed_by_the_coordinato
     assert_eq!(plan.axes[0].setup.mode, coordinator::axis::CyclicMode::Csv);
     assert_eq!(plan.axes[1].setup.mode, coordinator::axis::CyclicMode::Csp);
 }
+
+#[test]
+fn a_cst_axis_pushing_past_its_position_limit_stops_there() {
+    // The boot writes the axis's position limits into 607Dh; the drive brakes to a stop at
+    // them in CST (the coordinator commands a torque, no position).
+    let text = r#"
+cycle_us = 2000
+
+[[buses]]
+name = "can0"
+kind = "simulated"
+bitrate = 1000000
+
+[[axes]]
+name = "a1"
+device = "cia402"
+mode = "cst"
+bus = "can0"
+node = 1
+unit = "mm"
+increments_per_unit = 1000
+limits = { position_min = -100, position_max = 20, velocity = 100, acceleration = 1000 }
+
+[[groups]]
+name = "g"
+axes = ["a1"]
+
+[[groups.records]]
+number = 0
+targets = { a1 = 20.0 }
+mode = "force"
+force = 50
+"#;
+    let cfg = Config::parse(text).unwrap();
+    assert!(cfg.check().is_ok(), "{}", cfg.check());
+    let opts = RunOptions {
+        duration: Some(Duration::from_secs(3)),
+        virtual_time: true,
+        status_every: None,
+        script: ScriptOptions {
+            demo: true,
+            chains: true,
+            home: true,
+        },
+        shm: None,
+        capture: None,
+        record: None,
+    };
+    let mut out = Vec::new();
+    let s = run(&cfg, &opts, &mut out).unwrap();
+    assert!(
+        s.faults.is_empty() && s.boot_failures.is_empty(),
+        "{s}\n{}",
+        String::from_utf8_lossy(&out)
+    );
+    // At 100 mm/s the 20 mm are crossed in 0.2 s: without 607Dh the axis would be far past.
+    let at = s.axes[0].2;
+    assert!((19.9..=20.01).contains(&at), "a1 at {at} mm\n{s}");
+}

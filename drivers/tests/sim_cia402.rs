@@ -540,6 +540,41 @@ fn cst_accelerates_the_inertia_with_the_clamped_torque() {
 }
 
 #[test]
+fn csv_and_cst_brake_to_a_stop_at_the_software_limits() {
+    for (mode, setpoint, bytes, push, back) in [
+        (9, 0x60FF_0020, 4, 200_000, -50_000),
+        (10, 0x6071_0010, 2, 300, -300),
+    ] {
+        let mut rig = Rig::node1();
+        rig.ok(0x607D, 1, &(-5_000i32).to_le_bytes());
+        rig.ok(0x607D, 2, &20_000i32.to_le_bytes());
+        rig.cyclic(mode, setpoint, 0);
+        let mut last = None;
+        let mut peak = i64::MIN;
+        for _ in 0..400 {
+            last = rig.cycle(rpdo(0x0F, push, bytes));
+            peak = peak.max(rig.d().axis().status().position);
+        }
+        let st = *rig.d().axis().status();
+        // Stopped at the limit, not past it (the position loop may lag by a few increments).
+        assert!(
+            peak <= 20_010 && st.position >= 19_900,
+            "mode {mode}: peak {peak}, at {}",
+            st.position
+        );
+        assert_eq!(st.velocity, 0, "mode {mode}");
+        let sw = sw_of(&last.unwrap());
+        assert_eq!(sw & 0x0800, 0x0800, "mode {mode}: bit 11 internal limit");
+        // Away from the limit the axis moves freely.
+        for _ in 0..50 {
+            rig.cycle(rpdo(0x0F, back, bytes));
+        }
+        let p = rig.d().axis().status().position;
+        assert!(p < 19_000, "mode {mode}: moved back to {p}");
+    }
+}
+
+#[test]
 fn csp_following_error_faults_with_8611h() {
     let mut rig = Rig::node1();
     rig.ok(0x6065, 0, &1000u32.to_le_bytes());

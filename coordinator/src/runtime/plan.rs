@@ -196,11 +196,13 @@ fn tlc_parameters(a: &AxisConfig, l: &AxisLimits) -> Vec<(drivers::canopen::Addr
 /// 60C2h the cycle (cyclic synchronous modes), 6065h the following-error window, 607Fh the
 /// velocity limit a quarter above the axis's (CSP clamps set-point steps with it), 6081h/6083h/
 /// 6084h the profile for PP and homing as for the TLC5xx, 6098h homing method 35 (the current
-/// position). Only objects the drive's EDS lists as writable are written; without an EDS, all
-/// (this project's simulator has them).
+/// position), 607Dh the axis's position limits (so that the drive itself bounds the travel
+/// where the coordinator commands no position: CSV and CST). Only objects the drive's EDS lists
+/// as writable are written; without an EDS, all (this project's simulator has them).
 fn cia402_parameters(
     a: &AxisConfig,
     l: &AxisLimits,
+    s: Scale,
     following_error: i64,
     period: Duration,
 ) -> Result<Vec<(drivers::canopen::Address, u32, u8)>, String> {
@@ -235,6 +237,12 @@ fn cia402_parameters(
         (Address::new(0x6083, 0), u32_of(l.acceleration), 4),
         (Address::new(0x6084, 0), u32_of(l.deceleration), 4),
         (Address::new(0x6098, 0), homing_method(a), 1),
+    ]);
+    // INTEGER32, sent as its four bytes; `check` kept both within ±2^31 increments.
+    let i32_bits = |units: f64| s.to_inc(units).unwrap_or(0) as i32 as u32;
+    p.extend([
+        (Address::new(0x607D, 1), i32_bits(a.limits.position_min), 4),
+        (Address::new(0x607D, 2), i32_bits(a.limits.position_max), 4),
     ]);
     if let Some(eds) = &a.eds_read {
         p.retain(|(addr, _, _)| eds.writable(addr.index, addr.sub));
@@ -357,7 +365,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             }
             if k == DeviceKind::Cia402 {
                 let fe = following_error_limit(a, &lim, s, cycle_us);
-                bp.parameters = cia402_parameters(a, &lim, fe, period)?;
+                bp.parameters = cia402_parameters(a, &lim, s, fe, period)?;
                 if let Some(eds) = &a.eds_read {
                     bp.device_type = eds.device_type.or(bp.device_type);
                     bp.vendor_id = eds.vendor_id.or(bp.vendor_id);

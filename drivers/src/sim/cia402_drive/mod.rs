@@ -17,6 +17,8 @@
 //! - CSV: the velocity reference ramps to 60FFh + 60B1h (clamped by 607Fh) with the drive's
 //!   acceleration limit. CST: torque clamp(6071h + 60B2h, ±6072h) ‰ accelerates the load, at
 //!   [`Cia402Config::rated_acceleration`] per 1000 ‰, up to 607Fh.
+//! - Software limits 607Dh: CSP and PP targets are clipped into them; CSV and CST brake with the
+//!   drive's acceleration limit to a stop at them (bit 11 "internal limit active" while cut).
 //! - Statusword bit 12 "drive follows the command value" is 1 only while the drive tracks the
 //!   set-points: in Operation enabled, not halted, no mode change pending.
 //! - Missing SYNC: in a cyclic mode in Operation enabled, once a SYNC has been seen, the last
@@ -398,10 +400,12 @@ struct Settings {
     /// tick²), for the cyclic reference.
     vmax_sub: i64,
     amax_sub: i64,
+    /// 607Dh in the axis' sub-increments (min, max): where CSV and CST brake to a stop.
+    limits_sub: (i64, i64),
 }
 
 /// The objects [`Settings`] holds.
-const SETTINGS: [u16; 5] = [0x607F, 0x6065, 0x6066, 0x60C2, 0x1006];
+const SETTINGS: [u16; 6] = [0x607F, 0x6065, 0x6066, 0x60C2, 0x1006, 0x607D];
 
 const fn is_cyclic(m: OperationMode) -> bool {
     matches!(
@@ -541,6 +545,7 @@ impl Cia402Drive {
                 sync_period: None,
                 vmax_sub: 0,
                 amax_sub: 1,
+                limits_sub: (i64::MIN, i64::MAX),
             },
             faults: heapless::Vec::new(),
             last_error: 0,
@@ -700,6 +705,16 @@ impl Cia402Drive {
             fe_window: self.od_u32(0x6065, 0, u32::MAX),
             fe_timeout: Duration::from_millis(self.od_u16(0x6066, 0) as u64),
             sync_period,
+            limits_sub: {
+                let lo = od.get_i32(a(0x607D, 1)).unwrap_or(i32::MIN) as i64;
+                let hi = od.get_i32(a(0x607D, 2)).unwrap_or(i32::MAX) as i64;
+                // Crossed limits bound nothing (as `clip` treats them).
+                if lo <= hi {
+                    (lo << FRAC_BITS, hi << FRAC_BITS)
+                } else {
+                    (i64::MIN, i64::MAX)
+                }
+            },
         }
     }
 
@@ -1159,6 +1174,16 @@ impl Cia402Drive {
         let mut v = v_want.clamp(-vmax, vmax);
         if mode != OperationMode::CyclicSyncTorque {
             v = v.clamp(c.vel - amax, c.vel + amax);
+        }
+        if mode != OperationMode::CyclicSyncPosition {
+            // 607Dh: CSV and CST brake to a stop at a software limit (CSP's set-points are
+            // clipped into them instead); away from it the axis moves freely.
+            let (lo, hi) = self.settings.limits_sub;
+            if v > 0 {
+                v = v.min(brake_velocity(hi.saturating_sub(c.pos), amax));
+            } else if v < 0 {
+                v = v.max(-brake_velocity(c.pos.saturating_sub(lo), amax));
+            }
         }
         c.limited = v != v_want;
         c.torque = if mode == OperationMode::CyclicSyncTorque && !c.limited {
