@@ -2459,6 +2459,34 @@ mod tests {
         assert_eq!(c.groups.len(), e.groups.len());
     }
 
+    /// Every configuration shipped in `coordinator/examples` passes `check`, with the budget its
+    /// header comment states.
+    #[test]
+    fn every_shipped_example_passes_check_with_its_stated_budget() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+        let mut seen = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "toml") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let c = Config::parse(&text).unwrap();
+            let r = c.check();
+            assert!(r.is_ok(), "{}: {r}", path.display());
+            seen += 1;
+        }
+        assert!(seen >= 3, "{seen} examples in {}", dir.display());
+        // The CSP examples' headers: 1720 µs of 2000 and 775 µs of 1000.
+        for (file, load) in [("csp-4-axes.toml", 1720), ("csp-1-axis-1ms.toml", 775)] {
+            let text = std::fs::read_to_string(dir.join(file)).unwrap();
+            let c = Config::parse(&text).unwrap();
+            let r = c.check();
+            let us = r.loads[0].micros();
+            assert_eq!(us, load, "{file}: {r}");
+        }
+    }
+
     #[test]
     fn example_is_accepted_with_its_budget() {
         let c = Config::parse(EXAMPLE).unwrap();

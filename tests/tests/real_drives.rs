@@ -1258,17 +1258,43 @@ fn a_closed_terminal_stops_the_axes_and_disables_the_drives() {
 /// distance of 100 ms at full speed) is what must not be crossed.
 #[test]
 fn four_csp_axes_follow_their_path_in_real_time_against_a_drive_sim_process() {
+    use std::io::Write as _;
+    let errors = csp_in_real_time("csp-4-axes.toml", "vbus:csp", &["a1", "a2", "a3", "a4"]);
+    let _ = writeln!(
+        std::io::stderr(),
+        "4 CSP axes at 2 ms, largest following errors, mm: {errors:?}"
+    );
+}
+
+/// The 1 ms machine of one CSP axis (coordinator/examples/csp-1-axis-1ms.toml, the most the
+/// budget admits at 1 ms), as above.
+#[test]
+fn one_csp_axis_at_1_ms_follows_its_path_in_real_time_against_a_drive_sim_process() {
+    use std::io::Write as _;
+    let errors = csp_in_real_time("csp-1-axis-1ms.toml", "vbus:csp1", &["a1"]);
+    let _ = writeln!(
+        std::io::stderr(),
+        "1 CSP axis at 1 ms, largest following error, mm: {errors:?}"
+    );
+}
+
+/// Runs the example `file` (its bus `bus` renamed for this test) with its `axes` in one
+/// drive-sim process and the coordinator for 8 s of `--demo`; returns each axis's largest
+/// following error, mm, after checking that the run ended without faults and the path ran.
+fn csp_in_real_time(file: &str, bus: &str, axes: &[&str]) -> Vec<f64> {
     let mut sc = Scene::new("csp");
-    let bus = unique("rdcsp");
+    let unique_bus = unique("rdcsp");
     let prefix = unique("t-real-csp-");
     let example = std::fs::read_to_string(
-        integration_tests::repo_root().join("coordinator/examples/csp-4-axes.toml"),
+        integration_tests::repo_root()
+            .join("coordinator/examples")
+            .join(file),
     )
     .unwrap()
-    .replace("vbus:csp", &bus);
+    .replace(bus, &unique_bus);
     let config = sc.write("csp.toml", &example);
     check(&config);
-    let sim = sc.drive_sim(&config, &["a1", "a2", "a3", "a4"]);
+    let sim = sc.drive_sim(&config, axes);
     sc.wait_running(&[sim]);
     let coord = sc.coordinator(&config, &prefix, &["--demo", "--duration", "8"]);
     let status = sc.wait_exit(coord);
@@ -1279,7 +1305,7 @@ fn four_csp_axes_follow_their_path_in_real_time_against_a_drive_sim_process() {
         .filter_map(|l| l.split("largest following error ").nth(1))
         .map(|e| e.trim_end_matches(" mm").parse().unwrap())
         .collect();
-    assert_eq!(errors.len(), 4, "every axis moved:\n{out}");
+    assert_eq!(errors.len(), axes.len(), "every axis moved:\n{out}");
     for e in &errors {
         assert!(*e > 0.0 && *e < 10.0, "{errors:?}\n{out}");
     }
@@ -1295,11 +1321,7 @@ fn four_csp_axes_follow_their_path_in_real_time_against_a_drive_sim_process() {
         })
         .unwrap_or(0);
     assert!(reached >= 4, "the path ran:\n{out}");
-    use std::io::Write as _;
-    let _ = writeln!(
-        std::io::stderr(),
-        "largest following errors, mm: {errors:?}"
-    );
+    errors
 }
 
 /// A user's coordinator homes a TLC5xx with method 17 (`homing_method = 17`) on the negative
