@@ -1324,6 +1324,79 @@ fn csp_in_real_time(file: &str, bus: &str, axes: &[&str]) -> Vec<f64> {
     errors
 }
 
+/// A machine whose generic drive is described by an EDS (`eds = "drive.eds"`, 6081h made
+/// read-only there, so the boot skips it; drive-sim loads the same file and refuses what it
+/// does not allow) boots at a 10 ms cycle (60C2h written as 10 × 10⁻³ s, the index the EDS
+/// allows) and runs its path in real time with `--record`. The replay needs no EDS: the boot's
+/// frames and reports are inputs of the recording, and the EDS shapes only the boot. With the
+/// file deleted, `coordinator replay` finds every cycle identical.
+#[test]
+fn a_recording_of_a_machine_with_an_eds_replays_without_the_file() {
+    let mut sc = Scene::new("record-eds");
+    let bus = unique("rdeds");
+    let prefix = unique("t-real-eds-");
+    let out = Command::new(drive_sim_bin())
+        .args(["--write-eds", "cia402"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "drive-sim --write-eds cia402");
+    let eds = String::from_utf8(out.stdout).unwrap().replace(
+        "[6081]\nParameterName=profile velocity\nObjectType=0x7\nDataType=0x0007\nAccessType=rw",
+        "[6081]\nParameterName=profile velocity\nObjectType=0x7\nDataType=0x0007\nAccessType=ro",
+    );
+    assert!(
+        eds.contains("DataType=0x0007\nAccessType=ro"),
+        "6081h made read-only"
+    );
+    let eds_path = sc.write("drive.eds", &eds);
+    let config = sc.write(
+        "eds.toml",
+        &format!(
+            "cycle_us = {CYCLE_US}\n\n\
+             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+             [[axes]]\nname = \"x\"\ndevice = \"cia402\"\neds = \"drive.eds\"\nmode = \"csp\"\n\
+             bus = \"{bus}\"\nnode = 5\nunit = \"mm\"\nincrements_per_unit = 1000\n\
+             {}\n\n\
+             [[groups]]\nname = \"g\"\naxes = [\"x\"]\n\n\
+             [[groups.records]]\nnumber = 0\ntargets = {{ x = 20.0 }}\nstep = {{ condition = \"mc\", next = 1 }}\n\n\
+             [[groups.records]]\nnumber = 1\ntargets = {{ x = -20.0 }}\nstep = {{ condition = \"mc\", next = 0 }}\n",
+            limits(-100.0, 100.0, 100.0, 1000.0)
+        ),
+    );
+    check(&config);
+    let sim = sc.drive_sim(&config, &["x"]);
+    sc.wait_running(&[sim]);
+    let file = sc.path("eds.rec");
+    let coord = sc.coordinator(
+        &config,
+        &prefix,
+        &[
+            "--demo",
+            "--duration",
+            "4",
+            "--record",
+            file.to_str().unwrap(),
+        ],
+    );
+    let status = sc.wait_exit(coord);
+    let run = sc.output(coord);
+    assert_eq!(status.code(), Some(0), "a run without faults:\n{run}");
+    assert!(run.contains("records reached"), "{run}");
+    std::fs::remove_file(&eds_path).unwrap();
+    let r = Command::new(coordinator_bin())
+        .arg("replay")
+        .arg(&file)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&r.stdout),
+        String::from_utf8_lossy(&r.stderr)
+    );
+    assert_eq!(r.status.code(), Some(0), "{text}\n--- the run\n{run}");
+    assert!(text.contains("identical to the recording"), "{text}");
+}
+
 /// A user's coordinator homes a TLC5xx with method 17 (`homing_method = 17`) on the negative
 /// limit switch of a standalone drive-sim (`--limit-negative`): the boot writes 6098h, the
 /// script's homing finishes at the switch.

@@ -128,23 +128,31 @@ impl OperationMode {
 }
 
 /// 60C2h "interpolation time period" for a cycle: (sub 1 value, sub 2 index) with
-/// period = value × 10^index s, the index as large as the period allows so the value is
-/// exact (1 ms = (1, −3), 2 ms = (2, −3), 250 µs = (25, −5), 1.5 ms = (15, −4)); `None` for a
-/// period that no value of 1..=255 at an index of −6..=0 gives exactly.
+/// period = value × 10^index s, exact. Milliseconds first (index −3: the CiA 402 default, and
+/// many drives take no other; this project's simulator takes −6..=−3), then finer units, then
+/// coarser ones: 1 ms = (1, −3), 10 ms = (10, −3), 250 µs = (25, −5), 1.5 ms = (15, −4),
+/// 4 s = (40, −1). `None` for a period that no value of 1..=255 at an index of −6..=0 gives
+/// exactly.
 pub const fn interpolation_time_period(period: Duration) -> Option<(u8, i8)> {
     let us = period.as_micros();
     if us == 0 || !period.subsec_nanos().is_multiple_of(1000) {
         return None;
     }
-    // From seconds down to microseconds: the first exponent whose value fits 1..=255 exactly.
-    let mut index: i8 = 0;
-    let mut unit: u128 = 1_000_000;
-    while index >= -6 {
+    const ORDER: [i8; 7] = [-3, -4, -5, -6, -2, -1, 0];
+    let mut k = 0;
+    while k < ORDER.len() {
+        let index = ORDER[k];
+        // 10^(index + 6) µs per unit.
+        let mut unit: u128 = 1;
+        let mut e = index + 6;
+        while e > 0 {
+            unit *= 10;
+            e -= 1;
+        }
         if us.is_multiple_of(unit) && us / unit <= 255 {
             return Some(((us / unit) as u8, index));
         }
-        index -= 1;
-        unit /= 10;
+        k += 1;
     }
     None
 }
@@ -595,7 +603,11 @@ mod tests {
         assert_eq!(interpolation_time_period(us(250)), Some((25, -5)));
         assert_eq!(interpolation_time_period(us(255)), Some((255, -6)));
         assert_eq!(interpolation_time_period(us(1500)), Some((15, -4)));
-        assert_eq!(interpolation_time_period(us(4_000_000)), Some((4, 0)));
+        assert_eq!(interpolation_time_period(us(4_000_000)), Some((40, -1)));
+        // Milliseconds before coarser units: 10 ms is (10, −3), not (1, −2).
+        assert_eq!(interpolation_time_period(us(10_000)), Some((10, -3)));
+        assert_eq!(interpolation_time_period(us(100_000)), Some((100, -3)));
+        assert_eq!(interpolation_time_period(us(500_000)), Some((50, -2)));
         // 257 µs: no value of 1..=255 gives it exactly.
         assert_eq!(interpolation_time_period(us(257)), None);
         assert_eq!(interpolation_time_period(Duration::from_nanos(1500)), None);
