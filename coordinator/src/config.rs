@@ -2589,6 +2589,13 @@ mod tests {
                 "buses[0]: bus can0: 10 frames, 1090 us per 1000 us cycle = 109.0 %, does not fit the cycle"
             ]
         );
+        // At 2 ms four fit (coordinator/examples/csp-4-axes.toml), a fifth does not.
+        assert_eq!(
+            errors(&cia402_machine(5, 2000, "")),
+            [
+                "buses[0]: bus can0: 19 frames, 2035 us per 2000 us cycle = 101.8 %, does not fit the cycle"
+            ]
+        );
         // The seed devices stream profile position only; FHPP has no modes; EDS only on cia402.
         assert_eq!(
             errors(&edited(&[("node = 3", "node = 3\nmode = \"csp\"")])),
