@@ -28,8 +28,16 @@ fn example(edit: &[(&str, &str)]) -> String {
     text
 }
 
-/// Runs `text` in virtual time for `seconds` with the demonstration's chains.
+/// Runs `text` in virtual time for `seconds` with the demonstration's chains: a run without
+/// faults whose path ran.
 fn run_for(text: &str, seconds: u64) -> Summary {
+    let s = run_clean(text, seconds);
+    assert!(s.records_reached >= 4, "the path ran: {s}");
+    s
+}
+
+/// Runs `text` in virtual time for `seconds` with the demonstration's chains, without faults.
+fn run_clean(text: &str, seconds: u64) -> Summary {
     let cfg = Config::parse(text).unwrap();
     assert!(cfg.check().is_ok(), "{}", cfg.check());
     let opts = RunOptions {
@@ -52,7 +60,6 @@ fn run_for(text: &str, seconds: u64) -> Summary {
         s.faults.is_empty() && s.boot_failures.is_empty(),
         "{s}\n{text}"
     );
-    assert!(s.records_reached >= 4, "the path ran: {s}");
     s
 }
 
@@ -145,28 +152,7 @@ targets = { a1 = 20.0 }
 mode = "force"
 force = 50
 "#;
-    let cfg = Config::parse(text).unwrap();
-    assert!(cfg.check().is_ok(), "{}", cfg.check());
-    let opts = RunOptions {
-        duration: Some(Duration::from_secs(3)),
-        virtual_time: true,
-        status_every: None,
-        script: ScriptOptions {
-            demo: true,
-            chains: true,
-            home: true,
-        },
-        shm: None,
-        capture: None,
-        record: None,
-    };
-    let mut out = Vec::new();
-    let s = run(&cfg, &opts, &mut out).unwrap();
-    assert!(
-        s.faults.is_empty() && s.boot_failures.is_empty(),
-        "{s}\n{}",
-        String::from_utf8_lossy(&out)
-    );
+    let s = run_clean(text, 3);
     // At 100 mm/s the 20 mm are crossed in 0.2 s: without 607Dh the axis would be far past.
     let at = s.axes[0].2;
     assert!((19.9..=20.01).contains(&at), "a1 at {at} mm\n{s}");
