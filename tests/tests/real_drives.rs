@@ -494,6 +494,25 @@ fn limits(min: f64, max: f64, velocity: f64, acceleration: f64) -> String {
     )
 }
 
+/// A machine of one axis `name` (`device`, node 5, 1000 increments per unit, `extra` keys such
+/// as `homing_method = 17`) on the vbus bus `bus` at [`CYCLE_US`], then `rest` (groups,
+/// records).
+fn one_axis_machine(
+    bus: &str,
+    name: &str,
+    device: &str,
+    extra: &str,
+    lim: &str,
+    rest: &str,
+) -> String {
+    format!(
+        "cycle_us = {CYCLE_US}\n\n\
+         [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+         [[axes]]\nname = \"{name}\"\ndevice = \"{device}\"\nbus = \"{bus}\"\nnode = 5\n\
+         {extra}increments_per_unit = 1000.0\n{lim}\n\n{rest}"
+    )
+}
+
 #[test]
 fn a_machine_of_drives_in_other_processes() {
     let mut sc = Scene::new("machine");
@@ -740,12 +759,13 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
     let prefix = unique("t-real-dump-");
     let config = sc.write(
         "dump.toml",
-        &format!(
-            "cycle_us = {CYCLE_US}\n\n\
-             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
-             [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
-             increments_per_unit = 1000.0\n{}\n",
-            limits(0.0, 100.0, 50.0, 200.0)
+        &one_axis_machine(
+            &bus,
+            "z",
+            "tlc5xx",
+            "",
+            &limits(0.0, 100.0, 50.0, 200.0),
+            "",
         ),
     );
     check(&config);
@@ -1190,13 +1210,13 @@ fn a_closed_terminal_stops_the_axes_and_disables_the_drives() {
         let prefix = unique("t-real-hup-");
         let config = sc.write(
             "hup.toml",
-            &format!(
-                "cycle_us = {CYCLE_US}\n\n\
-                 [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
-                 [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
-                 increments_per_unit = 1000.0\n{}\n\n\
-                 [[groups]]\nname = \"lift\"\naxes = [\"z\"]\n",
-                limits(0.0, 100.0, 20.0, 100.0)
+            &one_axis_machine(
+                &bus,
+                "z",
+                "tlc5xx",
+                "",
+                &limits(0.0, 100.0, 20.0, 100.0),
+                "[[groups]]\nname = \"lift\"\naxes = [\"z\"]\n",
             ),
         );
         check(&config);
@@ -1351,16 +1371,15 @@ fn a_recording_of_a_machine_with_an_eds_replays_without_the_file() {
     let eds_path = sc.write("drive.eds", &eds);
     let config = sc.write(
         "eds.toml",
-        &format!(
-            "cycle_us = {CYCLE_US}\n\n\
-             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
-             [[axes]]\nname = \"x\"\ndevice = \"cia402\"\neds = \"drive.eds\"\nmode = \"csp\"\n\
-             bus = \"{bus}\"\nnode = 5\nunit = \"mm\"\nincrements_per_unit = 1000\n\
-             {}\n\n\
-             [[groups]]\nname = \"g\"\naxes = [\"x\"]\n\n\
-             [[groups.records]]\nnumber = 0\ntargets = {{ x = 20.0 }}\nstep = {{ condition = \"mc\", next = 1 }}\n\n\
-             [[groups.records]]\nnumber = 1\ntargets = {{ x = -20.0 }}\nstep = {{ condition = \"mc\", next = 0 }}\n",
-            limits(-100.0, 100.0, 100.0, 1000.0)
+        &one_axis_machine(
+            &bus,
+            "x",
+            "cia402",
+            "eds = \"drive.eds\"\nmode = \"csp\"\nunit = \"mm\"\n",
+            &limits(-100.0, 100.0, 100.0, 1000.0),
+            "[[groups]]\nname = \"g\"\naxes = [\"x\"]\n\n\
+             [[groups.records]]\nnumber = 0\ntargets = { x = 20.0 }\nstep = { condition = \"mc\", next = 1 }\n\n\
+             [[groups.records]]\nnumber = 1\ntargets = { x = -20.0 }\nstep = { condition = \"mc\", next = 0 }\n",
         ),
     );
     check(&config);
@@ -1407,12 +1426,13 @@ fn the_configured_homing_method_homes_a_drive_sim_tlc5xx_on_its_limit_switch() {
     let prefix = unique("t-real-home17-");
     let config = sc.write(
         "home17.toml",
-        &format!(
-            "cycle_us = {CYCLE_US}\n\n\
-             [[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
-             [[axes]]\nname = \"z\"\ndevice = \"tlc5xx\"\nbus = \"{bus}\"\nnode = 5\n\
-             homing_method = 17\nincrements_per_unit = 1000.0\n{}\n",
-            limits(-100.0, 100.0, 50.0, 200.0)
+        &one_axis_machine(
+            &bus,
+            "z",
+            "tlc5xx",
+            "homing_method = 17\n",
+            &limits(-100.0, 100.0, 50.0, 200.0),
+            "",
         ),
     );
     check(&config);
