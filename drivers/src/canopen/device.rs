@@ -137,6 +137,30 @@ const ERR_NAMES: [&str; EMCY_HISTORY] = [
     "standard error field 8",
 ];
 
+/// The CiA 301 identity strings, visible strings and read only: 1008h manufacturer device
+/// name, 1009h hardware version, 100Ah software version, each as long as its text.
+pub const fn identity_strings(
+    name: &'static [u8],
+    hardware: &'static [u8],
+    software: &'static [u8],
+) -> [EntryDef<'static>; 3] {
+    const fn text(index: u16, what: &'static str, v: &'static [u8]) -> EntryDef<'static> {
+        EntryDef::new(
+            Address::new(index, 0),
+            what,
+            DataType::VisibleString,
+            AccessType::Ro,
+        )
+        .capacity(v.len())
+        .default_value(Value::Bytes(v))
+    }
+    [
+        text(0x1008, "manufacturer device name", name),
+        text(0x1009, "manufacturer hardware version", hardware),
+        text(0x100A, "manufacturer software version", software),
+    ]
+}
+
 /// Inserts the CiA 301 communication objects of `profile` for `node` into `od`.
 pub fn insert_communication_objects<const N: usize, const B: usize>(
     od: &mut ObjectDictionary<'static, N, B>,

@@ -35,7 +35,8 @@
 use crate::can::Frame;
 // PDO1 and the parameter channel on PDO2 as the catalog has them (seed-000 §7.4).
 use crate::canopen::device::{
-    CommProfile, Device, DeviceEvent, DeviceHooks, PdoDefault, insert_communication_objects,
+    CommProfile, Device, DeviceEvent, DeviceHooks, PdoDefault, identity_strings,
+    insert_communication_objects,
 };
 use crate::canopen::endpoint::Endpoint;
 use crate::canopen::nmt::{BootUpStyle, NmtState, ResetKind};
@@ -135,39 +136,8 @@ pub const FPC_IN: [Address; 4] = [
 /// The MTR-DCI's name and versions, visible strings, read only (§7.3: 1008h, 1009h, 100Ah;
 /// the versions written "V.xx.yy"). The name is the manual's example type code; the version
 /// numbers are the simulator's (the manual gives only their form).
-const MTR_DCI_STRINGS: [EntryDef<'static>; 3] = {
-    const NAME: &[u8] = b"MTR-DCI-42S-VCSC-EG14-H2CO";
-    const VERSION: &[u8] = b"V.01.00";
-    [
-        sub(
-            0x1008,
-            0,
-            "manufacturer device name",
-            DataType::VisibleString,
-            AccessType::Ro,
-        )
-        .capacity(NAME.len())
-        .default_value(Value::Bytes(NAME)),
-        sub(
-            0x1009,
-            0,
-            "manufacturer hardware version",
-            DataType::VisibleString,
-            AccessType::Ro,
-        )
-        .capacity(VERSION.len())
-        .default_value(Value::Bytes(VERSION)),
-        sub(
-            0x100A,
-            0,
-            "manufacturer software version",
-            DataType::VisibleString,
-            AccessType::Ro,
-        )
-        .capacity(VERSION.len())
-        .default_value(Value::Bytes(VERSION)),
-    ]
-};
+const MTR_DCI_STRINGS: [EntryDef<'static>; 3] =
+    identity_strings(b"MTR-DCI-42S-VCSC-EG14-H2CO", b"V.01.00", b"V.01.00");
 
 const FHPP_OBJECTS: [EntryDef<'static>; 18] = {
     use AccessType::{Ro, Wo};

@@ -6,7 +6,9 @@
 //! factor group: 6091h/6092h/6093h are absent, so the user unit is the increment), torques in
 //! per mille of the rated torque.
 
-use crate::canopen::device::{CommProfile, PdoDefault, insert_communication_objects};
+use crate::canopen::device::{
+    CommProfile, PdoDefault, identity_strings, insert_communication_objects,
+};
 use crate::canopen::nmt::BootUpStyle;
 use crate::canopen::od::{AccessType, DataType, EntryDef, ObjectDictionary, OdError, Value};
 use crate::canopen::{Address, NodeId};
@@ -94,35 +96,11 @@ const fn s(v: i64) -> Value<'static> {
 /// Default 607Fh / motor speed limit, inc/s (6000 rpm of a 10 000-increment encoder).
 pub const MAX_VELOCITY: u32 = 1_000_000;
 
+/// 1008h, 1009h, 100Ah.
+const IDENTITY: [EntryDef<'static>; 3] = identity_strings(b"CiA 402 drive", b"sim 1", b"sim 1");
+
 /// The objects beyond what `insert_communication_objects` adds.
 const OBJECTS: &[EntryDef<'static>] = &[
-    e(
-        0x1008,
-        0,
-        "manufacturer device name",
-        DataType::VisibleString,
-        Ro,
-    )
-    .capacity(16)
-    .default_value(Value::Bytes(b"CiA 402 drive")),
-    e(
-        0x1009,
-        0,
-        "manufacturer hardware version",
-        DataType::VisibleString,
-        Ro,
-    )
-    .capacity(8)
-    .default_value(Value::Bytes(b"sim 1")),
-    e(
-        0x100A,
-        0,
-        "manufacturer software version",
-        DataType::VisibleString,
-        Ro,
-    )
-    .capacity(8)
-    .default_value(Value::Bytes(b"sim 1")),
     e(0x603F, 0, "error code", U16, Ro).mappable(),
     e(0x6040, 0, "controlword", U16, Rw).mappable(),
     e(0x6041, 0, "statusword", U16, Ro).mappable(),
@@ -209,6 +187,7 @@ const OBJECTS: &[EntryDef<'static>] = &[
 pub fn generic_od(node: NodeId) -> Result<GenericOd, OdError> {
     let mut od = GenericOd::new();
     insert_communication_objects(&mut od, node, &comm_profile())?;
+    od.insert_all(&IDENTITY)?;
     od.insert_all(OBJECTS)?;
     Ok(od)
 }

@@ -2,7 +2,9 @@
 //! manual's PDO defaults, the DSP402 objects and the manufacturer objects the simulator runs,
 //! with the manual's types, access rights, ranges and defaults.
 
-use crate::canopen::device::{CommProfile, PdoDefault, insert_communication_objects};
+use crate::canopen::device::{
+    CommProfile, PdoDefault, identity_strings, insert_communication_objects,
+};
 use crate::canopen::nmt::BootUpStyle;
 use crate::canopen::od::{AccessType, DataType, EntryDef, ObjectDictionary, OdError, Value};
 use crate::canopen::{Address, NodeId};
@@ -104,37 +106,13 @@ const fn s(v: i64) -> Value<'static> {
     Value::Signed(v)
 }
 
+/// 1008h, 1009h, 100Ah.
+const IDENTITY: [EntryDef<'static>; 3] = identity_strings(b"TLC53x  ", b"HW 1.00 ", b"SW 1.00 ");
+
 /// Scalar objects: `R` = RPDO-mappable (rw), `T` = TPDO-mappable (ro).
 const OBJECTS: &[EntryDef<'static>] = &[
     // ---- CiA 301 objects insert_communication_objects does not add -----------------------
     e(0x1002, 0, "manufacturer status register", U32, Ro),
-    e(
-        0x1008,
-        0,
-        "manufacturer device name",
-        DataType::VisibleString,
-        Ro,
-    )
-    .capacity(8)
-    .default_value(Value::Bytes(b"TLC53x  ")),
-    e(
-        0x1009,
-        0,
-        "manufacturer hardware version",
-        DataType::VisibleString,
-        Ro,
-    )
-    .capacity(8)
-    .default_value(Value::Bytes(b"HW 1.00 ")),
-    e(
-        0x100A,
-        0,
-        "manufacturer software version",
-        DataType::VisibleString,
-        Ro,
-    )
-    .capacity(8)
-    .default_value(Value::Bytes(b"SW 1.00 ")),
     e(0x1016, 0, "consumer heartbeat time", U8, Ro).default_value(u(1)),
     e(0x1016, 1, "consumer heartbeat time 1", U32, Rw),
     // ---- DSP402 -------------------------------------------------------------------------
@@ -325,6 +303,7 @@ fn insert_array(
 pub fn tlc_od(node: NodeId, boot_up: BootUpStyle) -> Result<TlcOd, OdError> {
     let mut od = TlcOd::new();
     insert_communication_objects(&mut od, node, &comm_profile(boot_up))?;
+    od.insert_all(&IDENTITY)?;
     od.insert_all(OBJECTS)?;
     // 2400h: the last 20 error numbers (newest in sub 01h).
     insert_array(&mut od, 0x2400, "Error-Field", U16, 20, u(0), None)?;
