@@ -2665,6 +2665,8 @@ mod tests {
             "60FFh sub 0 is not PDO-mappable",
             "6040h sub 0 is not PDO-mappable",
             "no writable 60C2h sub 1",
+            "1600h sub 0 (RPDO1 mapping) is not writable",
+            "1A00h sub 0 (TPDO1 mapping) is not writable",
         ] {
             assert!(e[0].contains(part), "{part} in {}", e[0]);
         }

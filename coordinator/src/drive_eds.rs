@@ -122,6 +122,14 @@ impl DriveEds {
                 ));
             }
         }
+        // The boot maps PDO1 itself (and reads it back): a static mapping cannot take it.
+        for (index, what) in [(0x1600, "RPDO1"), (0x1A00, "TPDO1")] {
+            if !self.writable(index, 0) {
+                why.push(format!(
+                    "its {index:04X}h sub 0 ({what} mapping) is not writable: the coordinator maps PDO1 itself, a drive with a static PDO1 mapping cannot be used"
+                ));
+            }
+        }
         if mode != CyclicMode::Pp && !self.writable(0x60C2, 1) {
             why.push("it has no writable 60C2h sub 1 (interpolation time period)".into());
         }
