@@ -429,11 +429,13 @@ fn services_boot_through_the_queues_and_answer_every_request() {
                     break;
                 }
             }
-            while let Some(r) = cycle.requests.dequeue() {
-                let _ = cycle.answer(coordinator::command::Answer {
-                    tag: r.tag,
-                    reply: Reply::Latched { cycle: n },
-                });
+            while let Some(r) = cycle.request() {
+                cycle
+                    .answer(coordinator::command::Answer {
+                        tag: r.tag,
+                        reply: Reply::Latched { cycle: n },
+                    })
+                    .expect("a request is taken only with room for its answer");
                 let _ = cycle.event(Event::Acknowledged { cycle: n, axis: 0 });
             }
             while let Some(r) = cycle.boot_report() {

@@ -182,7 +182,7 @@ impl CycleIo for RealIo {
     }
 
     fn request(&mut self) -> Option<Request> {
-        self.ends.requests.dequeue()
+        self.ends.request()
     }
 
     fn answer(&mut self, answer: Answer) {

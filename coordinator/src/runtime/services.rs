@@ -147,6 +147,17 @@ impl CycleEnds {
             })
     }
 
+    /// The next request, only while its answer has room in the answers queue: a request the
+    /// cycle takes (and answers before it takes the next) is always answered (a full answers
+    /// queue would drop the answer, and the client would wait in vain); the others wait in
+    /// their queue for the next cycle.
+    pub fn request(&mut self) -> Option<Request> {
+        if !self.answers.ready() {
+            return None;
+        }
+        self.requests.dequeue()
+    }
+
     /// Queues an answer for the services.
     pub fn answer(&mut self, answer: Answer) -> Result<(), QueueFull> {
         self.answers.enqueue(answer).map_err(|_| QueueFull {
@@ -588,8 +599,15 @@ mod tests {
             port.submit(stop).unwrap();
         }
         assert!(port.submit(stop).is_err());
-        // Taking one makes room for one.
-        assert_eq!(cycle.requests.dequeue().map(|r| r.command), Some(stop));
+        // The answers queue is full: the cycle takes no request (its answer would be lost).
+        assert!(cycle.request().is_none());
+        // A client takes an answer: one request may be taken, and its answer fits.
+        assert_eq!(port.answer(), Some(a));
+        let r = cycle.request().expect("room for one answer");
+        assert_eq!(r.command, stop);
+        cycle.answer(a).unwrap();
+        assert!(cycle.request().is_none());
+        // Taking one made room for one.
         assert!(port.submit(stop).is_ok());
     }
 
