@@ -93,8 +93,8 @@ pub struct QueueFull {
 /// The cycle thread's halves of the queues. Every method is allocation-free, lock-free and
 /// never waits, so the cycle step may call them.
 pub struct CycleEnds {
-    /// Requests from the services.
-    pub requests: Consumer<'static, Request>,
+    /// Requests from the services ([`CycleEnds::request`], which keeps room for the answer).
+    requests: Consumer<'static, Request>,
     /// Answers to the services.
     pub answers: Producer<'static, Answer>,
     /// Events to the services.
