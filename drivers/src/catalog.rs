@@ -139,6 +139,168 @@ pub struct ModbusIdentity {
     pub product_name: &'static str,
 }
 
+/// One PDO of an EtherCAT device: its mapping object and the entries it maps (fixed).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct EcPdo {
+    /// The mapping object (16xxh outputs, 1Axxh inputs).
+    pub index: u16,
+    /// Its entries, `index << 16 | sub << 8 | bits`.
+    pub entries: &'static [u32],
+}
+
+impl EcPdo {
+    /// The bytes the PDO occupies in its sync manager.
+    pub const fn bytes(&self) -> u16 {
+        let mut bits = 0u32;
+        let mut i = 0;
+        while i < self.entries.len() {
+            bits += self.entries[i] & 0xFF;
+            i += 1;
+        }
+        bits.div_ceil(8) as u16
+    }
+}
+
+/// What a device is on EtherCAT (CoE): the identity and layout its ESI file would give, and
+/// its synchronisation limits (1C32h). The EMCA manual leaves these to the ESI, which is not
+/// in the seeds: where marked ASSUMED, the value is this project's choice, used alike by the
+/// simulated subdevice (SII image and object dictionary) and the coordinator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct EthercatFacts {
+    /// Product code (SII word 0Ah, 1018h:02).
+    pub product_code: u32,
+    /// Revision (SII word 0Ch, 1018h:03).
+    pub revision: u32,
+    /// The name the SII's strings give (the order code).
+    pub name: &'static str,
+    /// SM0, the write mailbox: start and length.
+    pub mailbox_out: (u16, u16),
+    /// SM1, the read mailbox: start and length.
+    pub mailbox_in: (u16, u16),
+    /// SM2 (outputs) start.
+    pub outputs_start: u16,
+    /// SM3 (inputs) start.
+    pub inputs_start: u16,
+    /// The RxPDOs (outputs) the device offers, in 1C12h order.
+    pub rx_pdos: &'static [EcPdo],
+    /// The TxPDOs (inputs), in 1C13h order.
+    pub tx_pdos: &'static [EcPdo],
+    /// How many of them are assigned at power-on (1C12h:00 and 1C13h:00).
+    pub default_assigned: u8,
+    /// 1C32h:04, the synchronisation types supported (bit 0 free run, 1 SM, 2 DC SYNC0).
+    pub sync_types: u16,
+    /// 1C32h:05, the shortest cycle, ns.
+    pub min_cycle_ns: u32,
+    /// 1C32h:06, the calc-and-copy time, ns.
+    pub calc_copy_ns: u32,
+    /// Whether it has distributed clocks (seed-002 p.52: yes).
+    pub dc: bool,
+}
+
+/// The EMCA's FHPP+ output bytes 1..8 (1602h) and 9..16 (1603h): 3101h..3109h, 3110h..3116h
+/// (the manual numbers them so: 3109h is followed by 3110h).
+const EMCA_FHPP_PLUS_OUT: [&[u32]; 2] = [
+    &[
+        0x3101_0008,
+        0x3102_0008,
+        0x3103_0008,
+        0x3104_0008,
+        0x3105_0008,
+        0x3106_0008,
+        0x3107_0008,
+        0x3108_0008,
+    ],
+    &[
+        0x3109_0008,
+        0x3110_0008,
+        0x3111_0008,
+        0x3112_0008,
+        0x3113_0008,
+        0x3114_0008,
+        0x3115_0008,
+        0x3116_0008,
+    ],
+];
+/// Its FHPP+ inputs 1..8 (1A02h) and 9..16 (1A03h).
+const EMCA_FHPP_PLUS_IN: [&[u32]; 2] = [
+    &[
+        0x3201_0008,
+        0x3202_0008,
+        0x3203_0008,
+        0x3204_0008,
+        0x3205_0008,
+        0x3206_0008,
+        0x3207_0008,
+        0x3208_0008,
+    ],
+    &[
+        0x3209_0008,
+        0x3210_0008,
+        0x3211_0008,
+        0x3212_0008,
+        0x3213_0008,
+        0x3214_0008,
+        0x3215_0008,
+        0x3216_0008,
+    ],
+];
+
+/// The EMCA-EC on EtherCAT (seed-002 §5.2, digest `ethercat-digest.md` §10): PDO mappings
+/// 1600h..1603h / 1A00h..1A03h as the manual prints them (p.54–61), all four assigned at
+/// power-on (SM2 = SM3 = 32 bytes); DC supported (p.52). ASSUMED (ESI values, not in the
+/// seed): product code 0x0000_0B0C, revision 0x0001_0000, SM0 1000h/128, SM1 1080h/128, SM2
+/// 1100h, SM3 1180h, 1C32h:04 = 0007h, 1C32h:05 = 1 ms, 1C32h:06 = 100 µs.
+pub const EMCA_ETHERCAT: EthercatFacts = EthercatFacts {
+    product_code: 0x0000_0B0C,
+    revision: 0x0001_0000,
+    name: "EMCA-EC-67-M-1TE-EC",
+    mailbox_out: (0x1000, 128),
+    mailbox_in: (0x1080, 128),
+    outputs_start: 0x1100,
+    inputs_start: 0x1180,
+    rx_pdos: &[
+        EcPdo {
+            index: 0x1600,
+            entries: FHPP_RPDO1,
+        },
+        EcPdo {
+            index: 0x1601,
+            entries: FPC_RPDO2,
+        },
+        EcPdo {
+            index: 0x1602,
+            entries: EMCA_FHPP_PLUS_OUT[0],
+        },
+        EcPdo {
+            index: 0x1603,
+            entries: EMCA_FHPP_PLUS_OUT[1],
+        },
+    ],
+    tx_pdos: &[
+        EcPdo {
+            index: 0x1A00,
+            entries: FHPP_TPDO1,
+        },
+        EcPdo {
+            index: 0x1A01,
+            entries: FPC_TPDO2,
+        },
+        EcPdo {
+            index: 0x1A02,
+            entries: EMCA_FHPP_PLUS_IN[0],
+        },
+        EcPdo {
+            index: 0x1A03,
+            entries: EMCA_FHPP_PLUS_IN[1],
+        },
+    ],
+    default_assigned: 4,
+    sync_types: 0x0007,
+    min_cycle_ns: 1_000_000,
+    calc_copy_ns: 100_000,
+    dc: true,
+};
+
 /// One kind of drive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Device {
@@ -167,6 +329,8 @@ pub struct Device {
     pub can_bitrates_kbit: &'static [u16],
     /// The drive's own record table; `None`: it has none.
     pub records: Option<Records>,
+    /// What it is on EtherCAT, where it has an EtherCAT variant.
+    pub ethercat: Option<&'static EthercatFacts>,
 }
 
 impl Device {
@@ -310,6 +474,7 @@ pub const MTR_DCI: Device = Device {
         first_row: 0,
         chaining: false,
     }),
+    ethercat: None,
 };
 
 /// Festo EMCA-...-CO (seed-002).
@@ -336,6 +501,7 @@ pub const EMCA: Device = Device {
         first_row: 1,
         chaining: true,
     }),
+    ethercat: Some(&EMCA_ETHERCAT),
 };
 
 /// Festo CMMO-ST-C5-1-LKP on Modbus TCP (seed-001).
@@ -372,6 +538,7 @@ pub const CMMO_ST: Device = Device {
         first_row: 1,
         chaining: true,
     }),
+    ethercat: None,
 };
 
 /// Twin Line TLC5xx on CANopen (seed-003).
@@ -404,6 +571,7 @@ pub const TLC5XX: Device = Device {
     can_bitrates_kbit: &[10, 20, 50, 125, 250, 500, 800, 1000],
     // Record processing is "only for TLC4xx" (§4.2): the TLC5xx has no record table.
     records: None,
+    ethercat: None,
 };
 
 /// The generic CiA 402 drive's RPDO1 for cyclic synchronous (and profile) position, as the
@@ -455,6 +623,7 @@ pub const CIA402_GENERIC: Device = Device {
     guard_time_max_ms: Some(u16::MAX),
     can_bitrates_kbit: &[10, 20, 50, 125, 250, 500, 800, 1000],
     records: None,
+    ethercat: None,
 };
 
 /// Every device kind, in the order the documentation lists them.

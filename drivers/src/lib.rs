@@ -12,6 +12,8 @@
 //! - [`fhpp`]: the Festo Handling and Positioning Profile: control/status bytes, the FHPP state
 //!   machine, the FPC parameter channel, PNU tables, units (MTR-DCI, EMCA, CMMO-ST).
 //! - [`cia402`]: CiA 402 controlword/statusword, the device state machine, modes, homing methods.
+//! - [`ethercat`]: a sans-I/O EtherCAT subdevice: frames and datagrams, the ESC's registers,
+//!   sync managers and FMMUs, the SII image, the ESM, CoE (SDO server, emergencies), a segment.
 //! - [`sim`]: the simulated physical axis and the device simulators built on it.
 //! - [`time`]: the timestamps every sans-I/O state machine is fed.
 //!
@@ -32,6 +34,7 @@ pub mod catalog;
 pub mod cia402;
 #[cfg(feature = "std")]
 pub mod cli_number;
+pub mod ethercat;
 pub mod fhpp;
 pub mod modbus;
 pub mod sim;

@@ -6,6 +6,7 @@
 //!           [--limit-negative POS] [--limit-positive POS] [--reference FROM..TO]
 //! drive-sim --device mtr-dci --bus vbus:NAME --node 3 [--profile fhpp|cia402]
 //! drive-sim --device emca    --bus vbus:NAME --node 4
+//! drive-sim --device emca    --ethercat IFACE [--count N]
 //! drive-sim --device cmmo-st --modbus 127.0.0.1:PORT
 //! drive-sim --device cia402  --bus vbus:NAME --node 5 [--eds FILE]
 //! drive-sim --write-eds tlc5xx|mtr-dci|emca|cia402
@@ -18,14 +19,16 @@
 //! drive can be stopped and started again on its own.
 //!
 //! CANopen drives run on the shared-memory virtual bus in real time (one bus endpoint per
-//! drive). A status line per drive goes to stderr every `--status-every` seconds; Ctrl-C,
+//! drive). With `--ethercat IFACE` the EMCA is an EtherCAT subdevice (EMCA-EC) on a network
+//! interface, `--count N` of them chained in this process as one segment; raw sockets need
+//! CAP_NET_RAW, so this runs as root or in a network namespace (`unshare -rn`) on a veth pair. A status line per drive goes to stderr every `--status-every` seconds; Ctrl-C,
 //! SIGTERM or `--duration` ends the run.
 
 use std::collections::HashSet;
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -39,11 +42,15 @@ use drivers::canopen::NodeId;
 use drivers::canopen::eds_write::{DeviceInfo, write_eds};
 use drivers::canopen::endpoint::Endpoint;
 use drivers::cli_number::Allowed;
+use drivers::ethercat::frame::MAX_FRAME_LEN;
+use drivers::ethercat::raw::RawSocket;
+use drivers::ethercat::segment;
 use drivers::fhpp::state::State as FhppState;
 use drivers::sim::axis::{SwitchZone, Switches as Inputs};
 use drivers::sim::cia402_drive::{Cia402Config, Cia402Drive};
 use drivers::sim::cmmo_st::{self, Server, ServerConfig};
 use drivers::sim::emca::Emca;
+use drivers::sim::emca_ec::EmcaEc;
 use drivers::sim::fhpp_drive::FhppDrive;
 use drivers::sim::mtr_dci::{FestoNode, MtrDci, Profile as MtrProfile};
 use drivers::sim::tlc5xx::{Tlc5xx, TlcConfig};
@@ -121,8 +128,15 @@ struct Cli {
     #[arg(long, value_name = "FILE", requires = "device")]
     eds: Option<PathBuf>,
     /// The CAN bus: `vbus:NAME` (the shared-memory virtual bus).
-    #[arg(long, required_if_eq_any([("device", "mtr-dci"), ("device", "emca"), ("device", "tlc5xx"), ("device", "cia402")]))]
+    #[arg(long)]
     bus: Option<String>,
+    /// EMCA only: be an EtherCAT subdevice (EMCA-EC) on this network interface instead of a
+    /// CANopen node: a veth end in a network namespace (raw sockets need CAP_NET_RAW).
+    #[arg(long, value_name = "IFACE", conflicts_with = "config")]
+    ethercat: Option<String>,
+    /// With --ethercat: how many EMCA subdevices this process chains as one segment, 1..=16.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u8).range(1..=16))]
+    count: Option<u8>,
     /// Node-ID(s), 1..=127; one drive per `--node`.
     #[arg(long = "node", num_args = 1.., value_parser = clap::value_parser!(u8).range(1..=127))]
     nodes: Vec<u8>,
@@ -134,7 +148,7 @@ struct Cli {
     #[arg(long, value_enum)]
     profile: Option<ProfileArg>,
     /// Modbus TCP address to serve (CMMO-ST), e.g. 127.0.0.1:1502.
-    #[arg(long, required_if_eq("device", "cmmo-st"))]
+    #[arg(long)]
     modbus: Option<SocketAddr>,
     /// End after this many seconds (default: run until Ctrl-C).
     // Text, checked by `timing`: the message then quotes what the user wrote, and a negative
@@ -325,11 +339,19 @@ struct ModbusSpec {
     addr: SocketAddr,
 }
 
+/// An EtherCAT segment of simulated EMCAs on a network interface.
+#[derive(Debug, Clone)]
+struct EcSpec {
+    iface: String,
+    count: u8,
+}
+
 /// Everything one run starts.
 #[derive(Debug, Default)]
 struct Plan {
     can: Vec<CanSpec>,
     modbus: Vec<ModbusSpec>,
+    ethercat: Option<EcSpec>,
 }
 
 /// `name: ` for a configured axis, nothing otherwise.
@@ -424,6 +446,49 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
                 .into(),
         );
     }
+    if let Some(iface) = &cli.ethercat {
+        if device != DeviceArg::Emca {
+            return Err(format!(
+                "--ethercat {iface}: the EMCA is the EtherCAT drive simulated here (--device \
+                 emca); the {} is not offered on EtherCAT",
+                can_device.name()
+            ));
+        }
+        if iface.is_empty() {
+            return Err("--ethercat: give the network interface's name (e.g. a veth end)".into());
+        }
+        if cli.bus.is_some() || !cli.nodes.is_empty() || cli.modbus.is_some() {
+            return Err(format!(
+                "--ethercat {iface} with --bus, --node or --modbus: the EMCA is either an \
+                 EtherCAT subdevice or a CANopen node; start one drive-sim for each"
+            ));
+        }
+        // A physical interface has a device behind it; a veth end, a bridge or loopback not.
+        if Path::new("/sys/class/net")
+            .join(iface)
+            .join("device")
+            .exists()
+        {
+            return Err(format!(
+                "--ethercat {iface}: a physical network interface; drive-sim answers only on a \
+                 virtual one (a veth end in a network namespace): a simulated drive on a real \
+                 EtherCAT line would answer for a real device"
+            ));
+        }
+        return Ok(Plan {
+            ethercat: Some(EcSpec {
+                iface: iface.clone(),
+                count: cli.count.unwrap_or(1),
+            }),
+            ..Plan::default()
+        });
+    }
+    if let Some(n) = cli.count {
+        return Err(format!(
+            "--count {n}: the number of EMCA subdevices in an EtherCAT segment; give it with \
+             --ethercat IFACE"
+        ));
+    }
     if let CanDevice::Catalog(kind) = can_device
         && kind.is_modbus()
     {
@@ -431,15 +496,19 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
             .modbus
             .ok_or("the CMMO-ST speaks Modbus TCP: give --modbus ADDR")?;
         return Ok(Plan {
-            can: Vec::new(),
             modbus: vec![ModbusSpec {
                 axis: None,
                 text: addr.to_string(),
                 addr,
             }],
+            ..Plan::default()
         });
     }
-    let bus = cli.bus.as_deref().ok_or("give --bus vbus:NAME")?;
+    let bus = cli.bus.as_deref().ok_or(if device == DeviceArg::Emca {
+        "give --bus vbus:NAME (CANopen) or --ethercat IFACE (EtherCAT)"
+    } else {
+        "give --bus vbus:NAME"
+    })?;
     let name = match bus.strip_prefix("vbus:") {
         Some(n) if !n.is_empty() => n,
         _ => {
@@ -475,7 +544,7 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
     }
     Ok(Plan {
         can,
-        modbus: Vec::new(),
+        ..Plan::default()
     })
 }
 
@@ -914,6 +983,153 @@ fn modbus_status(r: &ModbusRun) -> String {
     )
 }
 
+/// What the EtherCAT thread shares with the main loop.
+#[derive(Debug, Default)]
+struct EcShared {
+    /// One status line per subdevice, refreshed every 100 ms.
+    lines: Vec<String>,
+    /// Frames answered.
+    frames: u64,
+    /// Frames of EtherType 88A4h that were not datagrams a subdevice can process.
+    bad: u64,
+    /// The error that ended the thread.
+    error: Option<String>,
+}
+
+/// A running EtherCAT segment: its thread and what it shares.
+struct EcRun {
+    spec: EcSpec,
+    stop: Arc<AtomicBool>,
+    shared: Arc<Mutex<EcShared>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// How often the EtherCAT thread refreshes its status lines.
+const EC_SNAPSHOT: Duration = Duration::from_millis(100);
+/// The longest wait for a frame before the subdevices' clocks are advanced anyway.
+const EC_POLL: Duration = Duration::from_millis(1);
+
+fn ec_status(i: usize, d: &EmcaEc) -> String {
+    let al = match d.error() {
+        Some(code) => format!(
+            "{}, error {:04X}h ({})",
+            d.state(),
+            code.0,
+            code.description()
+        ),
+        None => d.state().to_string(),
+    };
+    format!(
+        "EMCA-EC {} (station {:04X}h) | {al} | {}",
+        i + 1,
+        d.station_address(),
+        festo_status(d.drive(), DeviceKind::Emca)
+    )
+}
+
+/// Opens the interface and starts the segment's thread: every frame through the subdevices and
+/// back; without frames, the drives' clocks still advance every millisecond.
+fn start_ethercat(spec: &EcSpec, now: Instant) -> Result<EcRun, String> {
+    let sock =
+        RawSocket::open(&spec.iface).map_err(|e| format!("--ethercat {}: {e}", spec.iface))?;
+    let mut subs = Vec::new();
+    for i in 0..spec.count {
+        let mut cfg = drivers::sim::fhpp_drive::DriveConfig::new(drivers::fhpp::Variant::Emca);
+        cfg.cycle = Duration::from_nanos(u64::from(drivers::catalog::EMCA_ETHERCAT.min_cycle_ns));
+        let d = EmcaEc::with_config(cfg, i + 1 < spec.count, now)
+            .map_err(|e| format!("EMCA-EC {}: {e}", i + 1))?;
+        subs.push(d);
+    }
+    eprintln!(
+        "drive-sim: {} EMCA-EC subdevice(s) on EtherCAT interface {}",
+        spec.count, spec.iface
+    );
+    let stop = Arc::new(AtomicBool::new(false));
+    let shared = Arc::new(Mutex::new(EcShared::default()));
+    let (stop2, shared2) = (stop.clone(), shared.clone());
+    let thread = std::thread::Builder::new()
+        .name("ethercat".into())
+        .spawn(move || {
+            let mut buf = [0u8; MAX_FRAME_LEN];
+            let mut next_snapshot = monotonic_now();
+            let (mut frames, mut bad) = (0u64, 0u64);
+            let mut error = None;
+            while !stop2.load(Ordering::Relaxed) {
+                match sock.recv(&mut buf, EC_POLL) {
+                    Ok(Some(n)) => match segment::pass(&mut buf[..n], &mut subs, monotonic_now()) {
+                        Ok(()) => {
+                            if let Err(e) = sock.send(&buf[..n]) {
+                                error = Some(format!("sending on {}: {e}", sock.interface()));
+                                break;
+                            }
+                            frames += 1;
+                        }
+                        Err(_) => bad += 1,
+                    },
+                    Ok(None) => {
+                        let now = monotonic_now();
+                        for s in subs.iter_mut() {
+                            drivers::ethercat::segment::Subdevice::poll(s, now);
+                        }
+                    }
+                    Err(e) => {
+                        error = Some(format!("receiving on {}: {e}", sock.interface()));
+                        break;
+                    }
+                }
+                let now = monotonic_now();
+                if now >= next_snapshot {
+                    next_snapshot = now + EC_SNAPSHOT;
+                    let lines: Vec<String> = subs
+                        .iter()
+                        .enumerate()
+                        .map(|(i, d)| ec_status(i, d))
+                        .collect();
+                    if let Ok(mut sh) = shared2.lock() {
+                        sh.lines = lines;
+                        sh.frames = frames;
+                        sh.bad = bad;
+                    }
+                }
+            }
+            if let Ok(mut sh) = shared2.lock() {
+                sh.frames = frames;
+                sh.bad = bad;
+                sh.error = error;
+            }
+        })
+        .map_err(|e| format!("starting the EtherCAT thread: {e}"))?;
+    Ok(EcRun {
+        spec: spec.clone(),
+        stop,
+        shared,
+        thread: Some(thread),
+    })
+}
+
+impl EcRun {
+    /// The error that ended the thread, if it ended.
+    fn failed(&self) -> Option<String> {
+        self.shared.lock().ok().and_then(|s| s.error.clone())
+    }
+
+    /// Stops the thread; returns the counts, or the error that ended it.
+    fn finish(mut self) -> Result<(u64, u64), String> {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        let sh = self
+            .shared
+            .lock()
+            .map_err(|_| "the EtherCAT thread panicked".to_owned())?;
+        match &sh.error {
+            Some(e) => Err(format!("EtherCAT on {}: {e}", self.spec.iface)),
+            None => Ok((sh.frames, sh.bad)),
+        }
+    }
+}
+
 fn sleep_until(t: Instant) {
     let now = monotonic_now();
     if t > now {
@@ -964,9 +1180,23 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
             }
         }
     }
+    // The EtherCAT segment's thread too: it inherits the priority.
+    let ec = match plan
+        .ethercat
+        .as_ref()
+        .map(|s| start_ethercat(s, monotonic_now()))
+    {
+        None => None,
+        Some(Ok(r)) => Some(r),
+        Some(Err(e)) => {
+            coordinator::runtime::realtime_thread::leave_realtime();
+            return Err(e);
+        }
+    };
+    let ec_drives = plan.ethercat.as_ref().map_or(0, |s| usize::from(s.count));
     eprintln!(
         "drive-sim: {} drive(s) running; Ctrl-C to stop",
-        stations.len() + servers.len()
+        stations.len() + servers.len() + ec_drives
     );
     let end = duration.map(|d| start + d);
     let mut next_status = every.map(|e| start + e);
@@ -999,6 +1229,9 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
         if end.is_some_and(|e| now >= e) {
             break;
         }
+        if ec.as_ref().and_then(EcRun::failed).is_some() {
+            break;
+        }
         if let (Some(t), Some(e)) = (next_status, every)
             && now >= t
         {
@@ -1007,6 +1240,13 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
             }
             for m in &servers {
                 eprintln!("{}", modbus_status(m));
+            }
+            if let Some(r) = &ec
+                && let Ok(sh) = r.shared.lock()
+            {
+                for l in &sh.lines {
+                    eprintln!("{l}");
+                }
             }
             // From now, not from `t`: a stalled process prints one line, not a burst.
             next_status = Some(now + e);
@@ -1034,6 +1274,14 @@ fn run(plan: &Plan, duration: Option<Duration>, every: Option<Duration>) -> Resu
             .map(|s| s.station.bus.counters().received)
             .sum();
         eprintln!("drive-sim: CAN: {sent} frames sent, {received} received, {errors} bus errors");
+    }
+    if let Some(r) = ec {
+        let iface = r.spec.iface.clone();
+        let (frames, bad) = r.finish()?;
+        eprintln!(
+            "drive-sim: EtherCAT on {iface}: {frames} frames answered, {bad} not processed \
+             (not datagrams)"
+        );
     }
     for m in servers {
         let prefix = prefix(&m.spec.axis);
@@ -1134,6 +1382,13 @@ fn main() -> ExitCode {
                      have none",
                     Switches::given(&cli).join(" ")
                 ));
+            }
+            (Some(_), _) if cli.count.is_some() => {
+                return Err(
+                    "--count: give it with --device emca --ethercat IFACE; the drives \
+                            of --config are CANopen and Modbus ones"
+                        .into(),
+                );
             }
             (Some(file), _) => plan_from_config(file, &cli.only)?,
             (None, Some(device)) => plan_from_args(&cli, device)?,

@@ -141,31 +141,45 @@ pub fn decode_socketcan(bytes: &[u8]) -> Result<Frame, PcapError> {
     frame_from_socketcan(can_id, b[4], &data)
 }
 
-/// The 24-byte pcap global header for SocketCAN captures.
-pub fn global_header() -> [u8; GLOBAL_HEADER_LEN] {
+/// The pcap link type of Ethernet II frames (`LINKTYPE_ETHERNET`): EtherCAT captures.
+pub const LINKTYPE_ETHERNET: u32 = 1;
+
+/// The 24-byte pcap global header of a capture of `linktype` frames.
+pub fn global_header_for(linktype: u32) -> [u8; GLOBAL_HEADER_LEN] {
     let mut h = [0u8; GLOBAL_HEADER_LEN];
     h[0..4].copy_from_slice(&PCAP_MAGIC_MICROS.to_le_bytes());
     h[4..6].copy_from_slice(&2u16.to_le_bytes());
     h[6..8].copy_from_slice(&4u16.to_le_bytes());
     // thiszone and sigfigs stay zero.
     h[16..20].copy_from_slice(&65_535u32.to_le_bytes());
-    h[20..24].copy_from_slice(&LINKTYPE_CAN_SOCKETCAN.to_le_bytes());
+    h[20..24].copy_from_slice(&linktype.to_le_bytes());
     h
 }
 
-/// One complete pcap record (header and SocketCAN frame) for a frame at `timestamp`
-/// (microsecond resolution; the epoch is whatever the caller's clock uses, Wireshark assumes
-/// the Unix epoch).
-pub fn encode_record(timestamp: Instant, frame: &Frame) -> [u8; RECORD_HEADER_LEN + CAN_FRAME_LEN] {
-    let mut r = [0u8; RECORD_HEADER_LEN + CAN_FRAME_LEN];
+/// The 24-byte pcap global header for SocketCAN captures.
+pub fn global_header() -> [u8; GLOBAL_HEADER_LEN] {
+    global_header_for(LINKTYPE_CAN_SOCKETCAN)
+}
+
+/// A record header for `len` bytes captured whole at `timestamp` (microsecond resolution; the
+/// epoch is whatever the caller's clock uses, Wireshark assumes the Unix epoch).
+pub fn record_header(timestamp: Instant, len: u32) -> [u8; RECORD_HEADER_LEN] {
+    let mut r = [0u8; RECORD_HEADER_LEN];
     let us = timestamp.as_micros();
     // pcap seconds are 32-bit; saturate rather than wrap (year 2106).
     let secs = u32::try_from(us / 1_000_000).unwrap_or(u32::MAX);
     r[0..4].copy_from_slice(&secs.to_le_bytes());
     r[4..8].copy_from_slice(&((us % 1_000_000) as u32).to_le_bytes());
-    r[8..12].copy_from_slice(&(CAN_FRAME_LEN as u32).to_le_bytes());
-    r[12..16].copy_from_slice(&(CAN_FRAME_LEN as u32).to_le_bytes());
-    r[16..].copy_from_slice(&encode_socketcan(frame));
+    r[8..12].copy_from_slice(&len.to_le_bytes());
+    r[12..16].copy_from_slice(&len.to_le_bytes());
+    r
+}
+
+/// One complete pcap record (header and SocketCAN frame) for a frame at `timestamp`.
+pub fn encode_record(timestamp: Instant, frame: &Frame) -> [u8; RECORD_HEADER_LEN + CAN_FRAME_LEN] {
+    let mut r = [0u8; RECORD_HEADER_LEN + CAN_FRAME_LEN];
+    r[..RECORD_HEADER_LEN].copy_from_slice(&record_header(timestamp, CAN_FRAME_LEN as u32));
+    r[RECORD_HEADER_LEN..].copy_from_slice(&encode_socketcan(frame));
     r
 }
 

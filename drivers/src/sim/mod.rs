@@ -31,6 +31,7 @@ pub mod cia402_drive;
 pub mod cmmo_st;
 pub mod comparator;
 pub mod emca;
+pub mod emca_ec;
 pub mod fhpp_drive;
 pub mod homing;
 pub mod mtr_dci;

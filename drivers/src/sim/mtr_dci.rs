@@ -139,7 +139,7 @@ pub const FPC_IN: [Address; 4] = [
 const MTR_DCI_STRINGS: [EntryDef<'static>; 3] =
     identity_strings(b"MTR-DCI-42S-VCSC-EG14-H2CO", b"V.01.00", b"V.01.00");
 
-const FHPP_OBJECTS: [EntryDef<'static>; 18] = {
+pub(crate) const FHPP_OBJECTS: [EntryDef<'static>; 18] = {
     use AccessType::{Ro, Wo};
     use DataType::{Integer32 as I32, Unsigned8 as U8, Unsigned16 as U16, Unsigned32 as U32};
     [
@@ -424,13 +424,7 @@ impl DeviceHooks for FestoApp {
     }
 
     fn app_size(&self, addr: Address) -> Option<Result<usize, AbortCode>> {
-        let pnu = pnu_of(addr)?;
-        Some(
-            self.drive
-                .pnu_def(pnu, addr.sub)
-                .map(|d| width(d.dtype))
-                .map_err(|e| e.abort_code()),
-        )
+        pnu_size(&self.drive, addr)
     }
 
     fn app_read(
@@ -439,23 +433,7 @@ impl DeviceHooks for FestoApp {
         offset: usize,
         buf: &mut [u8],
     ) -> Option<Result<usize, AbortCode>> {
-        let pnu = pnu_of(addr)?;
-        let r = (|| {
-            let dt = self.drive.pnu_def(pnu, addr.sub)?.dtype;
-            let v = self.drive.read_pnu(pnu, addr.sub)?;
-            Ok::<_, PnuError>((dt, v))
-        })();
-        Some(match r {
-            Ok((dt, v)) => {
-                let bytes = (v as u32).to_le_bytes();
-                let value = bytes.get(..width(dt)).unwrap_or(&[]);
-                let rest = value.get(offset..).unwrap_or(&[]);
-                let n = rest.len().min(buf.len());
-                buf[..n].copy_from_slice(&rest[..n]);
-                Ok(n)
-            }
-            Err(e) => Err(e.abort_code()),
-        })
+        pnu_read(&mut self.drive, addr, offset, buf)
     }
 
     fn app_write(
@@ -464,17 +442,64 @@ impl DeviceHooks for FestoApp {
         data: &[u8],
         _state: NmtState,
     ) -> Option<Result<(), AbortCode>> {
-        let pnu = pnu_of(addr)?;
-        let dt = match self.drive.pnu_def(pnu, addr.sub) {
-            Ok(d) => d.dtype,
-            Err(e) => return Some(Err(e.abort_code())),
-        };
-        Some(decode_pnu_value(dt, data).and_then(|v| {
-            self.drive
-                .write_pnu(pnu, addr.sub, v)
-                .map_err(|e| e.abort_code())
-        }))
+        pnu_write(&mut self.drive, addr, data)
     }
+}
+
+/// The size of a parameter object 2000h + PNU, or `None` if `addr` is not one: the SDO face of
+/// the drive's parameter table, on CANopen and on EtherCAT (CoE) alike.
+pub(crate) fn pnu_size(drive: &FhppDrive, addr: Address) -> Option<Result<usize, AbortCode>> {
+    let pnu = pnu_of(addr)?;
+    Some(
+        drive
+            .pnu_def(pnu, addr.sub)
+            .map(|d| width(d.dtype))
+            .map_err(|e| e.abort_code()),
+    )
+}
+
+/// Reads a parameter object 2000h + PNU from `offset` into `buf`; `None` if not one.
+pub(crate) fn pnu_read(
+    drive: &mut FhppDrive,
+    addr: Address,
+    offset: usize,
+    buf: &mut [u8],
+) -> Option<Result<usize, AbortCode>> {
+    let pnu = pnu_of(addr)?;
+    let r = (|| {
+        let dt = drive.pnu_def(pnu, addr.sub)?.dtype;
+        let v = drive.read_pnu(pnu, addr.sub)?;
+        Ok::<_, PnuError>((dt, v))
+    })();
+    Some(match r {
+        Ok((dt, v)) => {
+            let bytes = (v as u32).to_le_bytes();
+            let value = bytes.get(..width(dt)).unwrap_or(&[]);
+            let rest = value.get(offset..).unwrap_or(&[]);
+            let n = rest.len().min(buf.len());
+            buf[..n].copy_from_slice(&rest[..n]);
+            Ok(n)
+        }
+        Err(e) => Err(e.abort_code()),
+    })
+}
+
+/// Writes a parameter object 2000h + PNU; `None` if `addr` is not one.
+pub(crate) fn pnu_write(
+    drive: &mut FhppDrive,
+    addr: Address,
+    data: &[u8],
+) -> Option<Result<(), AbortCode>> {
+    let pnu = pnu_of(addr)?;
+    let dt = match drive.pnu_def(pnu, addr.sub) {
+        Ok(d) => d.dtype,
+        Err(e) => return Some(Err(e.abort_code())),
+    };
+    Some(decode_pnu_value(dt, data).and_then(|v| {
+        drive
+            .write_pnu(pnu, addr.sub, v)
+            .map_err(|e| e.abort_code())
+    }))
 }
 
 // ---- the node ---------------------------------------------------------------------------------

@@ -12,8 +12,9 @@
 pub enum FaultKind {
     /// START without a valid reference (MTR-DCI 1, EMCA/CMMO-ST 28h).
     NotReferenced,
-    /// The CMMO-ST's Modbus node guard expired: 47h (Modbus held master control; a fault by
-    /// default) or 48h (it did not; a warning that clears on reconnection).
+    /// The fieldbus connection was lost. The CMMO-ST's Modbus node guard expired: 47h (Modbus
+    /// held master control; a fault by default) or 48h (it did not; a warning that clears on
+    /// reconnection). The EMCA's EtherCAT link (SM watchdog, or Op left): 50h / 51h.
     FieldbusLost {
         /// Whether the fieldbus held master control.
         master_control: bool,
@@ -184,6 +185,21 @@ impl FaultKind {
                     master_control: false,
                 },
             ) => warning(0x48),
+            // The EMCA on EtherCAT (seed-002 §7): 50h with master control (EMCY 8100h, a fault
+            // whose reaction keeps the output stage on), 51h without (a warning: the fieldbus
+            // did not control the drive, so losing it stops nothing).
+            (
+                Emca,
+                K::FieldbusLost {
+                    master_control: true,
+                },
+            ) => fault(0x50, false, Some(0x8100), COMM),
+            (
+                Emca,
+                K::FieldbusLost {
+                    master_control: false,
+                },
+            ) => warning(0x51),
             (_, K::FieldbusLost { .. }) => return None,
             (_, K::TargetOutOfLimit { positive }) => {
                 fault(if positive { 0x2A } else { 0x29 }, false, None, PROF)

@@ -676,8 +676,9 @@ impl FhppDrive {
         self.fct_control
     }
 
-    /// The fieldbus connection was lost (the CMMO-ST's Modbus node guard expired): raises
-    /// 47h or 48h at `now`; a fault stops the axis through the state machine.
+    /// The fieldbus connection was lost (the CMMO-ST's Modbus node guard expired, the EMCA's
+    /// EtherCAT outputs stopped): raises 47h/48h or 50h/51h at `now`; a fault stops the axis
+    /// through the state machine.
     pub fn fieldbus_lost(&mut self, master_control: bool, now: Instant) {
         self.step_to(now);
         self.raise(FaultKind::FieldbusLost { master_control }, now);
