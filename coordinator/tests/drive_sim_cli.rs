@@ -240,12 +240,23 @@ fn expected_device_types() -> (Vec<u8>, Vec<u8>, Vec<u8>) {
     (tlc, mtr.to_le_bytes().to_vec(), emca.to_le_bytes().to_vec())
 }
 
+/// A free TCP port on 127.0.0.1, never the same twice in this process: the OS may hand a
+/// probed and closed port to the next probe, and two tests of this file (run in parallel) would
+/// then start two CMMO-ST servers on one port, one client talking to the other's server.
 fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    static GIVEN: Mutex<Vec<u16>> = Mutex::new(Vec::new());
+    loop {
+        let port = TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let mut given = GIVEN.lock().unwrap_or_else(|e| e.into_inner());
+        if !given.contains(&port) {
+            given.push(port);
+            return port;
+        }
+    }
 }
 
 fn transact(c: &mut TcpStream, req: &[u8]) -> Vec<u8> {
