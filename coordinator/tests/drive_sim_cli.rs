@@ -524,45 +524,6 @@ fn option_refusals_exit_1_naming_the_option() {
         ],
         &["--profile cia402"],
     );
-    // EtherCAT: the EMCA only, on an interface that exists, --count with --ethercat.
-    refused(
-        &["--device", "tlc5xx", "--ethercat", "lo"],
-        &[
-            "--ethercat lo",
-            "the EMCA is the EtherCAT drive simulated here",
-        ],
-    );
-    refused(
-        &["--device", "emca", "--ethercat", "no-such-if0"],
-        &[
-            "--ethercat no-such-if0",
-            "no network interface 'no-such-if0'",
-        ],
-    );
-    refused(
-        &[
-            "--device", "emca", "--bus", &bus, "--node", "5", "--count", "2",
-        ],
-        &["--count"],
-    );
-    refused(
-        &["--device", "emca"],
-        &["give --bus vbus:NAME", "--ethercat IFACE"],
-    );
-    // A physical interface (one with a device behind it), where this machine has one: a
-    // simulated drive must not answer on a real line.
-    let physical = std::fs::read_dir("/sys/class/net")
-        .into_iter()
-        .flatten()
-        .flatten()
-        .find(|e| e.path().join("device").exists())
-        .map(|e| e.file_name().to_string_lossy().into_owned());
-    if let Some(nic) = physical {
-        refused(
-            &["--device", "emca", "--ethercat", &nic],
-            &[&format!("--ethercat {nic}: a physical network interface")],
-        );
-    }
 }
 
 /// Starts `drive-sim --device DEVICE` as node 5 and reads 1000h from it over the shared-memory

@@ -245,3 +245,60 @@ fn a_drive_sim_segment_of_three_emcas_boots_to_op_over_a_veth_pair() {
         );
     }
 }
+
+/// drive-sim's EtherCAT options are refused with exit status 1 and a message naming them: the
+/// EMCA only, an interface that exists and is not physical, `--count` only with `--ethercat`.
+#[test]
+fn drive_sim_refuses_ethercat_options_it_cannot_honour() {
+    let sim = workspace_bin("coordinator", "drive-sim");
+    let refused = |args: &[&str], expected: &[&str]| {
+        let out = Command::new(&sim).args(args).output().unwrap();
+        let text = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "drive-sim {args:?}: {text}");
+        for e in expected {
+            assert!(text.contains(e), "drive-sim {args:?}: {e:?} in {text}");
+        }
+    };
+    refused(
+        &["--device", "tlc5xx", "--ethercat", "lo"],
+        &[
+            "--ethercat lo",
+            "the EMCA is the EtherCAT drive simulated here",
+        ],
+    );
+    refused(
+        &["--device", "emca", "--ethercat", "no-such-if0"],
+        &[
+            "--ethercat no-such-if0",
+            "no network interface 'no-such-if0'",
+        ],
+    );
+    refused(
+        &[
+            "--device", "emca", "--bus", "vbus:x", "--node", "5", "--count", "2",
+        ],
+        &["--count 2"],
+    );
+    refused(
+        &["--device", "emca", "--ethercat", "lo", "--bus", "vbus:x"],
+        &["--ethercat lo with --bus"],
+    );
+    refused(
+        &["--device", "emca"],
+        &["give --bus vbus:NAME", "--ethercat IFACE"],
+    );
+    // A physical interface (one with a device behind it), where this machine has one: a
+    // simulated drive must not answer on a real line.
+    let physical = std::fs::read_dir("/sys/class/net")
+        .into_iter()
+        .flatten()
+        .flatten()
+        .find(|e| e.path().join("device").exists())
+        .map(|e| e.file_name().to_string_lossy().into_owned());
+    if let Some(nic) = physical {
+        refused(
+            &["--device", "emca", "--ethercat", &nic],
+            &[&format!("--ethercat {nic}: a physical network interface")],
+        );
+    }
+}
