@@ -1,10 +1,13 @@
 //! pcap captures: exact bytes for LINKTYPE_CAN_SOCKETCAN, read-back, and tshark's CANopen view.
 #![cfg(feature = "std")]
 
+#[path = "common/tshark.rs"]
+mod tshark;
 use drivers::can::Frame;
 use drivers::can::pcap::{PcapWriter, TSHARK_CANOPEN_ARGS, read_pcap};
 use drivers::time::Instant;
 use std::process::Command;
+use tshark::tshark_or_skip;
 
 /// An SDO upload of 1000h:00 from node 1 and its reply (seed-003 section 8.1), NMT start, SYNC,
 /// plus an extended and a remote frame.
@@ -74,19 +77,7 @@ fn read_back_equals_written() {
 
 #[test]
 fn tshark_decodes_canopen() {
-    if Command::new("tshark").arg("-v").output().is_err() {
-        // CI (.ci/run) installs tshark and makes this test mandatory.
-        assert!(
-            std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
-            "tshark is not installed and MOTION_REQUIRE_ALL=1"
-        );
-        {
-            use std::io::Write as _;
-            let _ = writeln!(
-                std::io::stderr(),
-                "SKIPPED tshark_decodes_canopen: tshark is not installed (.ci/run installs it)"
-            );
-        }
+    if !tshark_or_skip("tshark_decodes_canopen") {
         return;
     }
     let path = std::env::temp_dir().join(format!("capture_pcap_{}.pcap", std::process::id()));

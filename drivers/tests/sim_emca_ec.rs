@@ -5,10 +5,13 @@
 //! `subdevice/configuration.rs`, `subdevice_group/mod.rs`). Across processes, on a veth pair,
 //! is the coordinator's test.
 
+#[path = "common/tshark.rs"]
+mod tshark;
 use std::future::Future;
 use std::pin::pin;
 use std::task::{Context, Poll, Waker};
 use std::time::Duration;
+use tshark::tshark_or_skip;
 
 use drivers::ethercat::esm::{AlState, AlStatusCode};
 use drivers::ethercat::segment::{self, Subdevice};
@@ -65,15 +68,7 @@ impl Rig {
         )));
         let now = monotonic_now();
         let subs = (0..n)
-            .map(|i| {
-                let cfg = {
-                    let mut c =
-                        drivers::sim::fhpp_drive::DriveConfig::new(drivers::fhpp::Variant::Emca);
-                    c.cycle = Duration::from_millis(1);
-                    c
-                };
-                EmcaEc::with_config(cfg, i + 1 < n, now).unwrap()
-            })
+            .map(|i| EmcaEc::with_config(EmcaEc::drive_config(), i + 1 < n, now).unwrap())
             .collect();
         Rig { md, tx, rx, subs }
     }
@@ -377,7 +372,7 @@ proptest::proptest! {
         use drivers::ethercat::frame::{Command, FrameBuilder};
         let now = drivers::time::Instant::ZERO;
         let mut subs: Vec<EmcaEc> = (0..2).map(|i| EmcaEc::with_config(
-            drivers::sim::fhpp_drive::DriveConfig::new(drivers::fhpp::Variant::Emca), i == 0, now).unwrap()).collect();
+            EmcaEc::drive_config(), i == 0, now).unwrap()).collect();
         for (k, datagrams) in frames.iter().enumerate() {
             let mut buf = [0u8; 1514];
             let mut b = FrameBuilder::new(&mut buf, [0x10; 6]).unwrap();
@@ -401,30 +396,12 @@ fn tshark_decodes_a_capture_of_the_segment_as_ethercat() {
     use drivers::ethercat::frame::{Command, FrameBuilder};
     use drivers::ethercat::pcap::EcPcapWriter;
     use std::process::Command as Process;
-    if Process::new("tshark").arg("-v").output().is_err() {
-        // CI (.ci/run) installs tshark and makes this test mandatory.
-        assert!(
-            std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
-            "tshark is not installed and MOTION_REQUIRE_ALL=1"
-        );
-        use std::io::Write as _;
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED tshark_decodes_a_capture_of_the_segment_as_ethercat: tshark is not installed \
-             (.ci/run installs it)"
-        );
+    if !tshark_or_skip("tshark_decodes_a_capture_of_the_segment_as_ethercat") {
         return;
     }
     let now = drivers::time::Instant::ZERO;
     let mut subs: Vec<EmcaEc> = (0..2)
-        .map(|i| {
-            EmcaEc::with_config(
-                drivers::sim::fhpp_drive::DriveConfig::new(drivers::fhpp::Variant::Emca),
-                i == 0,
-                now,
-            )
-            .unwrap()
-        })
+        .map(|i| EmcaEc::with_config(EmcaEc::drive_config(), i == 0, now).unwrap())
         .collect();
     let mut w = EcPcapWriter::new(Vec::new()).unwrap();
     // A BRD of the ESC type (both count), then an APWR of station address 1000h to position 0.

@@ -5,15 +5,13 @@
 //! values it writes) and comes back the same length, without a panic.
 
 use drivers::ethercat::segment;
-use drivers::fhpp::Variant;
 use drivers::sim::emca_ec::EmcaEc;
-use drivers::sim::fhpp_drive::DriveConfig;
 use drivers::time::Instant;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
     let mut subs: Vec<EmcaEc> = (0..2)
-        .map(|i| EmcaEc::with_config(DriveConfig::new(Variant::Emca), i == 0, Instant::ZERO).unwrap())
+        .map(|i| EmcaEc::with_config(EmcaEc::drive_config(), i == 0, Instant::ZERO).unwrap())
         .collect();
     // Frames as [len_lo, len_hi, bytes...]..., each after an Ethernet header to every station
     // from a master, EtherType 88A4h: the fuzzer writes the EtherCAT header and datagrams.

@@ -1034,9 +1034,7 @@ fn start_ethercat(spec: &EcSpec, now: Instant) -> Result<EcRun, String> {
         RawSocket::open(&spec.iface).map_err(|e| format!("--ethercat {}: {e}", spec.iface))?;
     let mut subs = Vec::new();
     for i in 0..spec.count {
-        let mut cfg = drivers::sim::fhpp_drive::DriveConfig::new(drivers::fhpp::Variant::Emca);
-        cfg.cycle = Duration::from_nanos(u64::from(drivers::catalog::EMCA_ETHERCAT.min_cycle_ns));
-        let d = EmcaEc::with_config(cfg, i + 1 < spec.count, now)
+        let d = EmcaEc::with_config(EmcaEc::drive_config(), i + 1 < spec.count, now)
             .map_err(|e| format!("EMCA-EC {}: {e}", i + 1))?;
         subs.push(d);
     }

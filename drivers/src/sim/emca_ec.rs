@@ -267,11 +267,17 @@ fn dictionary() -> Result<EcDictionary, OdError> {
 }
 
 impl EmcaEc {
-    /// A powered-on EMCA-EC in Init with the default axis.
+    /// A powered-on EMCA-EC in Init with the default axis, alone on its line.
     pub fn new(now: Instant) -> Result<EmcaEc, EcSimError> {
+        EmcaEc::with_config(EmcaEc::drive_config(), false, now)
+    }
+
+    /// The EMCA's default drive as it runs on EtherCAT: its internal cycle is the shortest
+    /// EtherCAT cycle, 1C32h:05, not the CANopen EMCA's 5 ms.
+    pub fn drive_config() -> DriveConfig {
         let mut cfg = DriveConfig::new(Variant::Emca);
         cfg.cycle = Duration::from_nanos(u64::from(FACTS.min_cycle_ns));
-        EmcaEc::with_config(cfg, false, now)
+        cfg
     }
 
     /// A powered-on EMCA-EC with a drive configuration of its own; `port1_connected` when
@@ -450,8 +456,9 @@ impl EmcaEc {
         Ok(())
     }
 
-    /// The bytes of the PDOs assigned in 1C12h (`rx`) or 1C13h.
-    fn assigned_bytes(&self, rx: bool) -> u16 {
+    /// The PDOs assigned in 1C12h (`rx`, outputs) or 1C13h (inputs), in their order: the
+    /// layout of SM2 or SM3.
+    fn assigned(&self, rx: bool) -> heapless::Vec<&'static EcPdo, 4> {
         let (index, pdos) = if rx {
             (0x1C12, FACTS.rx_pdos)
         } else {
@@ -461,8 +468,12 @@ impl EmcaEc {
         (1..=n)
             .filter_map(|sub| self.od.get_u16(Address::new(index, sub)).ok())
             .filter_map(|i| pdos.iter().find(|p| p.index == i))
-            .map(EcPdo::bytes)
-            .sum()
+            .collect()
+    }
+
+    /// The bytes of the PDOs assigned in 1C12h (`rx`) or 1C13h.
+    fn assigned_bytes(&self, rx: bool) -> u16 {
+        self.assigned(rx).iter().map(|p| p.bytes()).sum()
     }
 
     fn check_process_data(&self) -> Result<(), AlStatusCode> {
@@ -579,23 +590,16 @@ impl EmcaEc {
             if self.state == AlState::Op {
                 let area = self.esc.sm_area(2);
                 let mut at = 0usize;
-                let n = self.od.get_u8(Address::new(0x1C12, 0)).unwrap_or(0);
                 let mut control = None;
                 let mut request = None;
-                for sub in 1..=n {
-                    let Ok(index) = self.od.get_u16(Address::new(0x1C12, sub)) else {
-                        continue;
-                    };
-                    let Some(pdo) = FACTS.rx_pdos.iter().find(|p| p.index == index) else {
-                        continue;
-                    };
+                for pdo in self.assigned(true) {
                     let len = usize::from(pdo.bytes());
                     let Some(bytes) = area.get(at..at + len) else {
                         break;
                     };
                     let mut b = [0u8; 8];
                     b[..len.min(8)].copy_from_slice(&bytes[..len.min(8)]);
-                    match index {
+                    match pdo.index {
                         0x1600 => control = Some(b),
                         0x1601 => request = Some(b),
                         _ => {}
@@ -612,16 +616,9 @@ impl EmcaEc {
         }
         let mut inputs = [0u8; 32];
         let mut at = 0usize;
-        let n = self.od.get_u8(Address::new(0x1C13, 0)).unwrap_or(0);
-        for sub in 1..=n {
-            let Ok(index) = self.od.get_u16(Address::new(0x1C13, sub)) else {
-                continue;
-            };
-            let Some(pdo) = FACTS.tx_pdos.iter().find(|p| p.index == index) else {
-                continue;
-            };
+        for pdo in self.assigned(false) {
             let len = usize::from(pdo.bytes());
-            let bytes = match index {
+            let bytes = match pdo.index {
                 0x1A00 => self.drive.input(),
                 0x1A01 => self.drive.fpc_reply(),
                 _ => [0; 8],
