@@ -367,15 +367,17 @@ impl Esc {
     /// side effects of the registers written.
     fn write(&mut self, start: usize, data: &[u8]) {
         let len = data.len();
-        let old_sm: [SyncManager; SMS as usize] =
-            core::array::from_fn(|n| self.sync_manager(n as u8));
+        let touches = |r: u16, n: usize| start < usize::from(r) + n && usize::from(r) < start + len;
+        // The set-ups before the write, only when it reaches the SM registers (a process-data
+        // write, every cycle, does not).
+        let old_sm: Option<[SyncManager; SMS as usize]> = touches(reg::SM0, usize::from(SMS) * 8)
+            .then(|| core::array::from_fn(|n| self.sync_manager(n as u8)));
         for (i, &b) in data.iter().enumerate() {
             let a = start + i;
             if writable(a) {
                 self.mem[a] = b;
             }
         }
-        let touches = |r: u16, n: usize| start < usize::from(r) + n && usize::from(r) < start + len;
         if touches(reg::AL_CONTROL, 2) {
             self.al_request = Some(self.get16(reg::AL_CONTROL));
         }
@@ -411,10 +413,7 @@ impl Esc {
         for n in 0..SMS {
             let i = usize::from(n);
             let sm = self.sync_manager(n);
-            let was = old_sm[i];
-            if (was.start, was.len, was.control, was.enabled)
-                != (sm.start, sm.len, sm.control, sm.enabled)
-            {
+            if old_sm.is_some_and(|old| old[i] != sm) {
                 // A sync manager set up anew starts empty.
                 self.full[i] = false;
                 self.written[i] = false;
