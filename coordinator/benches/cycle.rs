@@ -38,7 +38,7 @@ fn bench(c: &mut Criterion) {
     for n in [1usize, 8, 32, 128] {
         let plan = machine(n);
         let cap = capture(&plan);
-        let slots = cap.modbus.len();
+        let slots = cap.images.len();
         group.throughput(Throughput::Elements(n as u64));
         group.bench_with_input(BenchmarkId::from_parameter(n), &cap, |b, cap| {
             let mut frames = vec![BusFrame::new(0, Frame::std8(0, [0; 8])); 512];
@@ -50,13 +50,13 @@ fn bench(c: &mut Criterion) {
                         frames: &mut frames,
                         len: 0,
                         overflow: 0,
-                        modbus: &mut modbus,
+                        images: &mut modbus,
                     };
                     cycle.step(
                         &CycleInput {
                             now: cap.now,
                             frames: &cap.frames,
-                            modbus: &cap.modbus,
+                            images: &cap.images,
                         },
                         &mut out,
                     );

@@ -60,6 +60,10 @@ pub const MAX_AXES: usize = 128;
 pub const MAX_GROUPS: usize = 16;
 /// CAN buses one coordinator drives at most (all in its one cycle).
 pub const MAX_BUSES: usize = crate::cycle::MAX_BUSES;
+/// EtherCAT buses (segments) one coordinator drives at most, each on its own thread.
+pub const MAX_SEGMENTS: usize = 4;
+/// Subdevices on one EtherCAT bus at most (the coordinator's ethercrab group holds this many).
+pub const MAX_SUBDEVICES: usize = 16;
 /// The default bus-load limit in percent.
 pub const DEFAULT_LOAD_LIMIT_PERCENT: u32 = 80;
 /// The default heartbeat / guard time in milliseconds.
@@ -118,6 +122,10 @@ pub enum BusKind {
     Vbus,
     /// A SocketCAN interface of the same name as the bus: real drives.
     Socketcan,
+    /// An EtherCAT segment on a Linux network interface (`interface`, default the bus's
+    /// name), raw Ethernet through ethercrab: its subdevices are the axes that name the bus,
+    /// each at its `position`.
+    Ethercat,
     /// The old name of `simulated`; refused so that no configuration silently changes meaning
     /// (the key now says where the drives are).
     Virtual,
@@ -130,6 +138,7 @@ impl BusKind {
             Self::Simulated => "simulated",
             Self::Vbus => "vbus",
             Self::Socketcan => "socketcan",
+            Self::Ethercat => "ethercat",
             Self::Virtual => "virtual",
         }
     }
@@ -188,6 +197,15 @@ pub struct BusConfig {
     /// SDO slots reserved per cycle (an 8-byte request and an 8-byte response each).
     #[serde(default = "default_one")]
     pub sdo_slots: u16,
+    /// The network interface of an `ethercat` bus; defaults to the bus's name.
+    pub interface: Option<String>,
+}
+
+impl BusConfig {
+    /// The network interface an `ethercat` bus runs on.
+    pub fn interface(&self) -> &str {
+        self.interface.as_deref().unwrap_or(&self.name)
+    }
 }
 
 /// The supported drives; their facts are `drivers::catalog`'s ([`DeviceKind::device`]).
@@ -250,6 +268,11 @@ impl DeviceKind {
     /// Whether the device is reached over Modbus TCP rather than CANopen.
     pub fn is_modbus(self) -> bool {
         !self.device().is_canopen()
+    }
+
+    /// What the device is on EtherCAT, if it has an EtherCAT interface in the catalog.
+    pub fn ethercat(self) -> Option<&'static catalog::EthercatFacts> {
+        self.device().ethercat
     }
 
     /// Whether the device can produce a heartbeat (the MTR-DCI and EMCA are guarded only).
@@ -343,6 +366,122 @@ pub fn axis_pdos(device: DeviceKind, profile: Profile, fpc: bool) -> Vec<Pdo> {
         .flatten()
         .map(|p| Pdo::every_sync(p.rpdo_bytes() as u8))
         .collect()
+}
+
+/// The CAN-only keys of an `ethercat` bus are refused where they differ from their defaults
+/// (the file cannot tell a default from a key written with the default's value).
+fn check_ethercat_bus(key: &str, b: &BusConfig, err: &mut Errors) {
+    let can_only: [(&str, bool); 5] = [
+        ("bitrate", b.bitrate != default_bitrate()),
+        ("sync", b.sync != SyncMode::Producer),
+        ("sync_counter", b.sync_counter),
+        ("emcy_per_cycle", b.emcy_per_cycle != 1),
+        ("sdo_slots", b.sdo_slots != 1),
+    ];
+    for (k, given) in can_only {
+        if given {
+            err.push(
+                format!("{key}.{k}"),
+                Problem::Ethercat(format!(
+                    "`{k}` is a CAN bus's; an ethercat bus runs at 100 Mbit/s, its frame driven by the coordinator's cycle"
+                )),
+            );
+        }
+    }
+    if b.interface().is_empty() || b.interface().len() > 15 {
+        err.push(
+            format!("{key}.interface"),
+            Problem::Ethercat(format!(
+                "{:?} is not a network interface name (1 to 15 bytes)",
+                b.interface()
+            )),
+        );
+    }
+}
+
+/// An axis on an `ethercat` bus: a device the catalog knows on EtherCAT, the FHPP profile, a
+/// position, no CANopen keys, and a cycle the drive allows (1C32h:05). Returns the position.
+fn check_ethercat_axis(
+    key: &str,
+    a: &AxisConfig,
+    cycle_us: u32,
+    cycle_key: &str,
+    err: &mut Errors,
+) -> Option<i64> {
+    let device = a.device;
+    let Some(facts) = device.ethercat() else {
+        let offered: Vec<&str> = DeviceKind::ALL
+            .iter()
+            .filter(|d| d.ethercat().is_some())
+            .map(|d| d.name())
+            .collect();
+        err.push(
+            format!("{key}.bus"),
+            Problem::Ethercat(format!(
+                "the {} has no EtherCAT interface in the device catalog; on an ethercat bus: {}",
+                device.device().name,
+                offered.join(", ")
+            )),
+        );
+        return None;
+    };
+    let not = |reason| Problem::NotAllowed { device, reason };
+    if a.node.is_some() {
+        err.push(
+            format!("{key}.node"),
+            not("on an ethercat bus has a position, not a node-ID"),
+        );
+    }
+    if a.modbus.is_some() || a.simulated {
+        let k = if a.simulated { "simulated" } else { "modbus" };
+        err.push(format!("{key}.{k}"), not("on an ethercat bus is reached on EtherCAT"));
+    }
+    if a.fpc {
+        err.push(
+            format!("{key}.fpc"),
+            not("on EtherCAT exchanges FHPP's 8-byte standard data (1600h/1A00h), without the FPC"),
+        );
+    }
+    if a.heartbeat_ms.is_some() || a.guard_time_ms.is_some() {
+        let k = if a.heartbeat_ms.is_some() {
+            "heartbeat_ms"
+        } else {
+            "guard_time_ms"
+        };
+        err.push(
+            format!("{key}.{k}"),
+            not("on EtherCAT is supervised by the working counter and its AL status, every cycle"),
+        );
+    }
+    let min_us = facts.min_cycle_ns.div_ceil(1000);
+    if cycle_us < min_us {
+        err.push(
+            cycle_key,
+            Problem::Ethercat(format!(
+                "the cycle of {cycle_us} us is shorter than the {}'s shortest on EtherCAT, {min_us} us (1C32h:05), for axis {:?}",
+                device.device().name,
+                a.name
+            )),
+        );
+    }
+    match a.position {
+        None => {
+            err.push(format!("{key}.position"), Problem::Missing { device });
+            None
+        }
+        Some(p) if !(1..=MAX_SUBDEVICES as i64).contains(&p) => {
+            err.push(
+                format!("{key}.position"),
+                Problem::Range {
+                    value: p as f64,
+                    min: 1.0,
+                    max: MAX_SUBDEVICES as f64,
+                },
+            );
+            None
+        }
+        Some(p) => Some(p),
+    }
 }
 
 /// `mode` and `eds` of a CANopen axis: a mode its device takes (and its EDS allows), an EDS
@@ -498,6 +637,9 @@ pub struct AxisConfig {
     pub bus: Option<String>,
     /// The CANopen node-ID, 1..=127 (CANopen devices only).
     pub node: Option<i64>,
+    /// The subdevice's position on an `ethercat` bus: 1 is the first after the master, in
+    /// wiring order (EtherCAT axes only).
+    pub position: Option<i64>,
     /// The Modbus TCP address `host:port` (Modbus devices only), dialled by the coordinator.
     pub modbus: Option<String>,
     /// A Modbus device simulated inside the coordinator instead of dialled (no `modbus`
@@ -1012,8 +1154,23 @@ pub enum Problem {
     )]
     ConsumerNotAlone(String),
     /// A group mixing Modbus and CANopen axes: Modbus has no SYNC to latch on.
-    #[error("axis {0:?} is on Modbus, which has no SYNC; it cannot move with CANopen axes")]
+    #[error(
+        "axis {0:?} is on Modbus, which has no SYNC; it cannot move with CANopen or EtherCAT axes"
+    )]
     ModbusInGroup(String),
+    /// An EtherCAT setting that cannot work (the message says why and what is allowed).
+    #[error("{0}")]
+    Ethercat(String),
+    /// A position on an EtherCAT bus used twice.
+    #[error("position {position} on bus {bus} is already used by {other}")]
+    DuplicatePosition {
+        /// The position.
+        position: i64,
+        /// The bus.
+        bus: String,
+        /// The key of the first user.
+        other: String,
+    },
     /// Two records with one number on one axis.
     #[error("record {number} of axis {axis:?} is already defined by {other}")]
     DuplicateRecord {
@@ -1109,6 +1266,8 @@ pub struct ConfigError {
 pub struct Report<'a> {
     /// The worst cycle of every bus whose settings could be computed, in configuration order.
     pub loads: Vec<BusLoad<'a>>,
+    /// Every EtherCAT bus's frame time, in configuration order.
+    pub segments: Vec<SegmentLoad>,
     /// All refusals, in configuration order, budget refusals last.
     pub errors: Vec<ConfigError>,
 }
@@ -1126,6 +1285,9 @@ impl fmt::Display for Report<'_> {
         for load in &self.loads {
             writeln!(f, "{load}")?;
         }
+        for s in &self.segments {
+            writeln!(f, "{s}")?;
+        }
         if self.errors.is_empty() {
             return writeln!(f, "OK");
         }
@@ -1133,6 +1295,78 @@ impl fmt::Display for Report<'_> {
             writeln!(f, "error: {e}")?;
         }
         writeln!(f, "refused: {} error(s)", self.errors.len())
+    }
+}
+
+/// One EtherCAT bus's cycle: its frames at 100 Mbit/s and their round trip through the
+/// subdevices ([`drivers::ethercat::wire_time`]), against the cycle.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SegmentLoad {
+    /// The bus's name.
+    pub name: String,
+    /// Its network interface.
+    pub interface: String,
+    /// What one cycle exchanges.
+    pub traffic: drivers::ethercat::wire_time::CycleTraffic,
+    /// The cycle.
+    pub cycle: Duration,
+}
+
+impl SegmentLoad {
+    /// The round trip of the cycle's frames, ns.
+    pub fn round_trip_ns(&self) -> u64 {
+        drivers::ethercat::wire_time::round_trip_ns(&self.traffic)
+    }
+
+    /// The round trip's share of the cycle.
+    pub fn share(&self) -> Permille {
+        let v = u128::from(self.round_trip_ns())
+            .saturating_mul(1000)
+            .div_ceil(self.cycle.as_nanos().max(1));
+        Permille(u32::try_from(v).unwrap_or(u32::MAX))
+    }
+
+    /// Refuses a segment whose frames' round trip takes more than `limit` of the cycle: the
+    /// inputs would not be back before the next cycle needs them.
+    pub fn check(&self, limit: Permille) -> Result<(), String> {
+        let share = self.share();
+        if share > limit {
+            return Err(format!(
+                "the EtherCAT frames of {} subdevice(s) take {:.1} us to go round ({} bytes in {} \
+                 frame(s) at 100 Mbit/s, and {} us through the subdevices), {share} of the {} us \
+                 cycle, above the limit of {limit}: lengthen cycle_us or split the segment",
+                self.traffic.subdevices,
+                self.round_trip_ns() as f64 / 1000.0,
+                self.traffic.frame_bytes(),
+                self.traffic.frames(),
+                self.traffic.subdevices as u64 * drivers::ethercat::wire_time::SUBDEVICE_DELAY_NS
+                    / 1000,
+                self.cycle.as_micros()
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Display for SegmentLoad {
+    /// `bus line (EtherCAT on ecm): 3 subdevices, 1 frame of 104 bytes, 13.4 us round trip:
+    /// 1.4 % of the 1000 us cycle`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let t = &self.traffic;
+        write!(
+            f,
+            "bus {} (EtherCAT on {}): {} subdevice(s), {} frame(s) of {} bytes, {:.1} us on the \
+             wire, {:.1} us round trip: {} of the {} us cycle",
+            self.name,
+            self.interface,
+            t.subdevices,
+            t.frames(),
+            t.frame_bytes(),
+            t.wire_ns() as f64 / 1000.0,
+            self.round_trip_ns() as f64 / 1000.0,
+            self.share(),
+            self.cycle.as_micros()
+        )
     }
 }
 
@@ -1259,7 +1493,18 @@ impl Config {
                 bus_index.insert(&b.name, i);
             }
             let mut ok = true;
-            if !(MIN_BITRATE..=MAX_BITRATE).contains(&b.bitrate) {
+            if b.kind == BusKind::Ethercat {
+                check_ethercat_bus(&key, b, &mut err);
+            } else if b.interface.is_some() {
+                err.push(
+                    format!("{key}.interface"),
+                    Problem::Ethercat(format!(
+                        "`interface` is an ethercat bus's; a {} bus is named by `name`",
+                        b.kind
+                    )),
+                );
+            }
+            if b.kind != BusKind::Ethercat && !(MIN_BITRATE..=MAX_BITRATE).contains(&b.bitrate) {
                 err.push(
                     format!("{key}.bitrate"),
                     Problem::Range {
@@ -1292,6 +1537,7 @@ impl Config {
                 }
             }
             if b.sync == SyncMode::Consumer
+                && b.kind != BusKind::Ethercat
                 && let Some(other) = self.buses.iter().find(|o| o.name != b.name)
             {
                 err.push(
@@ -1301,8 +1547,14 @@ impl Config {
             }
             bus_ok.push(ok);
         }
+        let ethercat_buses = self
+            .buses
+            .iter()
+            .filter(|b| b.kind == BusKind::Ethercat)
+            .count();
         for (what, count, max) in [
-            ("buses", self.buses.len(), MAX_BUSES),
+            ("buses", self.buses.len() - ethercat_buses, MAX_BUSES),
+            ("EtherCAT buses", ethercat_buses, MAX_SEGMENTS),
             ("axes", self.axes.len(), MAX_AXES),
             ("groups", self.groups.len(), MAX_GROUPS),
         ] {
@@ -1314,6 +1566,7 @@ impl Config {
         // Axes.
         let mut axis_index: HashMap<&str, usize> = HashMap::new();
         let mut nodes: HashMap<(&str, i64), usize> = HashMap::new();
+        let mut positions: HashMap<(&str, i64), usize> = HashMap::new();
         let mut plans: Vec<BusPlan> = self.buses.iter().map(|_| BusPlan::default()).collect();
         for (i, a) in self.axes.iter().enumerate() {
             let key = format!("axes[{i}]");
@@ -1355,7 +1608,44 @@ impl Config {
                 );
             }
             let device = a.device;
-            if device.is_modbus() {
+            let ethercat_bus = a
+                .bus
+                .as_deref()
+                .and_then(|b| bus_index.get(b))
+                .copied()
+                .filter(|&bi| self.buses[bi].kind == BusKind::Ethercat);
+            if a.position.is_some() && ethercat_bus.is_none() {
+                err.push(
+                    format!("{key}.position"),
+                    Problem::NotAllowed {
+                        device,
+                        reason: "has a position only on an ethercat bus (`bus` names one)",
+                    },
+                );
+            }
+            if let Some(bi) = ethercat_bus {
+                let cycle_us = self.bus_cycle_us(&self.buses[bi]);
+                let cycle_key = if self.buses[bi].cycle_us.is_some() {
+                    format!("buses[{bi}].cycle_us")
+                } else {
+                    "cycle_us".to_owned()
+                };
+                if let Some(p) = check_ethercat_axis(&key, a, cycle_us, &cycle_key, &mut err) {
+                    let bus_name = self.buses[bi].name.as_str();
+                    if let Some(&j) = positions.get(&(bus_name, p)) {
+                        err.push(
+                            format!("{key}.position"),
+                            Problem::DuplicatePosition {
+                                position: p,
+                                bus: bus_name.to_string(),
+                                other: format!("axes[{j}]"),
+                            },
+                        );
+                    } else {
+                        positions.insert((bus_name, p), i);
+                    }
+                }
+            } else if device.is_modbus() {
                 let not = |reason| Problem::NotAllowed { device, reason };
                 if a.bus.is_some() {
                     err.push(
@@ -1505,7 +1795,7 @@ impl Config {
         let limit = Permille::from_percent(self.load_limit_percent.clamp(1, 100));
         let mut loads = Vec::new();
         for (i, b) in self.buses.iter().enumerate() {
-            if !bus_ok[i] {
+            if !bus_ok[i] || b.kind == BusKind::Ethercat {
                 continue;
             }
             let plan = &plans[i];
@@ -1541,8 +1831,67 @@ impl Config {
                 Err(e) => err.push(format!("buses[{i}]"), Problem::Budget(e.to_string())),
             }
         }
+        let mut segments = Vec::new();
+        for (i, b) in self.buses.iter().enumerate() {
+            if b.kind != BusKind::Ethercat || !bus_ok[i] {
+                continue;
+            }
+            let on_bus: Vec<i64> = positions
+                .iter()
+                .filter(|((bus, _), _)| *bus == b.name)
+                .map(|((_, p), _)| *p)
+                .collect();
+            let n = on_bus.len();
+            if n == 0 {
+                err.push(
+                    format!("buses[{i}]"),
+                    Problem::Ethercat(format!(
+                        "no axis is on ethercat bus {:?}: give an axis `bus = {:?}` and its `position`",
+                        b.name, b.name
+                    )),
+                );
+                continue;
+            }
+            // ethercrab takes every subdevice it finds into the cycle, so the segment is the
+            // configured axes, at positions 1..=n.
+            if let Some(gap) = (1..=n as i64).find(|p| !on_bus.contains(p)) {
+                err.push(
+                    format!("buses[{i}]"),
+                    Problem::Ethercat(format!(
+                        "the axes on ethercat bus {:?} must sit at positions 1 to {n} (every subdevice of the segment is an axis), and no axis has position {gap}",
+                        b.name
+                    )),
+                );
+                continue;
+            }
+            let image_bytes: usize = self
+                .axes
+                .iter()
+                .filter(|a| a.bus.as_deref() == Some(b.name.as_str()))
+                .filter_map(|a| a.device.ethercat())
+                .map(|e| {
+                    let (rx, tx) = e.cyclic_pdos();
+                    usize::from(rx.bytes() + tx.bytes())
+                })
+                .sum();
+            let load = SegmentLoad {
+                name: b.name.clone(),
+                interface: b.interface().to_owned(),
+                traffic: drivers::ethercat::wire_time::CycleTraffic {
+                    image_bytes,
+                    subdevices: n,
+                    dc: false,
+                },
+                cycle: Duration::from_micros(self.bus_cycle_us(b).into()),
+            };
+            if let Err(e) = load.check(limit) {
+                err.push(format!("buses[{i}]"), Problem::Budget(e));
+            }
+            segments.push(load);
+        }
         Report {
             loads,
+            segments,
             errors: err.0,
         }
     }

@@ -77,11 +77,27 @@ pub enum Transport {
         /// Node-ID 1..=127.
         node: u8,
     },
-    /// Modbus TCP: the process image in this slot of [`CycleInput::modbus`].
+    /// Modbus TCP: the process image in this slot of [`CycleInput::images`].
     Modbus {
         /// Slot index.
         slot: u8,
     },
+    /// EtherCAT: the subdevice's process data (FHPP standard, 8 bytes each way) in this slot of
+    /// [`CycleInput::images`].
+    Ethercat {
+        /// Slot index.
+        slot: u8,
+    },
+}
+
+impl Transport {
+    /// The process-image slot of a Modbus or EtherCAT axis.
+    pub fn image_slot(self) -> Option<u8> {
+        match self {
+            Transport::Modbus { slot } | Transport::Ethercat { slot } => Some(slot),
+            Transport::Can { .. } => None,
+        }
+    }
 }
 
 /// How a drive is supervised.
@@ -175,17 +191,25 @@ pub enum SetupError {
     Member(GroupId),
 }
 
-/// One Modbus process image handed to the cycle.
+/// One process image handed to the cycle: a Modbus drive's answer or an EtherCAT subdevice's
+/// inputs, exchanged off the cycle thread.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub struct ModbusInput {
+pub struct ImageInput {
     /// The status bytes.
     pub image: Image,
     /// A new answer arrived since the last cycle.
     pub fresh: bool,
     /// How many cycles late that answer is (0: it answered the last cycle's output).
     pub late_cycles: u32,
-    /// The exchange timed out or the connection is down.
+    /// Modbus: the exchange timed out or the connection is down. EtherCAT: the subdevice did
+    /// not answer (its part of the working counter is missing).
     pub lost: bool,
+    /// EtherCAT: the subdevice answers but is not in Op; its AL state (1 Init, 2 PreOp,
+    /// 4 SafeOp). 0: in Op, or not EtherCAT.
+    pub not_op: u8,
+    /// EtherCAT: the error code of an emergency (CoE EMCY) received since the last cycle;
+    /// 0: none.
+    pub emcy: u16,
 }
 
 /// What arrived for one cycle.
@@ -195,8 +219,8 @@ pub struct CycleInput<'a> {
     pub now: Instant,
     /// CAN frames received since the previous step, in arrival order per bus.
     pub frames: &'a [BusFrame],
-    /// Modbus images, by slot.
-    pub modbus: &'a [ModbusInput],
+    /// Process images (Modbus drives, EtherCAT subdevices), by slot.
+    pub images: &'a [ImageInput],
 }
 
 /// Where the step writes what to send.
@@ -208,8 +232,8 @@ pub struct CycleOutput<'a> {
     pub len: usize,
     /// Frames that did not fit `frames` (a configuration error: the budget check prevents it).
     pub overflow: u32,
-    /// Modbus output images, by slot.
-    pub modbus: &'a mut [Image],
+    /// Process images to send (Modbus drives, EtherCAT subdevices), by slot.
+    pub images: &'a mut [Image],
 }
 
 impl CycleOutput<'_> {
@@ -1503,15 +1527,29 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             }
         }
         for i in 0..self.axes.len() {
-            if let Transport::Modbus { slot } = self.axes[i].transport {
-                let Some(m) = input.modbus.get(usize::from(slot)).copied() else {
+            let transport = self.axes[i].transport;
+            if let Some(slot) = transport.image_slot() {
+                let Some(m) = input.images.get(usize::from(slot)).copied() else {
                     continue;
                 };
                 if !self.axes[i].online {
                     continue;
                 }
+                let ethercat = matches!(transport, Transport::Ethercat { .. });
                 if m.lost {
-                    self.raise(i as AxisId, FaultReason::ModbusTimeout);
+                    self.raise(
+                        i as AxisId,
+                        if ethercat {
+                            FaultReason::EthercatLost
+                        } else {
+                            FaultReason::ModbusTimeout
+                        },
+                    );
+                } else if m.not_op != 0 {
+                    self.raise(i as AxisId, FaultReason::EthercatState(m.not_op));
+                }
+                if m.emcy != 0 {
+                    self.raise(i as AxisId, FaultReason::Emcy(m.emcy));
                 }
                 if m.fresh {
                     self.axes[i].input = Some(m.image);
@@ -2025,8 +2063,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         out.push(bus, f);
                     }
                 }
-                Transport::Modbus { slot } => {
-                    if let Some(m) = out.modbus.get_mut(usize::from(slot)) {
+                Transport::Modbus { slot } | Transport::Ethercat { slot } => {
+                    if let Some(m) = out.images.get_mut(usize::from(slot)) {
                         *m = a.out;
                     }
                 }
@@ -2359,13 +2397,13 @@ mod tests {
             frames: &mut frames,
             len: 0,
             overflow: 0,
-            modbus: &mut modbus,
+            images: &mut modbus,
         };
         c.step(
             &CycleInput {
                 now: Instant::ZERO,
                 frames: &[],
-                modbus: &[],
+                images: &[],
             },
             &mut out,
         );
@@ -2394,13 +2432,13 @@ mod tests {
                 frames: &mut frames,
                 len: 0,
                 overflow: 0,
-                modbus: &mut modbus,
+                images: &mut modbus,
             };
             c.step(
                 &CycleInput {
                     now: Instant::ZERO,
                     frames: &[BusFrame::new(0, emcy)],
-                    modbus: &[],
+                    images: &[],
                 },
                 &mut out,
             );
@@ -2427,13 +2465,13 @@ mod tests {
             frames: &mut frames,
             len: 0,
             overflow: 0,
-            modbus: &mut modbus,
+            images: &mut modbus,
         };
         c.step(
             &CycleInput {
                 now,
                 frames: rx,
-                modbus: &[],
+                images: &[],
             },
             &mut out,
         );

@@ -30,6 +30,11 @@ pub enum FaultReason {
     /// The drive sent a boot-up while in the cycle: it reset itself (power, watchdog) and lost
     /// its configuration; the coordinator configures it again when it is back.
     DriveReset,
+    /// The EtherCAT subdevice no longer answers (its share of the working counter is missing:
+    /// switched off, or the line is broken before it).
+    EthercatLost,
+    /// The EtherCAT subdevice left Op; its AL state (1 Init, 2 PreOp, 4 SafeOp).
+    EthercatState(u8),
 }
 
 impl core::fmt::Display for FaultReason {
@@ -52,6 +57,18 @@ impl core::fmt::Display for FaultReason {
             FaultReason::DriveReset => {
                 f.write_str("the drive reset itself (boot-up while running)")
             }
+            FaultReason::EthercatLost => f.write_str("EtherCAT subdevice not answering"),
+            FaultReason::EthercatState(s) => write!(
+                f,
+                "EtherCAT subdevice fell back to {}",
+                match s & 0x0F {
+                    1 => "Init",
+                    2 => "Pre-Operational",
+                    3 => "Bootstrap",
+                    4 => "Safe-Operational",
+                    _ => "an unknown state",
+                }
+            ),
         }
     }
 }

@@ -16,6 +16,6 @@ fn a_captured_step_has_every_axis_moving() {
         };
         let p = plan(&Config::parse(&config_of(&spec)).unwrap()).unwrap();
         let c = capture_moving(&p, grouped).unwrap_or_else(|e| panic!("{spec:?}: {e}"));
-        assert!(!c.frames.is_empty() || !c.modbus.is_empty());
+        assert!(!c.frames.is_empty() || !c.images.is_empty());
     }
 }

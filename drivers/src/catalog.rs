@@ -197,6 +197,14 @@ pub struct EthercatFacts {
     pub dc: bool,
 }
 
+impl EthercatFacts {
+    /// The PDOs the coordinator assigns (1C12h, 1C13h): the first of each direction, FHPP's
+    /// 8-byte standard data (1600h and 1A00h on the EMCA; seed-002 §5.2).
+    pub const fn cyclic_pdos(&self) -> (&'static EcPdo, &'static EcPdo) {
+        (&self.rx_pdos[0], &self.tx_pdos[0])
+    }
+}
+
 /// The EMCA's FHPP+ output bytes 1..8 (1602h) and 9..16 (1603h): 3101h..3109h, 3110h..3116h
 /// (the manual numbers them so: 3109h is followed by 3110h).
 const EMCA_FHPP_PLUS_OUT: [&[u32]; 2] = [

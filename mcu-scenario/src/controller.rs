@@ -380,13 +380,13 @@ impl<'t> Controller<'t> {
             frames: &mut self.tx,
             len: 0,
             overflow: 0,
-            modbus: &mut modbus,
+            images: &mut modbus,
         };
         self.cycle.step(
             &CycleInput {
                 now,
                 frames: &self.rx,
-                modbus: &[],
+                images: &[],
             },
             &mut out,
         );

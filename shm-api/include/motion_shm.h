@@ -126,6 +126,8 @@ extern "C" {
 #define MOTION_FAULT_LATE_TPDO 7
 #define MOTION_FAULT_BOOT_FAILED 8
 #define MOTION_FAULT_DRIVE_RESET 9
+#define MOTION_FAULT_ETHERCAT_LOST 10
+#define MOTION_FAULT_ETHERCAT_STATE 11
 
 /* MotionGroupState.chain_state */
 #define MOTION_CHAIN_STATE_IDLE 0
@@ -204,6 +206,7 @@ extern "C" {
 /* MotionAxisDescription.link */
 #define MOTION_LINK_CAN 0
 #define MOTION_LINK_MODBUS 1
+#define MOTION_LINK_ETHERCAT 2
 
 /* MotionBusDescription.kind */
 #define MOTION_BUS_KIND_SIMULATED 0

@@ -151,6 +151,8 @@ class Fault(enum.IntEnum):
     LATE_TPDO = 7
     BOOT_FAILED = 8
     DRIVE_RESET = 9
+    ETHERCAT_LOST = 10
+    ETHERCAT_STATE = 11
 
 
 class ChainState(enum.IntEnum):
@@ -256,6 +258,7 @@ class Link(enum.IntEnum):
 
     CAN = 0
     MODBUS = 1
+    ETHERCAT = 2
 
 
 class BusKind(enum.IntEnum):

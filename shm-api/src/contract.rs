@@ -145,6 +145,11 @@ pub mod fault {
     pub const BOOT_FAILED: u8 = 8;
     /// The drive sent a boot-up while in the cycle (it reset itself).
     pub const DRIVE_RESET: u8 = 9;
+    /// The EtherCAT subdevice does not answer (working counter).
+    pub const ETHERCAT_LOST: u8 = 10;
+    /// The EtherCAT subdevice left Op; `fault_value` is its AL state (1 Init, 2 PreOp,
+    /// 4 SafeOp).
+    pub const ETHERCAT_STATE: u8 = 11;
 }
 
 /// A group's chain state ([`GroupState::chain_state`]).
@@ -556,6 +561,9 @@ pub mod link {
     pub const CAN: u8 = 0;
     /// Modbus TCP at [`super::AxisDescription::modbus`].
     pub const MODBUS: u8 = 1;
+    /// EtherCAT: subdevice [`super::AxisDescription::node`] (its position in the segment,
+    /// 1 first) on the interface named in [`super::AxisDescription::modbus`].
+    pub const ETHERCAT: u8 = 2;
 }
 
 /// Where a bus's drives are ([`BusDescription::kind`]).

@@ -136,7 +136,7 @@ pub fn constants() -> Vec<(&'static str, i64)> {
         axis_flags: [ONLINE, ENABLED, HOMED, MOTION_COMPLETE, WARNING, FOLLOWING, FHPP],
         fault: [
             NONE, HEARTBEAT_LOST, GUARDING_LOST, EMCY, FOLLOWING_ERROR, DRIVE_FAULT,
-            MODBUS_TIMEOUT, LATE_TPDO, BOOT_FAILED, DRIVE_RESET,
+            MODBUS_TIMEOUT, LATE_TPDO, BOOT_FAILED, DRIVE_RESET, ETHERCAT_LOST, ETHERCAT_STATE,
         ],
         chain_state: [IDLE, DELAY, MOVING, WAITING, COMPLETE, ABORTED],
         motion_state: [NONE, MOVING, HOLDING, QUICK_STOPPING, STOPPED, DONE],
@@ -155,7 +155,7 @@ pub fn constants() -> Vec<(&'static str, i64)> {
         ],
         device: [UNKNOWN, MTR_DCI, EMCA, CMMO_ST, TLC5XX],
         profile: [FHPP, CIA402],
-        link: [CAN, MODBUS],
+        link: [CAN, MODBUS, ETHERCAT],
         bus_kind: [SIMULATED, VBUS, SOCKETCAN],
         shape: [TRAPEZOID, S_CURVE],
         record_mode: [POSITION, VELOCITY, FORCE],

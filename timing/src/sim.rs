@@ -218,7 +218,8 @@ fn measure(
                 .axis(axis)
                 .and_then(|i| match plan.axes[i].setup.transport {
                     coordinator::cycle::Transport::Can { node, .. } => Some(node),
-                    coordinator::cycle::Transport::Modbus { .. } => None,
+                    coordinator::cycle::Transport::Modbus { .. }
+                    | coordinator::cycle::Transport::Ethercat { .. } => None,
                 })
                 .unwrap_or(0);
             let sent = counts.tpdo.get(&(b, node)).copied().unwrap_or(0);

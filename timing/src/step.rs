@@ -163,11 +163,11 @@ fn measure(
     });
     let granted = Granted::from_report(o.priority, &report);
     let mut frames = vec![BusFrame::new(0, Frame::std8(0, [0; 8])); TX_CAPACITY];
-    let mut modbus = vec![Image::default(); cap.modbus.len()];
+    let mut modbus = vec![Image::default(); cap.images.len()];
     let input = CycleInput {
         now: cap.now,
         frames: &cap.frames,
-        modbus: &cap.modbus,
+        images: &cap.images,
     };
     // Cold: as criterion's iter_batched_ref, a batch of copies is made first, then each is
     // stepped in turn; enough copies that the first is out of the caches when its turn comes.
@@ -187,7 +187,7 @@ fn measure(
                 frames: &mut frames,
                 len: 0,
                 overflow: 0,
-                modbus: &mut modbus,
+                images: &mut modbus,
             };
             let t0 = monotonic_now();
             cycle.step(&input, &mut out);

@@ -645,6 +645,17 @@ fn plan_from_config(file: &Path, only: &[String]) -> Result<Plan, String> {
                 );
                 continue;
             }
+            BusKind::Ethercat => {
+                eprintln!(
+                    "drive-sim: {}: {device} skipped: bus {} is kind = \"ethercat\" on the \
+                     coordinator's interface {}; simulate its segment with `drive-sim --device \
+                     emca --ethercat PEER --count N` on the other end of the link",
+                    a.name,
+                    bus.name,
+                    bus.interface()
+                );
+                continue;
+            }
         }
         let node = a
             .node

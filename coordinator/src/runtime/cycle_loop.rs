@@ -17,7 +17,7 @@ use hdrhistogram::Histogram;
 
 use crate::axis::Image;
 use crate::command::{Answer, Request};
-use crate::cycle::{BusFrame, ModbusInput, Transport};
+use crate::cycle::{BusFrame, ImageInput};
 use crate::event::Event;
 use crate::runtime::nodes::{self, NodeReport, NodeStatus};
 use crate::runtime::plan::MachinePlan;
@@ -75,17 +75,20 @@ pub trait CycleIo {
     /// The next drive report (booted, waiting, lost, refused), if any: its axis and what it
     /// means for the cycle.
     fn node_report(&mut self) -> Option<NodeChange>;
-    /// Modbus slot `slot`'s input for cycle `k`; `last_output` is what the cycle wrote to it
-    /// last.
-    fn modbus_input(
+    /// Image slot `slot`'s input for cycle `k` (a Modbus drive's or an EtherCAT subdevice's);
+    /// `last_output` is what the cycle wrote to it last.
+    fn image_input(
         &mut self,
         k: u64,
         slot: usize,
         last_output: &Image,
         now: Instant,
-    ) -> ModbusInput;
-    /// Modbus slot `slot`'s output of cycle `k`.
-    fn modbus_output(&mut self, k: u64, slot: usize, output: &Image);
+    ) -> ImageInput;
+    /// Image slot `slot`'s output of cycle `k`.
+    fn image_output(&mut self, k: u64, slot: usize, output: &Image);
+    /// Every slot's output of cycle `k` was given: an EtherCAT bus sends them now, in one
+    /// frame.
+    fn images_sent(&mut self, _k: u64) {}
     /// The next client request, if any.
     fn request(&mut self) -> Option<Request>;
     /// The answer to a request.
@@ -114,8 +117,8 @@ pub struct CycleLoop<'p> {
     /// Per axis: whether its drive has had its first report.
     reported: Vec<bool>,
     unreported: usize,
-    /// Modbus slot, its axis, and whether it has answered yet.
-    modbus_slots: Vec<(usize, crate::command::AxisId, bool)>,
+    /// Image slot (Modbus, EtherCAT), its axis, and whether it has answered yet.
+    image_slots: Vec<(usize, crate::command::AxisId, bool)>,
     start: Instant,
     end: Option<Instant>,
     next_status: Option<Instant>,
@@ -172,20 +175,26 @@ impl<'p> CycleLoop<'p> {
         duration: Option<Duration>,
         status_every: Option<Duration>,
     ) -> Result<CycleLoop<'p>, RunError> {
-        let reported: Vec<bool> = plan.axes.iter().map(|a| a.boot.is_none()).collect();
+        // CANopen axes are booted by their bus's sequencer, EtherCAT axes by their segment's
+        // thread; Modbus axes join with their first answer.
+        let reported: Vec<bool> = plan
+            .axes
+            .iter()
+            .map(|a| a.boot.is_none() && a.ethercat.is_none())
+            .collect();
         Ok(CycleLoop {
             plan,
             script,
             state,
             unreported: reported.iter().filter(|r| !**r).count(),
             reported,
-            modbus_slots: plan
+            image_slots: plan
                 .axes
                 .iter()
                 .enumerate()
-                .filter_map(|(i, a)| match a.setup.transport {
-                    Transport::Modbus { slot } => Some((usize::from(slot), i as u16, false)),
-                    Transport::Can { .. } => None,
+                .filter_map(|(i, a)| {
+                    let slot = a.setup.transport.image_slot()?;
+                    Some((usize::from(slot), i as u16, false))
                 })
                 .collect(),
             start,
@@ -340,16 +349,16 @@ impl<'p> CycleLoop<'p> {
                 self.unreported -= 1;
             }
         }
-        for (slot, axis, seen) in &mut self.modbus_slots {
-            let last = stepper.modbus_output(*slot);
-            let m = io.modbus_input(self.k, *slot, &last, now);
+        for (slot, axis, seen) in &mut self.image_slots {
+            let last = stepper.image_output(*slot);
+            let m = io.image_input(self.k, *slot, &last, now);
             // A Modbus drive needs no boot: it joins the cycle with its first answer, and from
             // then on a lost link faults it.
             if m.fresh && !*seen {
                 *seen = true;
                 stepper.cycle.set_online(*axis, true, now);
             }
-            stepper.modbus_input(*slot, m);
+            stepper.image_input(*slot, m);
         }
         if let Some(p) = self.probe {
             p(true);
@@ -409,9 +418,10 @@ impl<'p> CycleLoop<'p> {
             }
         }
         stepper.tx_refused += refused;
-        for &(slot, _, _) in &self.modbus_slots {
-            io.modbus_output(self.k, slot, &stepper.modbus_output(slot));
+        for &(slot, _, _) in &self.image_slots {
+            io.image_output(self.k, slot, &stepper.image_output(slot));
         }
+        io.images_sent(self.k);
         for (i, m) in self.following_max.iter_mut().enumerate() {
             if let Some(st) = stepper.cycle.axis_status(i as crate::ids::AxisId)
                 && st.moving

@@ -20,6 +20,7 @@
 pub mod boot;
 pub mod capture;
 pub mod cycle_loop;
+pub mod ethercat;
 pub mod modbus;
 pub mod nodes;
 pub mod plan;

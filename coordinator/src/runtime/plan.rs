@@ -34,6 +34,9 @@ pub struct AxisPlan {
     pub boot: Option<BootPlan>,
     /// The Modbus address to dial (Modbus axes that are not simulated).
     pub modbus: Option<String>,
+    /// An EtherCAT axis: its segment (an index of [`MachinePlan::segments`]) and its position
+    /// there, 1 first.
+    pub ethercat: Option<(usize, u16)>,
     /// The drive is simulated inside the coordinator (an axis on a `simulated` bus, or a
     /// Modbus axis with `simulated = true`).
     pub simulated: bool,
@@ -84,8 +87,20 @@ impl BusPlan {
             BusKind::Vbus => format!("vbus:{}", self.name),
             BusKind::Socketcan => self.name.clone(),
             BusKind::Simulated | BusKind::Virtual => format!("{} (simulated)", self.name),
+            BusKind::Ethercat => format!("{} (EtherCAT)", self.name),
         }
     }
+}
+
+/// One EtherCAT bus: its interface and its subdevices in wiring order.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SegmentPlan {
+    /// The bus's name.
+    pub name: String,
+    /// The network interface.
+    pub interface: String,
+    /// Per subdevice, position 1 first: its axis (an index of [`MachinePlan::axes`]).
+    pub axes: Vec<usize>,
 }
 
 /// A machine, ready to run.
@@ -97,6 +112,8 @@ pub struct MachinePlan {
     pub period: Duration,
     /// The CAN buses; an axis's `Transport::Can { bus, .. }` indexes this.
     pub buses: Vec<BusPlan>,
+    /// The EtherCAT buses, in configuration order.
+    pub segments: Vec<SegmentPlan>,
     /// The axes, in configuration order.
     pub axes: Vec<AxisPlan>,
     /// The groups: name, setup, record table.
@@ -116,6 +133,7 @@ impl MachinePlan {
     pub fn all_simulated(&self) -> bool {
         self.axes.iter().all(|a| a.simulated)
             && self.buses.iter().all(|b| b.kind == BusKind::Simulated)
+            && self.segments.is_empty()
     }
     /// The buses whose drives are simulated inside the coordinator, by index.
     pub fn simulated_buses(&self) -> impl Iterator<Item = (usize, &BusPlan)> {
@@ -124,11 +142,11 @@ impl MachinePlan {
             .enumerate()
             .filter(|(_, b)| b.kind == BusKind::Simulated)
     }
-    /// How many axes are on Modbus (the cycle's Modbus slots).
-    pub fn modbus_axes(&self) -> usize {
+    /// How many process-image slots the cycle has: one per axis on Modbus or EtherCAT.
+    pub fn image_slots(&self) -> usize {
         self.axes
             .iter()
-            .filter(|a| matches!(a.setup.transport, Transport::Modbus { .. }))
+            .filter(|a| a.setup.transport.image_slot().is_some())
             .count()
     }
     /// The axis on node `node` of bus `bus`.
@@ -286,13 +304,18 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     }
     // `check` refused more buses, axes or groups than fit, differing periods and a consumer
     // beside other buses: one period and one SYNC mode hold for every bus.
-    let first = cfg.buses.first();
-    let cycle_us = first.and_then(|b| b.cycle_us).unwrap_or(cfg.cycle_us);
+    let cycle_us = cfg
+        .buses
+        .first()
+        .and_then(|b| b.cycle_us)
+        .unwrap_or(cfg.cycle_us);
+    let can = |b: &&config::BusConfig| b.kind != BusKind::Ethercat;
+    let first = cfg.buses.iter().find(can);
     let period = Duration::from_micros(cycle_us.into());
     let setup = CycleSetup {
         cycle_ns: cycle_us * 1000,
         sync_producer: first.is_none_or(|b| b.sync == SyncMode::Producer),
-        buses: cfg.buses.len() as u8,
+        buses: cfg.buses.iter().filter(can).count() as u8,
         overrun: match cfg.overrun_reaction {
             config::OverrunReactionConfig::Report => crate::fault::OverrunReaction::Report,
             config::OverrunReactionConfig::QuickStop => crate::fault::OverrunReaction::QuickStop,
@@ -301,6 +324,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
     let buses: Vec<BusPlan> = cfg
         .buses
         .iter()
+        .filter(can)
         .map(|b| BusPlan {
             name: b.name.clone(),
             kind: b.kind,
@@ -308,9 +332,23 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             sdo_slots: b.sdo_slots.max(1),
         })
         .collect();
+    let mut segments: Vec<SegmentPlan> = cfg
+        .buses
+        .iter()
+        .filter(|b| b.kind == BusKind::Ethercat)
+        .map(|b| SegmentPlan {
+            name: b.name.clone(),
+            interface: b.interface().to_owned(),
+            axes: Vec::new(),
+        })
+        .collect();
     let mut axes = Vec::new();
-    let mut modbus_slot = 0u8;
+    let mut slot_next = 0u8;
     for a in &cfg.axes {
+        let segment = a
+            .bus
+            .as_deref()
+            .and_then(|b| segments.iter().position(|s| s.name == b));
         let s = a
             .scale()
             .map_err(|e| format!("axes.{}.increments_per_unit: {e}", a.name))?;
@@ -318,9 +356,13 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
         let p: Profile = a.profile().into();
         let lim = limits(a, s);
         let (transport, sup, boot) = if a.device.is_modbus() {
-            let slot = modbus_slot;
-            modbus_slot += 1;
+            let slot = slot_next;
+            slot_next += 1;
             (Transport::Modbus { slot }, Supervision::None, None)
+        } else if segment.is_some() {
+            let slot = slot_next;
+            slot_next += 1;
+            (Transport::Ethercat { slot }, Supervision::None, None)
         } else {
             let n = a.node.unwrap_or(0) as u8;
             let bus = a
@@ -426,7 +468,12 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 position_min: s.to_inc(a.limits.position_min).unwrap_or(0),
                 position_max: s.to_inc(a.limits.position_max).unwrap_or(0),
                 following_error: fe,
-                late_cycles: if a.device.is_modbus() { 0 } else { 3 },
+                // Modbus and EtherCAT report a lost exchange themselves.
+                late_cycles: if transport.image_slot().is_some() {
+                    0
+                } else {
+                    3
+                },
                 fpc: a.fpc && axis::fpc_mapping(k, p).is_some(),
                 mode: a.mode(),
             },
@@ -440,6 +487,8 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             },
             boot,
             modbus: a.modbus.clone(),
+            // `check` kept the position within 1..=MAX_SUBDEVICES.
+            ethercat: segment.map(|s| (s, a.position.unwrap_or(0) as u16)),
             records,
             jerk_limit: a.limits.jerk.map(|j| inc(j, s).max(1)),
             // `check` kept the force within 0..=300 %.
@@ -448,6 +497,18 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                 .force
                 .map(|f| config::PERMILLE_PER_PERCENT.to_inc(f).unwrap_or(0) as u16),
         });
+    }
+    for (s, seg) in segments.iter_mut().enumerate() {
+        let mut on: Vec<(u16, usize)> = axes
+            .iter()
+            .enumerate()
+            .filter_map(|(i, a): (usize, &AxisPlan)| match a.ethercat {
+                Some((sa, p)) if sa == s => Some((p, i)),
+                _ => None,
+            })
+            .collect();
+        on.sort();
+        seg.axes = on.into_iter().map(|(_, i)| i).collect();
     }
     let mut tables = cfg.group_tables().map_err(|e| e.to_string())?;
     let mut groups = Vec::new();
@@ -486,6 +547,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
         cycle: setup,
         period,
         buses,
+        segments,
         axes,
         groups,
     })

@@ -30,10 +30,11 @@ use heapless::spsc::{Producer, Queue};
 use crate::axis::Image;
 use crate::command::{Answer, Request};
 use crate::config::BusKind;
-use crate::cycle::{BusFrame, ModbusInput, Transport};
+use crate::cycle::{BusFrame, ImageInput, Transport};
 use crate::event::Event;
 use crate::runtime::capture::{self, CaptureBus, CaptureSource};
 use crate::runtime::cycle_loop::{CycleIo, CycleLoop, NodeChange, Wake};
+use crate::runtime::ethercat::{self as ec, SegmentCycleSide, SegmentSettings};
 use crate::runtime::modbus::{self as mb, Link, ModbusCycleSide, ModbusSettings};
 use crate::runtime::nodes::Nodes;
 use crate::runtime::plan::MachinePlan;
@@ -66,6 +67,11 @@ struct RealIo {
     end: Option<Instant>,
     ends: CycleEnds,
     exchanges: Vec<(usize, ModbusCycleSide)>,
+    /// Every EtherCAT bus's exchange.
+    segments: Vec<SegmentCycleSide>,
+    /// Per EtherCAT axis: its image slot, its bus (an index of `segments`) and position index
+    /// (0 first), and its axis.
+    ec_slots: Vec<(usize, usize, usize, crate::command::AxisId)>,
     snapshots: Producer<'static, Snapshot>,
     /// The last wake-up's time.
     now: Instant,
@@ -159,25 +165,57 @@ impl CycleIo for RealIo {
     }
 
     fn node_report(&mut self) -> Option<NodeChange> {
-        self.ends.boot_report().as_ref().map(NodeChange::from)
+        if let Some(r) = self.ends.boot_report() {
+            return Some(NodeChange::from(&r));
+        }
+        for (seg, side) in self.segments.iter_mut().enumerate() {
+            if let Some((i, op)) = side.report()
+                && let Some(&(_, _, _, axis)) =
+                    self.ec_slots.iter().find(|e| e.1 == seg && e.2 == i)
+            {
+                return Some(NodeChange {
+                    axis,
+                    status: if op {
+                        crate::runtime::nodes::NodeStatus::Running
+                    } else {
+                        crate::runtime::nodes::NodeStatus::Refused
+                    },
+                });
+            }
+        }
+        None
     }
 
-    fn modbus_input(&mut self, k: u64, slot: usize, _last: &Image, _now: Instant) -> ModbusInput {
+    fn image_input(&mut self, k: u64, slot: usize, _last: &Image, _now: Instant) -> ImageInput {
+        if let Some(&(_, seg, i, _)) = self.ec_slots.iter().find(|e| e.0 == slot) {
+            return self.segments[seg].take(k, i);
+        }
         let Some((_, side)) = self.exchanges.iter_mut().find(|(s, _)| *s == slot) else {
-            return ModbusInput::default();
+            return ImageInput::default();
         };
         let m = side.take_input(k);
-        ModbusInput {
+        ImageInput {
             image: Image::from_slice(&m.data).unwrap_or_default(),
             fresh: m.fresh,
             late_cycles: m.late_cycles,
             lost: matches!(m.link, Link::TimedOut(_) | Link::Down(_)),
+            ..ImageInput::default()
         }
     }
 
-    fn modbus_output(&mut self, k: u64, slot: usize, output: &Image) {
+    fn image_output(&mut self, k: u64, slot: usize, output: &Image) {
+        if let Some(&(_, seg, i, _)) = self.ec_slots.iter().find(|e| e.0 == slot) {
+            self.segments[seg].put(i, &output.data);
+            return;
+        }
         if let Some((_, side)) = self.exchanges.iter_mut().find(|(s, _)| *s == slot) {
             side.put_output(k, &output.data);
+        }
+    }
+
+    fn images_sent(&mut self, k: u64) {
+        for s in &mut self.segments {
+            s.send(k);
         }
     }
 
@@ -283,6 +321,12 @@ pub fn run_real(
     let mut sims = Vec::new();
     for (i, b) in plan.buses.iter().enumerate() {
         opened.push(match b.kind {
+            BusKind::Ethercat => {
+                return Err(RunError::Config(format!(
+                    "bus {}: an ethercat bus is not a CAN bus",
+                    b.name
+                )));
+            }
             BusKind::Simulated | BusKind::Virtual => {
                 let bus = VirtualBus::new(VirtualBusConfig {
                     bitrate: b.bitrate,
@@ -358,6 +402,56 @@ pub fn run_real(
         exchanges.push((usize::from(slot), side));
         exchange_threads.push(thread);
     }
+
+    // The EtherCAT buses: a thread each, with ethercrab on the bus's interface.
+    let (ec_tx, ec_rx) = mpsc::channel::<String>();
+    let mut segments = Vec::new();
+    let mut segment_threads = Vec::new();
+    let mut ec_slots = Vec::new();
+    if let (Some(dir), false) = (&opts.capture, plan.segments.is_empty()) {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| RunError::Io(format!("--capture {}: {e}", dir.display())))?;
+    }
+    for (s, seg) in plan.segments.iter().enumerate() {
+        let mut devices = Vec::new();
+        for (i, &a) in seg.axes.iter().enumerate() {
+            let axis = &plan.axes[a];
+            let facts = axis.setup.kind.device().ethercat.ok_or_else(|| {
+                RunError::Config(format!("axis {}: not an EtherCAT device", axis.name))
+            })?;
+            devices.push(facts);
+            if let Some(slot) = axis.setup.transport.image_slot() {
+                ec_slots.push((usize::from(slot), s, i, a as crate::command::AxisId));
+            }
+        }
+        let settings = SegmentSettings {
+            name: seg.name.clone(),
+            period: plan.period,
+            devices,
+            capture: opts
+                .capture
+                .as_ref()
+                .map(|d| d.join(format!("{}.pcap", seg.name))),
+        };
+        let (side, thread) = ec::spawn(&seg.interface, settings, ec_tx.clone()).map_err(|e| {
+            RunError::Io(format!(
+                "bus {} (ethercat, interface {}): {e}",
+                seg.name, seg.interface
+            ))
+        })?;
+        say(
+            out,
+            &format!(
+                "bus {}: EtherCAT on {}, {} subdevice(s)",
+                seg.name,
+                seg.interface,
+                seg.axes.len()
+            ),
+        );
+        segments.push(side);
+        segment_threads.push((seg.name.clone(), thread));
+    }
+    drop(ec_tx);
 
     // Services: the drives' boot and lifecycle and the events, on their executor; their
     // reports reach this thread over a channel. The command port goes to the shared-memory
@@ -545,6 +639,8 @@ pub fn run_real(
                     end: opts.duration.map(|d| start + d),
                     ends: cycle_ends,
                     exchanges,
+                    segments,
+                    ec_slots,
                     snapshots: snap_tx,
                     now: start,
                     ending: false,
@@ -606,6 +702,10 @@ pub fn run_real(
                 }
                 lines = 0;
             }
+            while let Ok(line) = ec_rx.try_recv() {
+                say(out, &line);
+                lines = 0;
+            }
             while let Some(snap) = snap_rx.dequeue() {
                 lines = print_status(out, &status_lines(plan, &snap), tty, lines);
             }
@@ -647,10 +747,21 @@ pub fn run_real(
     for t in exchange_threads {
         t.stop();
     }
-    let captures = match (capture, &opts.capture) {
+    let mut ec_captures = Vec::new();
+    for (name, t) in segment_threads {
+        let frames = t.stop();
+        if let Some(dir) = &opts.capture {
+            ec_captures.push(format!(
+                "bus {name}: {frames} EtherCAT frames in {}",
+                dir.join(format!("{name}.pcap")).display()
+            ));
+        }
+    }
+    let mut captures = match (capture, &opts.capture) {
         (Some(c), Some(dir)) => capture_lines(dir, c.stop()),
         _ => Vec::new(),
     };
+    captures.extend(ec_captures);
     stop_sims.store(true, Ordering::Relaxed);
     if let Some(t) = sim_thread {
         let _ = t.join();

@@ -404,8 +404,16 @@ pub fn status_lines(plan: &MachinePlan, snap: &Snapshot) -> String {
 /// The run's first line: what the machine is and which clock runs it.
 pub fn machine_line(plan: &MachinePlan, clock: &str) -> String {
     let n = |k: usize, one: &str, many: &str| format!("{k} {}", if k == 1 { one } else { many });
+    let ethercat = if plan.segments.is_empty() {
+        String::new()
+    } else {
+        format!(
+            ", {}",
+            n(plan.segments.len(), "EtherCAT bus", "EtherCAT buses")
+        )
+    };
     format!(
-        "machine: {}, {}, {}, cycle {} µs, {clock}",
+        "machine: {}, {}, {}{ethercat}, cycle {} µs, {clock}",
         n(plan.axes.len(), "axis", "axes"),
         n(plan.groups.len(), "group", "groups"),
         n(plan.buses.len(), "bus", "buses"),
@@ -423,6 +431,12 @@ pub fn run(cfg: &Config, opts: &RunOptions, out: &mut dyn Write) -> Result<Summa
             return Err(RunError::Config(format!(
                 "--virtual-time: bus {:?} is of kind \"{}\"; virtual time runs only machines whose drives are all simulated inside the coordinator (kind = \"simulated\"): drives in other processes or on a real bus keep their own clock",
                 b.name, b.kind
+            )));
+        }
+        if let Some(s) = plan.segments.first() {
+            return Err(RunError::Config(format!(
+                "--virtual-time: bus {:?} is of kind \"ethercat\" (interface {}); virtual time runs only machines whose drives are all simulated inside the coordinator: EtherCAT subdevices keep their own clock",
+                s.name, s.interface
             )));
         }
         if let Some(a) = plan.axes.iter().find(|a| !a.simulated) {

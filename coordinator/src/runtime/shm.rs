@@ -243,7 +243,10 @@ pub fn describe(plan: &MachinePlan) -> Box<MachineDescription> {
         w.bitrate = b.bitrate;
         w.kind = match b.kind {
             crate::config::BusKind::Vbus => wire::bus_kind::VBUS,
-            crate::config::BusKind::Socketcan => wire::bus_kind::SOCKETCAN,
+            // (EtherCAT buses are not among the CAN buses described here.)
+            crate::config::BusKind::Socketcan | crate::config::BusKind::Ethercat => {
+                wire::bus_kind::SOCKETCAN
+            }
             crate::config::BusKind::Simulated | crate::config::BusKind::Virtual => {
                 wire::bus_kind::SIMULATED
             }
@@ -277,11 +280,21 @@ pub fn describe(plan: &MachinePlan) -> Box<MachineDescription> {
         (w.link, w.bus, w.node) = match setup.transport {
             crate::cycle::Transport::Can { bus, node } => (wire::link::CAN, bus, node),
             crate::cycle::Transport::Modbus { .. } => (wire::link::MODBUS, 0xFF, 0),
+            crate::cycle::Transport::Ethercat { .. } => (
+                wire::link::ETHERCAT,
+                0xFF,
+                a.ethercat.map_or(0, |(_, p)| p.min(255) as u8),
+            ),
         };
         w.simulated = u8::from(a.simulated);
         w.name = name_bytes(&a.name);
         w.unit = name_bytes(&a.unit);
-        w.modbus = text_field(a.modbus.as_deref().unwrap_or(""));
+        // The Modbus address, or an EtherCAT axis's interface.
+        let ec_interface = a
+            .ethercat
+            .and_then(|(s, _)| plan.segments.get(s))
+            .map(|s| s.interface.as_str());
+        w.modbus = text_field(a.modbus.as_deref().or(ec_interface).unwrap_or(""));
         w.record_count = a.records.len().min(wire::MAX_DRIVE_RECORDS) as u8;
         for (r, rp) in w.records.iter_mut().zip(&a.records) {
             r.number = rp.number;
@@ -438,6 +451,8 @@ fn fault(f: FaultReason) -> (u8, u16, i64, i64) {
         FaultReason::LateTpdo(n) => (w::LATE_TPDO, 0, i64::from(n), 0),
         FaultReason::BootFailed => (w::BOOT_FAILED, 0, 0, 0),
         FaultReason::DriveReset => (w::DRIVE_RESET, 0, 0, 0),
+        FaultReason::EthercatLost => (w::ETHERCAT_LOST, 0, 0, 0),
+        FaultReason::EthercatState(s) => (w::ETHERCAT_STATE, 0, i64::from(s), 0),
     }
 }
 

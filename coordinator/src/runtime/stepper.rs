@@ -7,7 +7,7 @@ use drivers::time::{Instant, monotonic_now};
 use hdrhistogram::Histogram;
 
 use crate::axis::Image;
-use crate::cycle::{BusFrame, Cycle, CycleInput, CycleOutput, ModbusInput};
+use crate::cycle::{BusFrame, Cycle, CycleInput, CycleOutput, ImageInput};
 use crate::runtime::plan::{MAX_AXES, MAX_BUSES, MAX_GROUPS, MachinePlan};
 use crate::runtime::run::RunError;
 
@@ -25,7 +25,7 @@ pub struct Captured<'t> {
     /// The frames received for the step.
     pub frames: Vec<BusFrame>,
     /// The Modbus images for the step.
-    pub modbus: Vec<ModbusInput>,
+    pub images: Vec<ImageInput>,
     /// The step's SYNC time.
     pub now: Instant,
 }
@@ -37,7 +37,7 @@ pub struct Stepper<'t> {
     pub cycle: Box<Cycle<'t, MAX_AXES, MAX_GROUPS>>,
     rx: Vec<BusFrame>,
     tx: Vec<BusFrame>,
-    modbus_in: Vec<ModbusInput>,
+    modbus_in: Vec<ImageInput>,
     modbus_out: Vec<Image>,
     step_ns: Histogram<u64>,
     /// Frames sent by the coordinator.
@@ -70,13 +70,13 @@ impl<'t> Stepper<'t> {
         let cycle = Box::new(
             Cycle::new(plan.cycle, &axes, &groups).map_err(|e| RunError::Config(e.to_string()))?,
         );
-        let slots = plan.modbus_axes();
+        let slots = plan.image_slots();
         // Modbus axes come online with their first answer (`CycleLoop`).
         Ok(Stepper {
             cycle,
             rx: Vec::with_capacity(RX_CAPACITY),
             tx: vec![BusFrame::new(0, Frame::std8(0, [0; 8])); TX_CAPACITY],
-            modbus_in: vec![ModbusInput::default(); slots],
+            modbus_in: vec![ImageInput::default(); slots],
             modbus_out: vec![Image::default(); slots],
             step_ns: Histogram::new_with_bounds(1, 1_000_000_000, 3)
                 .map_err(|e| RunError::Config(e.to_string()))?,
@@ -93,7 +93,7 @@ impl<'t> Stepper<'t> {
         Captured {
             cycle: self.cycle.clone(),
             frames: self.rx.clone(),
-            modbus: self.modbus_in.clone(),
+            images: self.modbus_in.clone(),
             now,
         }
     }
@@ -128,14 +128,14 @@ impl<'t> Stepper<'t> {
     }
 
     /// Sets a Modbus slot's input for the next step.
-    pub fn modbus_input(&mut self, slot: usize, m: ModbusInput) {
+    pub fn image_input(&mut self, slot: usize, m: ImageInput) {
         if let Some(s) = self.modbus_in.get_mut(slot) {
             *s = m;
         }
     }
 
     /// A Modbus slot's output of the last step.
-    pub fn modbus_output(&self, slot: usize) -> Image {
+    pub fn image_output(&self, slot: usize) -> Image {
         self.modbus_out.get(slot).copied().unwrap_or_default()
     }
 
@@ -146,13 +146,13 @@ impl<'t> Stepper<'t> {
             frames: &mut self.tx,
             len: 0,
             overflow: 0,
-            modbus: &mut self.modbus_out,
+            images: &mut self.modbus_out,
         };
         self.cycle.step(
             &CycleInput {
                 now,
                 frames: &self.rx,
-                modbus: &self.modbus_in,
+                images: &self.modbus_in,
             },
             &mut out,
         );

@@ -10,7 +10,7 @@ use drivers::time::Instant;
 
 use crate::axis::Image;
 use crate::command::{Answer, Request};
-use crate::cycle::{BusFrame, ModbusInput, Transport};
+use crate::cycle::{BusFrame, ImageInput, Transport};
 use crate::event::Event;
 use crate::runtime::capture::InlineCapture;
 use crate::runtime::cycle_loop::{CycleIo, CycleLoop, NodeChange, Wake};
@@ -118,7 +118,7 @@ impl<'p> VirtualIo<'p> {
         let i = self.plan.axis(axis)?;
         match self.plan.axes[i].setup.transport {
             Transport::Can { bus, .. } => self.buses.get(usize::from(bus)),
-            Transport::Modbus { .. } => None,
+            Transport::Modbus { .. } | Transport::Ethercat { .. } => None,
         }
     }
 
@@ -233,9 +233,9 @@ impl CycleIo for VirtualIo<'_> {
         Some(NodeChange::from(&r))
     }
 
-    fn modbus_input(&mut self, _k: u64, slot: usize, last: &Image, now: Instant) -> ModbusInput {
+    fn image_input(&mut self, _k: u64, slot: usize, last: &Image, now: Instant) -> ImageInput {
         let Some(i) = self.cmmo.iter().position(|(s, _)| *s == slot) else {
-            return ModbusInput::default();
+            return ImageInput::default();
         };
         let answer = self.cmmo[i].1.exchange(&last.data, now);
         let missed = &mut self.modbus_missed[i];
@@ -244,18 +244,19 @@ impl CycleIo for VirtualIo<'_> {
         } else {
             missed.saturating_add(1)
         };
-        ModbusInput {
+        ImageInput {
             image: answer
                 .and_then(|a| Image::from_slice(&a))
                 .unwrap_or_default(),
             fresh: answer.is_some(),
             late_cycles: 0,
             lost: *missed >= MODBUS_TIMEOUT_CYCLES,
+            ..ImageInput::default()
         }
     }
 
-    fn modbus_output(&mut self, _k: u64, _slot: usize, _output: &Image) {
-        // The next cycle's exchange carries it (see `modbus_input`).
+    fn image_output(&mut self, _k: u64, _slot: usize, _output: &Image) {
+        // The next cycle's exchange carries it (see `image_input`).
     }
 
     fn request(&mut self) -> Option<Request> {

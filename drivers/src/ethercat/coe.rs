@@ -521,6 +521,27 @@ fn abort(out: &mut [u8], addr: Address, code: AbortCode) -> usize {
     SDO_LEN
 }
 
+/// The error code of the emergency in a mailbox read from a subdevice's input mailbox (SM1),
+/// or `None` when the mailbox holds something else (the master side of [`CoeServer::emergency`]).
+///
+/// ```
+/// use drivers::ethercat::coe::{CoeServer, parse_emergency};
+/// let mut s = CoeServer::new();
+/// let mut mbx = [0u8; 128];
+/// let n = s.emergency(0x8100, 0x11, [0; 5], &mut mbx);
+/// assert!(n > 0);
+/// assert_eq!(parse_emergency(&mbx), Some(0x8100));
+/// assert_eq!(parse_emergency(&[0; 16]), None);
+/// ```
+pub fn parse_emergency(mailbox: &[u8]) -> Option<u16> {
+    let h = MailboxHeader::parse(mailbox)?;
+    let coe = mailbox.get(MAILBOX_HEADER_LEN..MAILBOX_HEADER_LEN + COE_HEADER_LEN + 2)?;
+    if h.kind != TYPE_COE || coe[1] >> 4 != SERVICE_EMERGENCY {
+        return None;
+    }
+    Some(u16::from_le_bytes([coe[2], coe[3]]))
+}
+
 /// Writes an SDO upload request (a master's), for tests and examples; returns its length.
 pub fn sdo_upload_request(out: &mut [u8], counter: u8, addr: Address) -> usize {
     MailboxHeader {

@@ -588,6 +588,9 @@ fn params(
     if a.fpc == 0 {
         let why = if a.link == crate::contract::link::MODBUS {
             "its 8-byte Modbus profile carries none".to_owned()
+        } else if a.link == crate::contract::link::ETHERCAT {
+            "the coordinator maps FHPP's 8-byte standard data on EtherCAT, without the FPC"
+                .to_owned()
         } else if a.profile != crate::contract::profile::FHPP {
             "the parameter channel is FHPP's, and this axis runs CiA 402".to_owned()
         } else {

@@ -126,6 +126,16 @@ pub fn fault_text(axis: &AxisState) -> String {
         fault::LATE_TPDO => format!("TPDOs missing for {} cycles", axis.fault_value),
         fault::BOOT_FAILED => "boot failed".into(),
         fault::DRIVE_RESET => "drive reset itself".into(),
+        fault::ETHERCAT_LOST => "EtherCAT subdevice not answering".into(),
+        fault::ETHERCAT_STATE => format!(
+            "EtherCAT subdevice fell back to {}",
+            match axis.fault_value {
+                1 => "Init",
+                2 => "Pre-Operational",
+                4 => "Safe-Operational",
+                _ => "another state",
+            }
+        ),
         other => format!("fault kind {other} code {}", axis.fault_code),
     }
 }

@@ -12,7 +12,7 @@ use embedded_can::{ExtendedId, Id, StandardId};
 
 use crate::axis::{IMAGE_BYTES, Image};
 use crate::command::{BufferMode, Command, Rejected, Reply, Request, Target};
-use crate::cycle::{BusFrame, ModbusInput};
+use crate::cycle::{BusFrame, ImageInput};
 use crate::ids::MAX_GROUP_AXES;
 use crate::runtime::cycle_loop::Wake;
 use crate::runtime::nodes::NodeStatus;
@@ -244,7 +244,7 @@ pub struct CycleRecord {
     /// Drive reports: the axis and what it means.
     pub reports: Vec<(u16, NodeStatus)>,
     /// Modbus inputs, one per slot, in slot order.
-    pub modbus_in: Vec<ModbusInput>,
+    pub modbus_in: Vec<ImageInput>,
     /// Client requests.
     pub requests: Vec<Request>,
     /// The boot's SDO/NMT frames as the loop took them.
@@ -317,8 +317,15 @@ impl CycleRecord {
         o.uv(self.modbus_in.len() as u64)?;
         for m in &self.modbus_in {
             image(o, &m.image)?;
-            o.u8(u8::from(m.fresh) | u8::from(m.lost) << 1)?;
+            // Bit 2: an EtherCAT subdevice's state and emergency follow (a Modbus image's
+            // bytes are as before they existed).
+            let ec = m.not_op != 0 || m.emcy != 0;
+            o.u8(u8::from(m.fresh) | u8::from(m.lost) << 1 | u8::from(ec) << 2)?;
             o.uv(u64::from(m.late_cycles))?;
+            if ec {
+                o.u8(m.not_op)?;
+                o.uv(u64::from(m.emcy))?;
+            }
         }
         o.uv(self.requests.len() as u64)?;
         for r in &self.requests {
@@ -370,11 +377,19 @@ impl CycleRecord {
         for _ in 0..i.uv()? {
             let image = read_image(i)?;
             let b = i.u8()?;
-            self.modbus_in.push(ModbusInput {
+            let late_cycles = i.uv_as("late cycles")?;
+            let (not_op, emcy) = if b & 4 != 0 {
+                (i.u8()?, i.uv_as("EMCY code")?)
+            } else {
+                (0, 0)
+            };
+            self.modbus_in.push(ImageInput {
                 image,
                 fresh: b & 1 != 0,
                 lost: b & 2 != 0,
-                late_cycles: i.uv_as("late cycles")?,
+                late_cycles,
+                not_op,
+                emcy,
             });
         }
         for _ in 0..i.uv()? {
@@ -822,11 +837,20 @@ mod tests {
         let rtr = Frame::new_std_remote(0x701, 1).unwrap();
         r.rx.push(BusFrame::new(0, rtr));
         r.reports.push((3, NodeStatus::Reset));
-        r.modbus_in.push(ModbusInput {
+        r.modbus_in.push(ImageInput {
             image: Image::from_slice(&[1, 2, 3, 4, 5, 6, 7, 8]).unwrap(),
             fresh: true,
             late_cycles: 2,
             lost: false,
+            ..ImageInput::default()
+        });
+        r.modbus_in.push(ImageInput {
+            image: Image::from_slice(&[0x13, 0x0D, 0, 0, 0, 0, 0, 0]).unwrap(),
+            fresh: true,
+            late_cycles: 0,
+            lost: false,
+            not_op: 4,
+            emcy: 0x8100,
         });
         r.requests.push(Request {
             tag: 77,

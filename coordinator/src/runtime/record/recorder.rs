@@ -25,7 +25,7 @@ use super::format::{
 };
 use crate::axis::Image;
 use crate::command::{Answer, Request};
-use crate::cycle::{BusFrame, ModbusInput};
+use crate::cycle::{BusFrame, ImageInput};
 use crate::event::Event;
 use crate::runtime::cycle_loop::{CycleIo, NodeChange, Wake};
 use crate::runtime::plan::MachinePlan;
@@ -160,7 +160,7 @@ impl Recorder {
             .name("record-writer".into())
             .spawn(move || write_records(consumer, z, &d))
             .map_err(|e| format!("--record: cannot start the writer thread: {e}"))?;
-        let modbus = plan.modbus_axes();
+        let modbus = plan.image_slots();
         Ok(Recorder {
             record: CycleRecord::with_capacity(RX_CAPACITY + 64, TX_CAPACITY, modbus),
             scratch: vec![0u8; RECORD_BYTES].into_boxed_slice(),
@@ -407,15 +407,19 @@ impl<I: CycleIo> CycleIo for Tap<'_, I> {
         Some(r)
     }
 
-    fn modbus_input(&mut self, k: u64, slot: usize, last: &Image, now: Instant) -> ModbusInput {
-        let m = self.io.modbus_input(k, slot, last, now);
+    fn image_input(&mut self, k: u64, slot: usize, last: &Image, now: Instant) -> ImageInput {
+        let m = self.io.image_input(k, slot, last, now);
         keep(&mut self.rec.modbus_in, m, &mut self.rec.overflow);
         m
     }
 
-    fn modbus_output(&mut self, k: u64, slot: usize, output: &Image) {
+    fn image_output(&mut self, k: u64, slot: usize, output: &Image) {
         keep(&mut self.rec.modbus_out, *output, &mut self.rec.overflow);
-        self.io.modbus_output(k, slot, output);
+        self.io.image_output(k, slot, output);
+    }
+
+    fn images_sent(&mut self, k: u64) {
+        self.io.images_sent(k);
     }
 
     fn request(&mut self) -> Option<Request> {

@@ -15,7 +15,7 @@ use super::recorder::{boxed_state, recorded_state, state_bytes};
 use crate::axis::Image;
 use crate::command::{Answer, Request};
 use crate::config::Config;
-use crate::cycle::{BusFrame, ModbusInput};
+use crate::cycle::{BusFrame, ImageInput};
 use crate::event::Event;
 use crate::runtime::cycle_loop::{CycleIo, CycleLoop, NodeChange, Wake};
 use crate::runtime::plan::plan;
@@ -237,7 +237,7 @@ impl CycleIo for ReplayIo<'_> {
         Some(NodeChange { axis, status })
     }
 
-    fn modbus_input(&mut self, _k: u64, slot: usize, _last: &Image, _now: Instant) -> ModbusInput {
+    fn image_input(&mut self, _k: u64, slot: usize, _last: &Image, _now: Instant) -> ImageInput {
         match self.rec.modbus_in.get(self.modbus_in) {
             Some(m) => {
                 self.modbus_in += 1;
@@ -247,12 +247,12 @@ impl CycleIo for ReplayIo<'_> {
                 self.diverge(format!(
                     "the cycle asked for Modbus slot {slot}'s input, which the recording does not have"
                 ));
-                ModbusInput::default()
+                ImageInput::default()
             }
         }
     }
 
-    fn modbus_output(&mut self, _k: u64, slot: usize, output: &Image) {
+    fn image_output(&mut self, _k: u64, slot: usize, output: &Image) {
         let n = self.modbus_out;
         self.modbus_out += 1;
         match self.rec.modbus_out.get(n) {
@@ -452,7 +452,7 @@ pub fn replay(path: &Path, out: &mut dyn std::io::Write) -> Result<ReplaySummary
     )
     .map_err(|e| e.to_string())?;
     let info = StaticInfo::new(&plan, h.virtual_time);
-    let modbus = plan.modbus_axes();
+    let modbus = plan.image_slots();
     let mut record = CycleRecord::with_capacity(RX_CAPACITY + 64, TX_CAPACITY, modbus);
     let mut expected = vec![0u8; size];
     let mut found = boxed_state();

@@ -164,7 +164,7 @@ impl std::fmt::Debug for Injector {
 fn can_of(run: &VirtualRun<'_>, axis: usize) -> Option<(usize, u8)> {
     match run.io.plan().axes.get(axis)?.setup.transport {
         Transport::Can { bus, node } => Some((usize::from(bus), node)),
-        Transport::Modbus { .. } => None,
+        Transport::Modbus { .. } | Transport::Ethercat { .. } => None,
     }
 }
 
@@ -281,7 +281,7 @@ impl Injector {
             (FaultKind::ModbusDrop | FaultKind::ModbusSlow, Target::Axis(a)) => {
                 let slot = match run.io.plan().axes.get(a)?.setup.transport {
                     Transport::Modbus { slot } => usize::from(slot),
-                    Transport::Can { .. } => return None,
+                    Transport::Can { .. } | Transport::Ethercat { .. } => return None,
                 };
                 run.io.cmmo.iter().position(|(s, _)| *s == slot)?;
             }

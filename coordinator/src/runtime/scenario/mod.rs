@@ -275,6 +275,8 @@ impl Targets {
             match a.setup.transport {
                 Transport::Can { .. } => can_axes.push(i),
                 Transport::Modbus { .. } => modbus_axes.push(i),
+                // Scenarios run simulated machines, which have no EtherCAT.
+                Transport::Ethercat { .. } => {}
             }
         }
         Targets {
