@@ -434,7 +434,10 @@ fn check_ethercat_axis(
     }
     if a.modbus.is_some() || a.simulated {
         let k = if a.simulated { "simulated" } else { "modbus" };
-        err.push(format!("{key}.{k}"), not("on an ethercat bus is reached on EtherCAT"));
+        err.push(
+            format!("{key}.{k}"),
+            not("on an ethercat bus is reached on EtherCAT"),
+        );
     }
     if a.fpc {
         err.push(

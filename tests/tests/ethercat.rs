@@ -30,7 +30,7 @@ const SIM_IF: &str = "ecs";
 
 /// Runs `test` inside a fresh network namespace with the veth pair and drive-sim; returns
 /// false (after saying why) where that cannot be had.
-fn in_namespace(test: &str, sim_args: &str) -> bool {
+fn in_namespace(test: &str, sim_args: Option<&str>) -> bool {
     if std::env::var_os(INSIDE).is_some() {
         return true;
     }
@@ -63,18 +63,27 @@ fn in_namespace(test: &str, sim_args: &str) -> bool {
         "drive_sim_ethercat_{}_{test}.log",
         std::process::id()
     ));
-    // drive-sim in the background, the test in the foreground; then drive-sim is stopped
-    // (Ctrl-C's signal) and waited for, so that its log is whole.
-    let script = format!(
+    // drive-sim in the background (unless the test starts its own), the test in the
+    // foreground; then drive-sim is stopped (Ctrl-C's signal) and waited for, so that its log
+    // is whole.
+    let link = format!(
         "set -e; ip link add {MASTER_IF} type veth peer name {SIM_IF}; ip link set {MASTER_IF} up; \
-         ip link set {SIM_IF} up; '{sim}' --device emca --ethercat {SIM_IF} {sim_args} \
-         --status-every 0.5 --duration 120 > '{log}' 2>&1 & sim=$!; set +e; \
-         '{exe}' --exact {test} --nocapture --test-threads 1; rc=$?; kill -INT $sim; wait $sim; \
-         exit $rc",
-        sim = sim.display(),
-        exe = exe.display(),
-        log = log.display()
+         ip link set {SIM_IF} up; set +e;"
     );
+    let run = format!(
+        "'{exe}' --exact {test} --nocapture --test-threads 1",
+        exe = exe.display()
+    );
+    let script = match sim_args {
+        Some(args) => format!(
+            "{link} '{sim}' --device emca --ethercat {SIM_IF} {args} --status-every 0.5 \
+             --duration 120 < /dev/null > '{log}' 2>&1 & sim=$!; {run}; rc=$?; kill -INT $sim; \
+             wait $sim; exit $rc",
+            sim = sim.display(),
+            log = log.display()
+        ),
+        None => format!("{link} {run}"),
+    };
     let out = Command::new("unshare")
         .args(["-rn", "sh", "-c", &script])
         .env(INSIDE, "1")
@@ -156,7 +165,7 @@ impl Master {
 #[test]
 fn a_drive_sim_segment_of_three_emcas_boots_to_op_over_a_veth_pair() {
     let name = "a_drive_sim_segment_of_three_emcas_boots_to_op_over_a_veth_pair";
-    if !in_namespace(name, "--count 3") {
+    if !in_namespace(name, Some("--count 3")) {
         return;
     }
     let mut m = Master::open(MASTER_IF);
@@ -301,4 +310,323 @@ fn drive_sim_refuses_ethercat_options_it_cannot_honour() {
             &[&format!("--ethercat {nic}: a physical network interface")],
         );
     }
+}
+
+/// A process of the coordinator test: its output in a file, printed when the test fails.
+struct Proc {
+    label: &'static str,
+    child: std::process::Child,
+    log: std::path::PathBuf,
+}
+
+impl Proc {
+    fn start(
+        label: &'static str,
+        exe: &std::path::Path,
+        args: &[&str],
+        dir: &std::path::Path,
+    ) -> Proc {
+        let log = dir.join(format!("{label}.out"));
+        let out = std::fs::File::create(&log).unwrap();
+        let child = Command::new(exe)
+            .args(args)
+            .stdin(std::process::Stdio::piped())
+            .stdout(out.try_clone().unwrap())
+            .stderr(out)
+            .spawn()
+            .unwrap_or_else(|e| panic!("starting {}: {e}", exe.display()));
+        Proc { label, child, log }
+    }
+
+    fn output(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    fn say(&mut self, line: &str) {
+        use std::io::Write;
+        let stdin = self.child.stdin.as_mut().unwrap();
+        writeln!(stdin, "{line}").unwrap();
+        stdin.flush().unwrap();
+    }
+
+    fn wait_output(&mut self, text: &str) {
+        let end = Instant::now() + PATIENCE;
+        while !self.output().contains(text) {
+            assert!(
+                self.child.try_wait().unwrap().is_none(),
+                "{} ended before printing {text:?}",
+                self.label
+            );
+            assert!(
+                Instant::now() < end,
+                "{} never printed {text:?}",
+                self.label
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+/// Kills what still runs; prints every process's output when the test failed.
+struct Procs(Vec<Proc>);
+
+impl Drop for Procs {
+    fn drop(&mut self) {
+        for p in &mut self.0 {
+            let _ = p.child.kill();
+            let _ = p.child.wait();
+            if std::thread::panicking() {
+                eprintln!("--- {} ---\n{}", p.label, p.output());
+            }
+        }
+    }
+}
+
+const PATIENCE: Duration = Duration::from_secs(60);
+const MM: i64 = shm_api::contract::MICRO;
+
+fn ec_machine(cycle_us: u32) -> String {
+    let mut t = format!(
+        "cycle_us = {cycle_us}\n\n[[buses]]\nname = \"line\"\nkind = \"ethercat\"\ninterface = \"{MASTER_IF}\"\n"
+    );
+    for (i, name) in ["x", "y", "z"].iter().enumerate() {
+        t += &format!(
+            "\n[[axes]]\nname = \"{name}\"\ndevice = \"emca\"\nbus = \"line\"\nposition = {}\n\
+             increments_per_unit = 1000\n\
+             limits = {{ position_min = 0.0, position_max = 200.0, velocity = 100.0, acceleration = 500.0 }}\n",
+            i + 1
+        );
+    }
+    t + "\n[[groups]]\nname = \"xyz\"\naxes = [\"x\", \"y\", \"z\"]\n"
+}
+
+fn wait_state(
+    c: &mut shm_api::client::Client,
+    coord: &mut Proc,
+    what: &str,
+    mut ok: impl FnMut(&shm_api::contract::MachineState) -> bool,
+) -> Box<shm_api::contract::MachineState> {
+    let end = Instant::now() + PATIENCE;
+    loop {
+        if let Some(s) = c.latest()
+            && ok(s)
+        {
+            return Box::new(*s);
+        }
+        assert!(
+            coord.child.try_wait().unwrap().is_none(),
+            "the coordinator ended while waiting for {what}"
+        );
+        assert!(Instant::now() < end, "{what}: not within {PATIENCE:?}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// The coordinator on an `ethercat` bus: it boots a drive-sim segment of three EMCAs to Op,
+/// moves them as one group, and when the third is switched off mid-move (drive-sim's
+/// `off 3`) that axis faults (the subdevice does not answer) and its group quick-stops; when
+/// it is switched on again the coordinator brings it back to Op by itself, and after
+/// acknowledge, enable and home the group moves again.
+#[test]
+fn the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off() {
+    use shm_api::contract::{CommandRequest, axis_flags, axis_mode, axis_state, fault};
+    use shm_api::request::Target;
+    let name = "the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off";
+    if !in_namespace(name, None) {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("ethercat-coordinator-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("machine.toml");
+    // 10 ms: the processes share a busy 2-CPU host (see real_drives.rs's CYCLE_US).
+    std::fs::write(&config, ec_machine(10_000)).unwrap();
+    let prefix = format!("t-ec-{}", std::process::id());
+    let mut procs = Procs(Vec::new());
+    procs.0.push(Proc::start(
+        "drive-sim",
+        &workspace_bin("coordinator", "drive-sim"),
+        &[
+            "--device",
+            "emca",
+            "--ethercat",
+            SIM_IF,
+            "--count",
+            "3",
+            "--status-every",
+            "1",
+        ],
+        &dir,
+    ));
+    procs.0[0].wait_output("drive(s) running");
+    let capture = dir.join("capture");
+    procs.0.push(Proc::start(
+        "coordinator",
+        &workspace_bin("coordinator", "coordinator"),
+        &[
+            "run",
+            "--config",
+            config.to_str().unwrap(),
+            "--quiet",
+            "--demo",
+            "--no-chains",
+            "--shm-prefix",
+            &prefix,
+            "--capture",
+            capture.to_str().unwrap(),
+        ],
+        &dir,
+    ));
+    let mut c = shm_api::client::Client::connect_timeout(&prefix, PATIENCE)
+        .expect("the coordinator publishes its state");
+    let has = |a: &shm_api::contract::AxisState, f: u16| a.flags & f == f;
+    let ready = |a: &shm_api::contract::AxisState| {
+        has(
+            a,
+            axis_flags::ONLINE | axis_flags::ENABLED | axis_flags::HOMED,
+        ) && a.mode == axis_mode::ON
+            && a.state == axis_state::READY
+            && a.fault == fault::NONE
+    };
+    let coord = &mut procs.0[1];
+    wait_state(
+        &mut c,
+        coord,
+        "three axes enabled and homed over EtherCAT",
+        |s| s.axis_count == 3 && s.axes[..3].iter().all(ready),
+    );
+    coord.wait_output("3 subdevice(s) in Operational");
+
+    // The group under way; then subdevice 3 loses its power.
+    c.command(
+        &CommandRequest::move_group(0, &[150 * MM, 150 * MM, 150 * MM], 40),
+        Duration::from_secs(5),
+    )
+    .expect("the group move is latched");
+    wait_state(&mut c, coord, "the group under way", |s| {
+        s.axes[..3].iter().all(|a| a.position > 10 * MM)
+    });
+    procs.0[0].say("off 3");
+    let coord = &mut procs.0[1];
+    let s = wait_state(&mut c, coord, "z faulted, x and y quick-stopped", |s| {
+        s.axes[2].fault == fault::ETHERCAT_LOST
+            && s.axes[..2]
+                .iter()
+                .all(|a| a.mode == axis_mode::QUICK_STOPPED)
+    });
+    assert!(
+        s.axes[..2].iter().all(|a| a.position < 140 * MM),
+        "x and y stopped short of the target"
+    );
+    coord.wait_output("subdevice 3 does not answer");
+
+    // Power back: the coordinator brings it to Op by itself; the fault stays until acknowledged.
+    procs.0[0].say("on 3");
+    let coord = &mut procs.0[1];
+    coord.wait_output("subdevice 3 is back in Operational");
+    let s = wait_state(&mut c, coord, "z's inputs again", |s| {
+        s.axes[2].fault != fault::NONE
+    });
+    assert_eq!(
+        s.axes[2].fault,
+        fault::ETHERCAT_LOST,
+        "the fault waits for acknowledge"
+    );
+    c.command(
+        &CommandRequest::acknowledge(Target::All),
+        Duration::from_secs(5),
+    )
+    .expect("acknowledge latched");
+    wait_state(&mut c, coord, "no fault after acknowledge", |s| {
+        s.axes[..3].iter().all(|a| a.fault == fault::NONE)
+    });
+    for a in 0..3u16 {
+        c.command(
+            &CommandRequest::enable(Target::Axis(a)),
+            Duration::from_secs(5),
+        )
+        .expect("enable latched");
+    }
+    wait_state(&mut c, coord, "all enabled", |s| {
+        s.axes[..3]
+            .iter()
+            .all(|a| has(a, axis_flags::ENABLED) && a.state == axis_state::READY)
+    });
+    // The switched-off drive lost its reference.
+    c.command(
+        &CommandRequest::home(Target::Axis(2)),
+        Duration::from_secs(5),
+    )
+    .expect("home latched");
+    wait_state(&mut c, coord, "all ready again", |s| {
+        s.axes[..3].iter().all(ready)
+    });
+    c.command(
+        &CommandRequest::move_group(0, &[60 * MM, 70 * MM, 80 * MM], 50),
+        Duration::from_secs(5),
+    )
+    .expect("the second group move is latched");
+    wait_state(&mut c, coord, "the group arrived", |s| {
+        [60, 70, 80]
+            .iter()
+            .zip(&s.axes[..3])
+            .all(|(&t, a)| (a.position - t * MM).abs() <= MM / 20 && ready(a))
+    });
+
+    // Ctrl-C: status 2 (there was a fault), z's fault in the summary, the capture written.
+    // SAFETY: kill(2) on our own running child.
+    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
+    let status = coord.child.wait().unwrap();
+    let out = coord.output();
+    assert_eq!(
+        status.code(),
+        Some(2),
+        "exit status 2 after a fault:\n{out}"
+    );
+    assert!(
+        out.contains("  fault: z: "),
+        "z's fault in the summary:\n{out}"
+    );
+    let pcap = capture.join("line.pcap");
+    assert!(out.contains("EtherCAT frames in"), "{out}");
+    assert!(
+        std::fs::metadata(&pcap).unwrap().len() > 24,
+        "the pcap holds frames"
+    );
+    println!("{out}");
+    // Wireshark's dissector reads the capture as EtherCAT: the cycle's LRW, answered by all
+    // three subdevices (working counter 9).
+    match Command::new("tshark")
+        .arg("-r")
+        .arg(&pcap)
+        .args([
+            "-T",
+            "fields",
+            "-E",
+            "separator=;",
+            "-e",
+            "ecat.cmd",
+            "-e",
+            "ecat.cnt",
+        ])
+        .output()
+    {
+        Err(e) => skip_or_fail(
+            &format!("{name} (its tshark part)"),
+            &format!("tshark cannot be run ({e}); .ci/run installs it"),
+        ),
+        Ok(t) => {
+            let text = String::from_utf8_lossy(&t.stdout);
+            assert!(t.status.success(), "{}", String::from_utf8_lossy(&t.stderr));
+            let lrw_answered = text.lines().filter(|l| {
+                let f: Vec<&str> = l.split(';').collect();
+                f.len() == 2 && f[0].starts_with("0x0c") && f[1].starts_with("9")
+            });
+            assert!(
+                lrw_answered.count() > 100,
+                "tshark sees the cycle's LRW answered by three subdevices:\n{}",
+                text.lines().take(20).collect::<Vec<_>>().join("\n")
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -21,8 +21,10 @@
 //! CANopen drives run on the shared-memory virtual bus in real time (one bus endpoint per
 //! drive). With `--ethercat IFACE` the EMCA is an EtherCAT subdevice (EMCA-EC) on a network
 //! interface, `--count N` of them chained in this process as one segment; raw sockets need
-//! CAP_NET_RAW, so this runs as root or in a network namespace (`unshare -rn`) on a veth pair. A status line per drive goes to stderr every `--status-every` seconds; Ctrl-C,
-//! SIGTERM or `--duration` ends the run.
+//! CAP_NET_RAW, so this runs as root or in a network namespace (`unshare -rn`) on a veth pair.
+//! Standard input switches a subdevice's power: `off N`, `on N` (N from 1). A status line per
+//! drive goes to stderr every `--status-every` seconds; Ctrl-C, SIGTERM or `--duration` ends
+//! the run.
 
 use std::collections::HashSet;
 use std::net::{SocketAddr, ToSocketAddrs};
@@ -1038,6 +1040,42 @@ fn ec_status(i: usize, d: &EmcaEc) -> String {
     )
 }
 
+/// The operator's power switches for a segment, read from standard input: `off N` switches
+/// subdevice N (1 first) off, as pulling its supply would (the line ends there); `on N` switches
+/// it on again, a fresh drive in Init. A line that is neither is answered on standard error;
+/// the end of the input ends the reading, nothing else.
+fn power_commands(count: u8) -> std::sync::mpsc::Receiver<(usize, bool)> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let _ = std::thread::Builder::new()
+        .name("power".into())
+        .spawn(move || {
+            for line in std::io::stdin().lines() {
+                let Ok(line) = line else { break };
+                let words: Vec<&str> = line.split_whitespace().collect();
+                let parsed = match words.as_slice() {
+                    [w @ ("on" | "off"), n] => n
+                        .parse::<u8>()
+                        .ok()
+                        .filter(|n| (1..=count).contains(n))
+                        .map(|n| (usize::from(n - 1), *w == "on")),
+                    [] => continue,
+                    _ => None,
+                };
+                match parsed {
+                    Some(cmd) => {
+                        if tx.send(cmd).is_err() {
+                            break;
+                        }
+                    }
+                    None => eprintln!(
+                        "drive-sim: {line:?}: give `off N` or `on N` with N a subdevice 1 to {count}"
+                    ),
+                }
+            }
+        });
+    rx
+}
+
 /// Opens the interface and starts the segment's thread: every frame through the subdevices and
 /// back; without frames, the drives' clocks still advance every millisecond.
 fn start_ethercat(spec: &EcSpec, now: Instant) -> Result<EcRun, String> {
@@ -1056,6 +1094,7 @@ fn start_ethercat(spec: &EcSpec, now: Instant) -> Result<EcRun, String> {
     let stop = Arc::new(AtomicBool::new(false));
     let shared = Arc::new(Mutex::new(EcShared::default()));
     let (stop2, shared2) = (stop.clone(), shared.clone());
+    let power = power_commands(spec.count);
     let thread = std::thread::Builder::new()
         .name("ethercat".into())
         .spawn(move || {
@@ -1064,6 +1103,22 @@ fn start_ethercat(spec: &EcSpec, now: Instant) -> Result<EcRun, String> {
             let (mut frames, mut bad) = (0u64, 0u64);
             let mut error = None;
             while !stop2.load(Ordering::Relaxed) {
+                while let Ok((i, on)) = power.try_recv() {
+                    let Some(d) = subs.get_mut(i) else { continue };
+                    if on {
+                        if let Err(e) = d.power_on(monotonic_now()) {
+                            eprintln!("drive-sim: EMCA-EC {}: cannot switch on: {e}", i + 1);
+                            continue;
+                        }
+                    } else {
+                        d.power_off();
+                    }
+                    eprintln!(
+                        "drive-sim: EMCA-EC {} switched {}",
+                        i + 1,
+                        if on { "on" } else { "off" }
+                    );
+                }
                 match sock.recv(&mut buf, EC_POLL) {
                     Ok(Some(n)) => match segment::pass(&mut buf[..n], &mut subs, monotonic_now()) {
                         Ok(()) => {

@@ -77,13 +77,8 @@ pub trait CycleIo {
     fn node_report(&mut self) -> Option<NodeChange>;
     /// Image slot `slot`'s input for cycle `k` (a Modbus drive's or an EtherCAT subdevice's);
     /// `last_output` is what the cycle wrote to it last.
-    fn image_input(
-        &mut self,
-        k: u64,
-        slot: usize,
-        last_output: &Image,
-        now: Instant,
-    ) -> ImageInput;
+    fn image_input(&mut self, k: u64, slot: usize, last_output: &Image, now: Instant)
+    -> ImageInput;
     /// Image slot `slot`'s output of cycle `k`.
     fn image_output(&mut self, k: u64, slot: usize, output: &Image);
     /// Every slot's output of cycle `k` was given: an EtherCAT bus sends them now, in one

@@ -116,6 +116,9 @@ pub struct SegmentSettings {
     pub period: Duration,
     /// What each subdevice must be, position 1 first.
     pub devices: Vec<&'static EthercatFacts>,
+    /// Per subdevice: the objects written over CoE after the PDO assignment, at boot and
+    /// after a power cycle (address, value, size in bytes).
+    pub parameters: Vec<Vec<(drivers::canopen::Address, u32, u8)>>,
     /// `--capture`: the pcap file to write every frame to.
     pub capture: Option<std::path::PathBuf>,
 }
@@ -137,6 +140,8 @@ pub struct SegmentCycleSide {
     /// [`SegmentCycleSide::report`].
     reported: [Option<bool>; MAX_SUBDEVICES],
     len: usize,
+    /// Cycles without an exchange before every subdevice counts as lost ([`STALE`]).
+    stale_limit: u32,
     thread: Thread,
 }
 
@@ -148,9 +153,11 @@ impl std::fmt::Debug for SegmentCycleSide {
     }
 }
 
-/// Cycles without a completed exchange after which every subdevice counts as lost (the thread
-/// stalled or the frames stopped coming back).
-const STALE_CYCLES: u32 = 3;
+/// Without a completed exchange for this long (and at least three cycles), every subdevice
+/// counts as lost: the frames stopped coming back, or the thread is stalled. Long enough that
+/// a busy host's scheduling does not pass for a broken line; well inside the subdevices' SM
+/// watchdog (100 ms).
+const STALE: Duration = Duration::from_millis(30);
 
 impl SegmentCycleSide {
     /// Subdevice `i`'s (0 first) output image for this cycle.
@@ -196,7 +203,7 @@ impl SegmentCycleSide {
         } else {
             0
         };
-        let stalled = self.stale >= STALE_CYCLES;
+        let stalled = self.stale >= self.stale_limit;
         ImageInput {
             image: crate::axis::Image::from_slice(&self.latest.inputs[i]).unwrap_or_default(),
             fresh: self.fresh && state == SubState::Op,
@@ -272,13 +279,13 @@ pub fn spawn(
     let capture = match &settings.capture {
         Some(path) => Some(
             std::fs::File::create(path)
-                .map_err(std::io::Error::from)
                 .and_then(|f| EcPcapWriter::new(std::io::BufWriter::new(f)))
                 .map_err(|e| format!("--capture {}: {e}", path.display()))?,
         ),
         None => None,
     };
     let len = settings.devices.len().min(MAX_SUBDEVICES);
+    let period = settings.period;
     let (out_w, out_r) = triple_buffer(Outputs {
         cycle: 0,
         images: [[0; 8]; MAX_SUBDEVICES],
@@ -318,6 +325,7 @@ pub fn spawn(
             emcy_seen: [0; MAX_SUBDEVICES],
             reported: [None; MAX_SUBDEVICES],
             len,
+            stale_limit: (STALE.as_nanos() / period.as_nanos().max(1)).max(3) as u32,
             thread: handle.thread().clone(),
         },
         SegmentThread {
@@ -519,7 +527,9 @@ impl SegmentRun {
     }
 
     fn say(&self, text: String) {
-        let _ = self.lines.send(format!("EtherCAT bus {}: {text}", self.settings.name));
+        let _ = self
+            .lines
+            .send(format!("EtherCAT bus {}: {text}", self.settings.name));
     }
 
     fn stopped(&self) -> bool {
@@ -617,7 +627,11 @@ impl SegmentRun {
                     min / 1000
                 )));
             }
-            let assign = self.pump.block(assign_pdos(&sd, facts)).map_err(BootEnd::Fatal)?;
+            let params = self.settings.parameters.get(i).map_or(&[][..], |p| &p[..]);
+            let assign = self
+                .pump
+                .block(configure(&sd, facts, params))
+                .map_err(BootEnd::Fatal)?;
             if let Err(e) = assign {
                 return Err(BootEnd::Refused(format!("subdevice {}: {e}", i + 1)));
             }
@@ -747,22 +761,27 @@ impl SegmentRun {
             }
             self.published = p;
             self.input.publish(p);
-            for i in 0..n {
+            for (i, said) in said_lost.iter_mut().enumerate().take(n) {
                 let bad = p.states[i] != SubState::Op;
-                if bad && !said_lost[i] {
-                    self.say(format!(
-                        "subdevice {} {}",
-                        i + 1,
-                        match p.states[i] {
-                            SubState::NotOp(s) => format!("fell back to {s}"),
-                            _ => "does not answer".into(),
-                        }
+                if bad && !*said {
+                    let what = match p.states[i] {
+                        SubState::NotOp(s) => format!("fell back to {s}"),
+                        _ => "does not answer".into(),
+                    };
+                    let _ = self.lines.send(format!(
+                        "EtherCAT bus {}: subdevice {} {what}",
+                        self.settings.name,
+                        i + 1
                     ));
                 }
-                if !bad && said_lost[i] {
-                    self.say(format!("subdevice {} is back in Operational", i + 1));
+                if !bad && *said {
+                    let _ = self.lines.send(format!(
+                        "EtherCAT bus {}: subdevice {} is back in Operational",
+                        self.settings.name,
+                        i + 1
+                    ));
                 }
-                said_lost[i] = bad;
+                *said = bad;
             }
             if let Some(done) = recovered.take() {
                 if let Err(e) = done.result {
@@ -779,7 +798,8 @@ impl SegmentRun {
             {
                 let facts = self.settings.devices[i];
                 let setup = setups[i];
-                let fut = recover(md, group, i, setup, facts, p.states[i]);
+                let params = self.settings.parameters.get(i).cloned().unwrap_or_default();
+                let fut = recover(md, group, i, setup, facts, params, p.states[i]);
                 recovery = Some(Box::pin(fut));
             }
         }
@@ -827,6 +847,27 @@ macro_rules! group_io {
 group_io!(subdevice_group::SafeOp);
 group_io!(subdevice_group::Op);
 
+/// The assignment, then the parameters.
+async fn configure<S>(
+    sd: &ethercrab::SubDeviceRef<'_, S>,
+    facts: &EthercatFacts,
+    parameters: &[(drivers::canopen::Address, u32, u8)],
+) -> Result<(), String>
+where
+    S: core::ops::Deref<Target = ethercrab::SubDevice>,
+{
+    assign_pdos(sd, facts).await?;
+    for &(a, value, size) in parameters {
+        let r = match size {
+            1 => sd.sdo_write(a.index, a.sub, value as u8).await,
+            2 => sd.sdo_write(a.index, a.sub, value as u16).await,
+            _ => sd.sdo_write(a.index, a.sub, value).await,
+        };
+        r.map_err(|e| format!("writing {:04X}h:{:02X}h = {value}: {e}", a.index, a.sub))?;
+    }
+    Ok(())
+}
+
 /// 1C12h and 1C13h: the catalog's cyclic PDOs, written (count 0, the entry, count 1) and read
 /// back.
 async fn assign_pdos<S>(
@@ -839,9 +880,15 @@ where
     let (rx, tx) = facts.cyclic_pdos();
     for (index, pdo) in [(0x1C12u16, rx.index), (0x1C13, tx.index)] {
         let e = |what: &str, e: Error| format!("{index:04X}h {what}: {e}");
-        sd.sdo_write(index, 0, 0u8).await.map_err(|x| e("sub 0", x))?;
-        sd.sdo_write(index, 1, pdo).await.map_err(|x| e("sub 1", x))?;
-        sd.sdo_write(index, 0, 1u8).await.map_err(|x| e("sub 0", x))?;
+        sd.sdo_write(index, 0, 0u8)
+            .await
+            .map_err(|x| e("sub 0", x))?;
+        sd.sdo_write(index, 1, pdo)
+            .await
+            .map_err(|x| e("sub 1", x))?;
+        sd.sdo_write(index, 0, 1u8)
+            .await
+            .map_err(|x| e("sub 0", x))?;
         let count: u8 = sd.sdo_read(index, 0).await.map_err(|x| e("read back", x))?;
         let first: u16 = sd.sdo_read(index, 1).await.map_err(|x| e("read back", x))?;
         if (count, first) != (1, pdo) {
@@ -947,18 +994,20 @@ async fn yield_once() {
 }
 
 /// Brings subdevice `index` back to Op beside the running cycle.
-async fn recover<'g>(
+async fn recover(
     md: &'static MainDevice<'static>,
-    group: &'g Group<subdevice_group::Op>,
+    group: &Group<subdevice_group::Op>,
     index: usize,
     setup: EscSetup,
     facts: &'static EthercatFacts,
+    parameters: Vec<(drivers::canopen::Address, u32, u8)>,
     seen: SubState,
 ) -> Recovered {
     let result = async {
         let address = setup.address;
-        // Its position on the line: auto-increment addresses count down from 0.
-        let position = 0u16.wrapping_sub(index as u16);
+        // Its position on the line, 0 first (ethercrab turns it into the auto-increment
+        // address, which counts down from 0).
+        let position = index as u16;
         let station: u16 = Command::aprd(position, reg::STATION_ADDRESS)
             .receive(md)
             .await
@@ -984,7 +1033,7 @@ async fn recover<'g>(
             let sd = group
                 .subdevice(md, index)
                 .map_err(|e| format!("its handle: {e}"))?;
-            assign_pdos(&sd, facts).await?;
+            configure(&sd, facts, &parameters).await?;
             Command::fpwr(address, reg::SM0 + 2 * reg::SM_LEN)
                 .send(md, &setup.sm[16..])
                 .await

@@ -101,6 +101,9 @@ pub struct SegmentPlan {
     pub interface: String,
     /// Per subdevice, position 1 first: its axis (an index of [`MachinePlan::axes`]).
     pub axes: Vec<usize>,
+    /// Per subdevice, position 1 first: the objects the boot writes over CoE after the PDO
+    /// assignment (address, value, size in bytes), the same as on CANopen.
+    pub parameters: Vec<Vec<(drivers::canopen::Address, u32, u8)>>,
 }
 
 /// A machine, ready to run.
@@ -340,6 +343,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             name: b.name.clone(),
             interface: b.interface().to_owned(),
             axes: Vec::new(),
+            parameters: Vec::new(),
         })
         .collect();
     let mut axes = Vec::new();
@@ -509,6 +513,14 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
             .collect();
         on.sort();
         seg.axes = on.into_iter().map(|(_, i)| i).collect();
+        seg.parameters = seg
+            .axes
+            .iter()
+            .map(|&a| match axes[a].setup.kind {
+                DeviceKind::Emca => vec![emca_start_interrupts()],
+                _ => Vec::new(),
+            })
+            .collect();
     }
     let mut tables = cfg.group_tables().map_err(|e| e.to_string())?;
     let mut groups = Vec::new();

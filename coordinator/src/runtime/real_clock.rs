@@ -428,6 +428,7 @@ pub fn run_real(
             name: seg.name.clone(),
             period: plan.period,
             devices,
+            parameters: seg.parameters.clone(),
             capture: opts
                 .capture
                 .as_ref()

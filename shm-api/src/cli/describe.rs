@@ -179,11 +179,7 @@ pub fn link_text(d: &MachineDescription, a: &AxisDescription) -> String {
     match a.link {
         link::MODBUS if a.simulated != 0 => "Modbus TCP (simulated)".into(),
         link::MODBUS => format!("Modbus TCP {}", name_str(&a.modbus)),
-        link::ETHERCAT => format!(
-            "subdevice {} on EtherCAT {}",
-            a.node,
-            name_str(&a.modbus)
-        ),
+        link::ETHERCAT => format!("subdevice {} on EtherCAT {}", a.node, name_str(&a.modbus)),
         _ => {
             let bus = d
                 .buses
