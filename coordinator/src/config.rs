@@ -3894,3 +3894,100 @@ mod tests {
         assert!(gantry.contains(&Complete { record: 13 }));
     }
 }
+
+#[cfg(test)]
+mod ethercat_tests {
+    use super::*;
+
+    const LIMITS: &str = "limits = { position_min = 0.0, position_max = 100.0, velocity = 50.0, acceleration = 500.0 }";
+
+    fn segment(cycle_us: u32, axes: &[(&str, &str)]) -> String {
+        let mut t = format!(
+            "cycle_us = {cycle_us}\n[[buses]]\nname = \"line\"\nkind = \"ethercat\"\ninterface = \"ecm\"\n"
+        );
+        for (i, (device, extra)) in axes.iter().enumerate() {
+            t += &format!(
+                "[[axes]]\nname = \"a{i}\"\ndevice = \"{device}\"\nbus = \"line\"\nincrements_per_unit = 100\n{LIMITS}\n{extra}\n"
+            );
+        }
+        t
+    }
+
+    fn errors(text: &str) -> Vec<String> {
+        let c = Config::parse(text).unwrap_or_else(|e| panic!("{e}"));
+        c.check().errors.iter().map(|e| e.to_string()).collect()
+    }
+
+    #[test]
+    fn a_segment_of_emcas_is_accepted_with_its_frame_time() {
+        let text = segment(1000, &[("emca", "position = 1"), ("emca", "position = 2")]);
+        let c = Config::parse(&text).unwrap();
+        let r = c.check();
+        assert!(r.is_ok(), "{r}");
+        assert_eq!(r.segments.len(), 1);
+        assert_eq!(r.segments[0].traffic.subdevices, 2);
+        assert_eq!(r.segments[0].traffic.image_bytes, 32);
+        assert!(
+            r.to_string()
+                .contains("bus line (EtherCAT on ecm): 2 subdevice(s)"),
+            "{r}"
+        );
+    }
+
+    #[test]
+    fn a_cycle_shorter_than_1c32_05_is_refused_naming_both() {
+        let e = errors(&segment(500, &[("emca", "position = 1")]));
+        assert!(
+            e.iter()
+                .any(|e| e.starts_with("cycle_us: the cycle of 500 us")
+                    && e.contains("1000 us (1C32h:05)")),
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn ethercat_axes_are_refused_what_they_cannot_have() {
+        let e = errors(&segment(
+            1000,
+            &[
+                ("tlc5xx", "position = 1"),
+                ("emca", "position = 3\nnode = 4\nfpc = true"),
+            ],
+        ));
+        let has = |key: &str, text: &str| e.iter().any(|x| x.starts_with(key) && x.contains(text));
+        assert!(has("axes[0].bus", "no EtherCAT interface"), "{e:?}");
+        assert!(has("axes[1].node", "position, not a node-ID"), "{e:?}");
+        assert!(has("axes[1].fpc", "without the FPC"), "{e:?}");
+        // Position 3 with no 1 or 2 (the TLC5xx's was refused): a gap.
+        assert!(has("buses[0]", "no axis has position 1"), "{e:?}");
+        let e = errors(&segment(
+            1000,
+            &[("emca", "position = 1"), ("emca", "position = 1")],
+        ));
+        assert!(e.iter().any(|x| x.starts_with("axes[1].position")), "{e:?}");
+        let e = errors(&segment(1000, &[("emca", "position = 17")]));
+        assert!(e.iter().any(|x| x.starts_with("axes[0].position")), "{e:?}");
+        let e = errors(&segment(1000, &[("emca", "")]));
+        assert!(
+            e.iter().any(|x| x.starts_with("axes[0].position: missing")),
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn can_keys_on_an_ethercat_bus_and_interface_on_a_can_bus_are_refused() {
+        let text = segment(1000, &[("emca", "position = 1")]).replace(
+            "interface = \"ecm\"",
+            "interface = \"ecm\"\nbitrate = 500000",
+        );
+        let e = errors(&text);
+        assert!(e.iter().any(|x| x.starts_with("buses[0].bitrate")), "{e:?}");
+        let text =
+            "cycle_us = 1000\n[[buses]]\nname = \"can0\"\nkind = \"vbus\"\ninterface = \"x\"\n";
+        let e = errors(text);
+        assert!(
+            e.iter().any(|x| x.starts_with("buses[0].interface")),
+            "{e:?}"
+        );
+    }
+}
