@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests in `tests/tests/`: a CANopen test device, and a rig
 //! that runs a master and devices on the in-process virtual bus in virtual time.
 
+pub mod candump;
+
 use std::time::Duration;
 
 use drivers::can::station::{self, Station, Steppable};

@@ -630,3 +630,182 @@ fn the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The master's frames in an EtherCAT pcap (source MAC 10:10:.., ethercrab's): the Unix time
+/// of each that begins with an LRW, and the LRW's data.
+fn lrw_sent(pcap: &[u8]) -> Vec<(f64, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut at = 24;
+    while at + 16 <= pcap.len() {
+        let word = |o: usize| u32::from_le_bytes(pcap[at + o..at + o + 4].try_into().unwrap());
+        let (secs, micros, len) = (word(0), word(4), word(8) as usize);
+        let frame = &pcap[at + 16..(at + 16 + len).min(pcap.len())];
+        at += 16 + len;
+        // Ethernet (14), EtherCAT header (2), datagram header (10): command first.
+        if frame.len() < 26 || frame[6] != 0x10 || frame[16] != 0x0C {
+            continue;
+        }
+        let n = usize::from(u16::from_le_bytes([frame[22], frame[23]]) & 0x07FF);
+        if let Some(data) = frame.get(26..26 + n) {
+            out.push((f64::from(secs) + f64::from(micros) * 1e-6, data.to_vec()));
+        }
+    }
+    out
+}
+
+/// A mixed machine: an EMCA on CANopen (a drive-sim process on `vbus:NAME`) and two EMCAs on
+/// EtherCAT (a drive-sim segment on the veth pair) in one group. The group's move latches in
+/// one cycle on both: the CANopen axis's RPDO1 changes right after that cycle's SYNC, and the
+/// EtherCAT frame that first carries the new outputs goes out between that SYNC and the next
+/// (both captures in Unix time).
+#[test]
+fn a_group_across_canopen_and_ethercat_latches_in_one_cycle() {
+    use integration_tests::candump::{Logged, SYNC, first_change, read_log};
+    use shm_api::contract::{CommandRequest, axis_flags, axis_mode, axis_state, fault};
+    let name = "a_group_across_canopen_and_ethercat_latches_in_one_cycle";
+    if !in_namespace(name, None) {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("ethercat-mixed-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bus = format!("mix{}", std::process::id());
+    let limits = "limits = { position_min = 0.0, position_max = 200.0, velocity = 100.0, acceleration = 500.0 }";
+    let config = dir.join("machine.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "cycle_us = 10000\n\n[[buses]]\nname = \"{bus}\"\nkind = \"vbus\"\n\n\
+             [[buses]]\nname = \"line\"\nkind = \"ethercat\"\ninterface = \"{MASTER_IF}\"\n\n\
+             [[axes]]\nname = \"c\"\ndevice = \"emca\"\nbus = \"{bus}\"\nnode = 3\n\
+             increments_per_unit = 1000\n{limits}\n\n\
+             [[axes]]\nname = \"e1\"\ndevice = \"emca\"\nbus = \"line\"\nposition = 1\n\
+             increments_per_unit = 1000\n{limits}\n\n\
+             [[axes]]\nname = \"e2\"\ndevice = \"emca\"\nbus = \"line\"\nposition = 2\n\
+             increments_per_unit = 1000\n{limits}\n\n\
+             [[groups]]\nname = \"mix\"\naxes = [\"c\", \"e1\", \"e2\"]\n"
+        ),
+    )
+    .unwrap();
+    let prefix = format!("t-ecmix-{}", std::process::id());
+    let sim = workspace_bin("coordinator", "drive-sim");
+    let mut procs = Procs(Vec::new());
+    procs.0.push(Proc::start(
+        "drive-sim-can",
+        &sim,
+        &["--config", config.to_str().unwrap(), "--status-every", "1"],
+        &dir,
+    ));
+    procs.0.push(Proc::start(
+        "drive-sim-ethercat",
+        &sim,
+        &[
+            "--device",
+            "emca",
+            "--ethercat",
+            SIM_IF,
+            "--count",
+            "2",
+            "--status-every",
+            "1",
+        ],
+        &dir,
+    ));
+    procs.0[0].wait_output("drive(s) running");
+    procs.0[1].wait_output("drive(s) running");
+    let capture = dir.join("capture");
+    procs.0.push(Proc::start(
+        "coordinator",
+        &workspace_bin("coordinator", "coordinator"),
+        &[
+            "run",
+            "--config",
+            config.to_str().unwrap(),
+            "--quiet",
+            "--demo",
+            "--no-chains",
+            "--shm-prefix",
+            &prefix,
+            "--capture",
+            capture.to_str().unwrap(),
+        ],
+        &dir,
+    ));
+    let mut c = shm_api::client::Client::connect_timeout(&prefix, PATIENCE)
+        .expect("the coordinator publishes its state");
+    let ready = |a: &shm_api::contract::AxisState| {
+        let f = axis_flags::ONLINE | axis_flags::ENABLED | axis_flags::HOMED;
+        a.flags & f == f
+            && a.mode == axis_mode::ON
+            && a.state == axis_state::READY
+            && a.fault == fault::NONE
+    };
+    let coord = &mut procs.0[2];
+    let s = wait_state(
+        &mut c,
+        coord,
+        "three axes ready, one on CAN, two on EtherCAT",
+        |s| s.axis_count == 3 && s.axes[..3].iter().all(ready),
+    );
+    // Standing still from a few cycles on (the homing's last output edges settle): the
+    // outputs do not change until the move.
+    let settled = s.cycle + 10;
+    let s = wait_state(&mut c, coord, "ten cycles more", |s| s.cycle >= settled);
+    let quiet_from = s.cycle;
+    let moved = c
+        .command(
+            &CommandRequest::move_group(0, &[40 * MM, 50 * MM, 60 * MM], 50),
+            Duration::from_secs(5),
+        )
+        .expect("the group move is latched");
+    wait_state(&mut c, coord, "the group arrived", |s| {
+        [40, 50, 60]
+            .iter()
+            .zip(&s.axes[..3])
+            .all(|(&t, a)| (a.position - t * MM).abs() <= MM / 20 && ready(a))
+    });
+    // SAFETY: kill(2) on our own running child.
+    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
+    let status = coord.child.wait().unwrap();
+    let out = coord.output();
+    assert_eq!(status.code(), Some(0), "a normal end:\n{out}");
+
+    let log: Vec<Logged> = read_log(&capture.join(format!("{bus}.log")));
+    let (n, before, after) =
+        first_change(&log, 0x203, quiet_from).expect("c's RPDO1 changes at the move");
+    assert_eq!(
+        n, moved.cycle,
+        "c's RPDO1 {before:02X?} -> {after:02X?} after SYNC {n}"
+    );
+    let syncs: Vec<f64> = log
+        .iter()
+        .filter(|f| f.id == SYNC)
+        .map(|f| f.time)
+        .collect();
+    let (t_n, t_next) = (syncs[n as usize - 1], syncs[n as usize]);
+    let t_quiet = syncs[quiet_from as usize];
+    let frames = lrw_sent(&std::fs::read(capture.join("line.pcap")).unwrap());
+    let mut last: Option<&Vec<u8>> = None;
+    let mut changed = None;
+    for (t, data) in &frames {
+        if *t < t_quiet {
+            continue;
+        }
+        if last.is_some_and(|l| l != data) {
+            changed = Some(*t);
+            break;
+        }
+        last = Some(data);
+    }
+    let t_e = changed.expect("the EtherCAT outputs change at the move");
+    println!(
+        "SYNC {n} at {t_n:.6} s, the first EtherCAT frame with the new outputs at {t_e:.6} s \
+         ({:.0} us after it), the next SYNC at {t_next:.6} s",
+        (t_e - t_n) * 1e6
+    );
+    assert!(
+        t_n <= t_e && t_e < t_next,
+        "the EtherCAT frame with the move ({t_e:.6} s) is in the cycle of SYNC {n} ({t_n:.6} .. \
+         {t_next:.6} s)"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

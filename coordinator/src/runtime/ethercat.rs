@@ -347,6 +347,9 @@ struct Pump {
     capture: Option<EcPcapWriter<std::io::BufWriter<std::fs::File>>>,
     /// Frames written to the capture.
     captured: Arc<AtomicU64>,
+    /// Added to the monotonic clock to give Unix time in the capture, as the CAN captures do
+    /// (so that the buses' files line up).
+    epoch_offset: u64,
     buf: Box<[u8; MAX_FRAME_LEN]>,
 }
 
@@ -380,6 +383,10 @@ impl Pump {
             sock,
             capture,
             captured: Arc::new(AtomicU64::new(0)),
+            epoch_offset: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+                .saturating_sub(monotonic_now().as_nanos()),
             buf: Box::new([0; MAX_FRAME_LEN]),
         }
     }
@@ -389,11 +396,12 @@ impl Pump {
     fn pump(&mut self, wait: Duration) -> Result<(), String> {
         while let Some(frame) = self.tx.next_sendable_frame() {
             let (sock, capture, captured) = (&self.sock, &mut self.capture, &self.captured);
+            let offset = self.epoch_offset;
             frame
                 .send_blocking(|b| {
                     sock.send(b).map_err(|_| Error::SendFrame)?;
                     if let Some(c) = capture
-                        && c.write(monotonic_now(), b).is_ok()
+                        && c.write(epoch(offset), b).is_ok()
                     {
                         captured.fetch_add(1, Ordering::Relaxed);
                     }
@@ -408,7 +416,7 @@ impl Pump {
             .map_err(|e| format!("receiving on {}: {e}", self.sock.interface()))?
         {
             if let Some(c) = &mut self.capture
-                && c.write(monotonic_now(), &self.buf[..n]).is_ok()
+                && c.write(epoch(self.epoch_offset), &self.buf[..n]).is_ok()
             {
                 self.captured.fetch_add(1, Ordering::Relaxed);
             }
@@ -454,6 +462,11 @@ impl Pump {
             self.pump(Duration::from_micros(200))?;
         }
     }
+}
+
+/// Now, in Unix time.
+fn epoch(offset: u64) -> drivers::time::Instant {
+    drivers::time::Instant::from_nanos(monotonic_now().as_nanos().saturating_add(offset))
 }
 
 /// What one recovery attempt ended with.
