@@ -572,6 +572,17 @@ fn the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off() {
             .all(|(&t, a)| (a.position - t * MM).abs() <= MM / 20 && ready(a))
     });
 
+    // x's load voltage drops: the drive faults and queues an emergency in its input mailbox,
+    // which the coordinator reads and reports.
+    procs.0[0].say("drop 1");
+    let coord = &mut procs.0[1];
+    coord.wait_output("subdevice 1: emergency ");
+    wait_state(&mut c, coord, "x faulted", |s| {
+        s.axes[0].fault != fault::NONE
+    });
+    procs.0[0].say("restore 1");
+    let coord = &mut procs.0[1];
+
     // Ctrl-C: status 2 (there was a fault), z's fault in the summary, the capture written.
     // SAFETY: kill(2) on our own running child.
     unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };

@@ -1040,11 +1040,21 @@ fn ec_status(i: usize, d: &EmcaEc) -> String {
     )
 }
 
-/// The operator's power switches for a segment, read from standard input: `off N` switches
+/// A switch the operator throws on one subdevice.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Switch {
+    /// Its whole power (the ESC too): on or off.
+    Power(bool),
+    /// The drive's load voltage: on (restored) or off (dropped: fault, emergency).
+    Supply(bool),
+}
+
+/// The operator's switches for a segment, read from standard input: `off N` switches
 /// subdevice N (1 first) off, as pulling its supply would (the line ends there); `on N` switches
-/// it on again, a fresh drive in Init. A line that is neither is answered on standard error;
-/// the end of the input ends the reading, nothing else.
-fn power_commands(count: u8) -> std::sync::mpsc::Receiver<(usize, bool)> {
+/// it on again, a fresh drive in Init; `drop N` drops its load voltage (the drive faults and
+/// sends an emergency), `restore N` restores it. A line that is none of these is answered on
+/// standard error; the end of the input ends the reading, nothing else.
+fn power_commands(count: u8) -> std::sync::mpsc::Receiver<(usize, Switch)> {
     let (tx, rx) = std::sync::mpsc::channel();
     let _ = std::thread::Builder::new()
         .name("power".into())
@@ -1053,11 +1063,19 @@ fn power_commands(count: u8) -> std::sync::mpsc::Receiver<(usize, bool)> {
                 let Ok(line) = line else { break };
                 let words: Vec<&str> = line.split_whitespace().collect();
                 let parsed = match words.as_slice() {
-                    [w @ ("on" | "off"), n] => n
+                    [w @ ("on" | "off" | "drop" | "restore"), n] => n
                         .parse::<u8>()
                         .ok()
                         .filter(|n| (1..=count).contains(n))
-                        .map(|n| (usize::from(n - 1), *w == "on")),
+                        .map(|n| {
+                            let s = match *w {
+                                "on" => Switch::Power(true),
+                                "off" => Switch::Power(false),
+                                "restore" => Switch::Supply(true),
+                                _ => Switch::Supply(false),
+                            };
+                            (usize::from(n - 1), s)
+                        }),
                     [] => continue,
                     _ => None,
                 };
@@ -1068,7 +1086,7 @@ fn power_commands(count: u8) -> std::sync::mpsc::Receiver<(usize, bool)> {
                         }
                     }
                     None => eprintln!(
-                        "drive-sim: {line:?}: give `off N` or `on N` with N a subdevice 1 to {count}"
+                        "drive-sim: {line:?}: give `off N`, `on N`, `drop N` or `restore N` with N a subdevice 1 to {count}"
                     ),
                 }
             }
@@ -1103,8 +1121,19 @@ fn start_ethercat(spec: &EcSpec, now: Instant) -> Result<EcRun, String> {
             let (mut frames, mut bad) = (0u64, 0u64);
             let mut error = None;
             while !stop2.load(Ordering::Relaxed) {
-                while let Ok((i, on)) = power.try_recv() {
+                while let Ok((i, cmd)) = power.try_recv() {
                     let Some(d) = subs.get_mut(i) else { continue };
+                    if let Switch::Supply(on) = cmd {
+                        d.drive_mut()
+                            .inject(drivers::sim::fhpp_drive::Injection::SupplyDrop, !on);
+                        eprintln!(
+                            "drive-sim: EMCA-EC {}: load voltage {}",
+                            i + 1,
+                            if on { "restored" } else { "dropped" }
+                        );
+                        continue;
+                    }
+                    let on = cmd == Switch::Power(true);
                     if on {
                         if let Err(e) = d.power_on(monotonic_now()) {
                             eprintln!("drive-sim: EMCA-EC {}: cannot switch on: {e}", i + 1);

@@ -235,35 +235,69 @@ impl SegmentCycleSide {
     }
 }
 
+/// What a bus's thread did, for the run's summary.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SegmentStats {
+    /// Frames written to the capture.
+    pub captured: u64,
+    /// Cyclic exchanges completed.
+    pub exchanges: u64,
+    /// The cyclic frame's round trip as the thread sees it (sent to answered, through the
+    /// socket and the subdevices): median, p99, max, ns.
+    pub round_trip_ns: (u64, u64, u64),
+}
+
+impl std::fmt::Display for SegmentStats {
+    /// `frame round trip median 110.2 us, p99 175.1 us, max 461.1 us over 4000 cycles`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let us = |ns: u64| ns as f64 / 1000.0;
+        let (p50, p99, max) = self.round_trip_ns;
+        if self.exchanges == 0 {
+            return f.write_str("no cyclic exchange");
+        }
+        write!(
+            f,
+            "frame round trip median {:.1} us, p99 {:.1} us, max {:.1} us over {} cycles",
+            us(p50),
+            us(p99),
+            us(max),
+            self.exchanges
+        )
+    }
+}
+
 /// The running thread; dropping it stops the thread too.
 #[derive(Debug)]
 pub struct SegmentThread {
     stop: Arc<AtomicBool>,
-    handle: Option<JoinHandle<()>>,
+    handle: Option<JoinHandle<SegmentStats>>,
     captured: Arc<AtomicU64>,
 }
 
 impl SegmentThread {
     /// Stops the thread and waits for it (the subdevices stay in Op until their watchdog
-    /// expires, as when a master stops on a real line). Returns the frames written to the
-    /// capture.
-    pub fn stop(mut self) -> u64 {
-        self.stop_and_join();
-        self.captured.load(Ordering::Relaxed)
+    /// expires, as when a master stops on a real line). Returns what it did.
+    pub fn stop(mut self) -> SegmentStats {
+        let mut s = self.stop_and_join();
+        s.captured = self.captured.load(Ordering::Relaxed);
+        s
     }
 
-    fn stop_and_join(&mut self) {
+    fn stop_and_join(&mut self) -> SegmentStats {
         self.stop.store(true, Ordering::Relaxed);
-        if let Some(h) = self.handle.take() {
-            h.thread().unpark();
-            let _ = h.join();
+        match self.handle.take() {
+            Some(h) => {
+                h.thread().unpark();
+                h.join().unwrap_or_default()
+            }
+            None => SegmentStats::default(),
         }
     }
 }
 
 impl Drop for SegmentThread {
     fn drop(&mut self) {
-        self.stop_and_join();
+        let _ = self.stop_and_join();
     }
 }
 
@@ -307,6 +341,12 @@ pub fn spawn(
             let mut t = SegmentRun::new(sock, capture, settings, stop2, out_r, in_w, lines);
             t.pump.captured = captured2;
             t.run();
+            let h = &t.round_trip;
+            SegmentStats {
+                captured: 0,
+                exchanges: h.len(),
+                round_trip_ns: (h.value_at_quantile(0.5), h.value_at_quantile(0.99), h.max()),
+            }
         })
         .map_err(|e| format!("starting the EtherCAT thread: {e}"))?;
     Ok((
@@ -501,6 +541,8 @@ struct SegmentRun {
     input: TripleWriter<Published>,
     published: Published,
     lines: Sender<String>,
+    /// The cyclic frame's round trip, ns (allocated once, before the cycle).
+    round_trip: hdrhistogram::Histogram<u64>,
 }
 
 /// Why the boot stopped.
@@ -536,6 +578,8 @@ impl SegmentRun {
                 emcy: [(0, 0); MAX_SUBDEVICES],
             },
             lines,
+            round_trip: hdrhistogram::Histogram::new_with_bounds(1, 10_000_000_000, 3)
+                .unwrap_or_else(|_| unreachable!("valid bounds")),
         }
     }
 
@@ -730,6 +774,7 @@ impl SegmentRun {
             }
             last = now;
             group.write(md, &o.images[..n]);
+            let sent = monotonic_now();
             let r = {
                 let fut = group.tx_rx(md);
                 let mut side = recovery.take();
@@ -737,6 +782,10 @@ impl SegmentRun {
                 recovery = side;
                 r?
             };
+            if r.is_ok() {
+                let ns = monotonic_now().saturating_duration_since(sent).as_nanos() as u64;
+                let _ = self.round_trip.record(ns.max(1));
+            }
             exchanges += 1;
             let mut p = self.published;
             p.exchanges = exchanges;

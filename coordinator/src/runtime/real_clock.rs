@@ -749,11 +749,14 @@ pub fn run_real(
         t.stop();
     }
     let mut ec_captures = Vec::new();
+    let mut ec_lines = Vec::new();
     for (name, t) in segment_threads {
-        let frames = t.stop();
+        let stats = t.stop();
+        ec_lines.push(format!("bus {name} (EtherCAT): {stats}"));
         if let Some(dir) = &opts.capture {
             ec_captures.push(format!(
-                "bus {name}: {frames} EtherCAT frames in {}",
+                "bus {name}: {} EtherCAT frames in {}",
+                stats.captured,
                 dir.join(format!("{name}.pcap")).display()
             ));
         }
@@ -785,6 +788,7 @@ pub fn run_real(
     s.skipped_cycles = result.skipped;
     s.wall = wall0.elapsed();
     s.captures = captures;
+    s.ethercat = ec_lines;
     Ok(s)
 }
 

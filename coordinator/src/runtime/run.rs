@@ -129,6 +129,8 @@ pub struct Summary {
     pub units: Vec<(String, String, crate::units::Scale)>,
     /// What the capture wrote, a line per bus.
     pub captures: Vec<String>,
+    /// Per EtherCAT bus: its frames' round trip, a line each.
+    pub ethercat: Vec<String>,
     /// What the recording wrote (`--record`).
     pub recording: Option<String>,
 }
@@ -164,6 +166,9 @@ impl std::fmt::Display for Summary {
                 "  bus {}: {} frames, load {:.1} %",
                 b.label, b.frames, b.load_percent
             )?;
+        }
+        for line in &self.ethercat {
+            writeln!(f, "  {line}")?;
         }
         if self.frames_lost != (0, 0) {
             writeln!(
