@@ -3935,6 +3935,14 @@ mod ethercat_tests {
     }
 
     #[test]
+    fn the_ethercat_example_is_accepted() {
+        let c = Config::parse(include_str!("../examples/ethercat.toml")).unwrap();
+        let r = c.check();
+        assert!(r.is_ok(), "{r}");
+        assert_eq!(r.segments[0].traffic.subdevices, 3);
+    }
+
+    #[test]
     fn a_cycle_shorter_than_1c32_05_is_refused_naming_both() {
         let e = errors(&segment(500, &[("emca", "position = 1")]));
         assert!(
