@@ -820,3 +820,41 @@ fn a_group_across_canopen_and_ethercat_latches_in_one_cycle() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A segment with fewer subdevices than the configuration names: the coordinator says what it
+/// found and keeps scanning; its axes stay offline (no fault, nothing moves); Ctrl-C ends the
+/// run normally.
+#[test]
+fn the_coordinator_waits_for_a_segment_with_a_subdevice_missing() {
+    let name = "the_coordinator_waits_for_a_segment_with_a_subdevice_missing";
+    if !in_namespace(name, Some("--count 2")) {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("ethercat-missing-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("machine.toml");
+    std::fs::write(&config, ec_machine(10_000)).unwrap();
+    let mut procs = Procs(vec![Proc::start(
+        "coordinator",
+        &workspace_bin("coordinator", "coordinator"),
+        &["run", "--config", config.to_str().unwrap(), "--quiet", "--no-shm"],
+        &dir,
+    )]);
+    let coord = &mut procs.0[0];
+    coord.wait_output("EtherCAT bus line: found 2 subdevice(s), the configuration has 3");
+    std::thread::sleep(Duration::from_millis(1200));
+    let out = coord.output();
+    assert_eq!(
+        out.matches("found 2 subdevice(s)").count(),
+        1,
+        "said once, not every scan:\n{out}"
+    );
+    // SAFETY: kill(2) on our own running child.
+    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
+    let status = coord.child.wait().unwrap();
+    let out = coord.output();
+    assert_eq!(status.code(), Some(0), "a normal end:\n{out}");
+    assert!(!out.contains("FAULT"), "nothing faulted:\n{out}");
+    assert!(out.contains("bus line (EtherCAT): no cyclic exchange"), "{out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
