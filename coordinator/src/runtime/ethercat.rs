@@ -603,7 +603,12 @@ impl SegmentRun {
                         self.say(format!("{why}; trying again every 500 ms"));
                         last_retry = why;
                     }
-                    thread::park_timeout(Duration::from_millis(500));
+                    // The cycle's hand-overs unpark this thread every cycle: sleep the
+                    // whole 500 ms regardless.
+                    let until = monotonic_now() + Duration::from_millis(500);
+                    while !self.stopped() && monotonic_now() < until {
+                        thread::park_timeout(until.saturating_duration_since(monotonic_now()));
+                    }
                 }
                 Err(BootEnd::Refused(why)) => {
                     self.say(format!("refused: {why}"));
