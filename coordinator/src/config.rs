@@ -445,12 +445,7 @@ fn check_ethercat_axis(
             not("on EtherCAT exchanges FHPP's 8-byte standard data (1600h/1A00h), without the FPC"),
         );
     }
-    if a.heartbeat_ms.is_some() || a.guard_time_ms.is_some() {
-        let k = if a.heartbeat_ms.is_some() {
-            "heartbeat_ms"
-        } else {
-            "guard_time_ms"
-        };
+    if let Some(k) = a.supervision_key() {
         err.push(
             format!("{key}.{k}"),
             not("on EtherCAT is supervised by the working counter and its AL status, every cycle"),
@@ -705,6 +700,16 @@ impl AxisConfig {
     pub fn profile(&self) -> Profile {
         self.profile
             .unwrap_or(self.device.device().default_profile().into())
+    }
+
+    /// The CANopen supervision key the file gives (`heartbeat_ms` first), if any: what an axis
+    /// supervised otherwise (Modbus, EtherCAT) refuses by name.
+    fn supervision_key(&self) -> Option<&'static str> {
+        match (self.heartbeat_ms, self.guard_time_ms) {
+            (Some(_), _) => Some("heartbeat_ms"),
+            (None, Some(_)) => Some("guard_time_ms"),
+            (None, None) => None,
+        }
     }
 
     /// The supervision this axis adds to its bus: guarding for devices without a heartbeat,
@@ -1671,12 +1676,7 @@ impl Config {
                         not("is homed by FHPP, which has no CiA 402 homing method (6098h)"),
                     );
                 }
-                if a.heartbeat_ms.is_some() || a.guard_time_ms.is_some() {
-                    let k = if a.heartbeat_ms.is_some() {
-                        "heartbeat_ms"
-                    } else {
-                        "guard_time_ms"
-                    };
+                if let Some(k) = a.supervision_key() {
                     err.push(
                         format!("{key}.{k}"),
                         not("is supervised by its Modbus timeout"),
@@ -3959,13 +3959,17 @@ mod ethercat_tests {
             1000,
             &[
                 ("tlc5xx", "position = 1"),
-                ("emca", "position = 3\nnode = 4\nfpc = true"),
+                (
+                    "emca",
+                    "position = 3\nnode = 4\nfpc = true\nguard_time_ms = 100",
+                ),
             ],
         ));
         let has = |key: &str, text: &str| e.iter().any(|x| x.starts_with(key) && x.contains(text));
         assert!(has("axes[0].bus", "no EtherCAT interface"), "{e:?}");
         assert!(has("axes[1].node", "position, not a node-ID"), "{e:?}");
         assert!(has("axes[1].fpc", "without the FPC"), "{e:?}");
+        assert!(has("axes[1].guard_time_ms", "working counter"), "{e:?}");
         // Position 3 with no 1 or 2 (the TLC5xx's was refused): a gap.
         assert!(has("buses[0]", "no axis has position 1"), "{e:?}");
         let e = errors(&segment(

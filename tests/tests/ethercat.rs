@@ -837,7 +837,13 @@ fn the_coordinator_waits_for_a_segment_with_a_subdevice_missing() {
     let mut procs = Procs(vec![Proc::start(
         "coordinator",
         &workspace_bin("coordinator", "coordinator"),
-        &["run", "--config", config.to_str().unwrap(), "--quiet", "--no-shm"],
+        &[
+            "run",
+            "--config",
+            config.to_str().unwrap(),
+            "--quiet",
+            "--no-shm",
+        ],
         &dir,
     )]);
     let coord = &mut procs.0[0];
@@ -855,6 +861,9 @@ fn the_coordinator_waits_for_a_segment_with_a_subdevice_missing() {
     let out = coord.output();
     assert_eq!(status.code(), Some(0), "a normal end:\n{out}");
     assert!(!out.contains("FAULT"), "nothing faulted:\n{out}");
-    assert!(out.contains("bus line (EtherCAT): no cyclic exchange"), "{out}");
+    assert!(
+        out.contains("bus line (EtherCAT): no cyclic exchange"),
+        "{out}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
