@@ -655,7 +655,7 @@ impl SegmentRun {
                 != (FESTO_VENDOR, facts.product_code, facts.revision)
             {
                 return Err(BootEnd::Refused(format!(
-                    "subdevice {} is {:?} (vendor {:08X}h, product {:08X}h, revision {:08X}h); \
+                    "subdevice {} is \"{}\" (vendor {:08X}h, product {:08X}h, revision {:08X}h); \
                      the configuration expects {} (vendor {FESTO_VENDOR:08X}h, product \
                      {:08X}h, revision {:08X}h)",
                     i + 1,
@@ -768,6 +768,7 @@ impl SegmentRun {
         let mut next_try = monotonic_now();
         let mut emcy_next = 0u64;
         let mut said_lost = [false; MAX_SUBDEVICES];
+        let mut last_failure: Option<(usize, String)> = None;
         while !self.stopped() {
             // Sleep until the cycle hands its outputs over, or a whole period passed.
             let due = last + self.settings.period;
@@ -808,7 +809,10 @@ impl SegmentRun {
                 }
                 Err(_) => p.states[..n].fill(SubState::Lost),
             }
-            // EMCYs: every few cycles, each Op subdevice's input mailbox.
+            self.published = p;
+            self.input.publish(p);
+            // EMCYs: every few cycles, each answering subdevice's input mailbox, after the
+            // inputs are out (an emergency goes out with the next cycle's).
             if exchanges >= emcy_next && recovery.is_none() {
                 emcy_next = exchanges + EMCY_POLL_CYCLES;
                 for (i, s) in setups.iter().enumerate().take(n) {
@@ -821,13 +825,12 @@ impl SegmentRun {
                         self.pump
                             .run(read_emcy(md, s.address, facts), &mut none, &mut None)?
                     {
-                        p.emcy[i] = (p.emcy[i].0.wrapping_add(1), code);
+                        let e = &mut self.published.emcy[i];
+                        *e = (e.0.wrapping_add(1), code);
                         self.say(format!("subdevice {}: emergency {code:04X}h", i + 1));
                     }
                 }
             }
-            self.published = p;
-            self.input.publish(p);
             for (i, said) in said_lost.iter_mut().enumerate().take(n) {
                 let bad = p.states[i] != SubState::Op;
                 if bad && !*said {
@@ -851,13 +854,20 @@ impl SegmentRun {
                 *said = bad;
             }
             if let Some(done) = recovered.take() {
-                if let Err(e) = done.result {
+                // Said once per reason, not every attempt (every 200 ms while it is away).
+                if let Err(e) = done.result
+                    && last_failure.as_ref() != Some(&(done.index, e.clone()))
+                {
                     self.say(format!(
-                        "subdevice {} could not be brought back yet: {e}",
+                        "subdevice {} could not be brought back yet: {e}; trying again",
                         done.index + 1
                     ));
+                    last_failure = Some((done.index, e));
                 }
                 next_try = monotonic_now() + Duration::from_millis(200);
+            }
+            if p.states[..n].iter().all(|s| *s == SubState::Op) {
+                last_failure = None;
             }
             if recovery.is_none()
                 && monotonic_now() >= next_try
