@@ -1880,10 +1880,11 @@ impl Config {
             let load = SegmentLoad {
                 name: b.name.clone(),
                 interface: b.interface().to_owned(),
+                // Every cycle's frame also reads the reference clock (FRMW): the buses run SYNC0.
                 traffic: drivers::ethercat::wire_time::CycleTraffic {
                     image_bytes,
                     subdevices: n,
-                    dc: false,
+                    dc: true,
                 },
                 cycle: Duration::from_micros(self.bus_cycle_us(b).into()),
             };

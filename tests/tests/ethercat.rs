@@ -628,9 +628,15 @@ fn the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off() {
         Ok(t) => {
             let text = String::from_utf8_lossy(&t.stdout);
             assert!(t.status.success(), "{}", String::from_utf8_lossy(&t.stderr));
+            // Per frame: the datagrams' commands and their working counters, in order.
             let lrw_answered = text.lines().filter(|l| {
-                let f: Vec<&str> = l.split(';').collect();
-                f.len() == 2 && f[0].starts_with("0x0c") && f[1].starts_with("9")
+                let Some((cmds, counts)) = l.split_once(';') else {
+                    return false;
+                };
+                let counts: Vec<&str> = counts.split(',').collect();
+                cmds.split(',')
+                    .position(|c| c == "0x0c")
+                    .is_some_and(|i| counts.get(i) == Some(&"9"))
             });
             assert!(
                 lrw_answered.count() > 100,
@@ -643,7 +649,7 @@ fn the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off() {
 }
 
 /// The master's frames in an EtherCAT pcap (source MAC 10:10:.., ethercrab's): the Unix time
-/// of each that begins with an LRW, and the LRW's data.
+/// of each that carries an LRW, and the LRW's data.
 fn lrw_sent(pcap: &[u8]) -> Vec<(f64, Vec<u8>)> {
     let mut out = Vec::new();
     let mut at = 24;
@@ -652,13 +658,26 @@ fn lrw_sent(pcap: &[u8]) -> Vec<(f64, Vec<u8>)> {
         let (secs, micros, len) = (word(0), word(4), word(8) as usize);
         let frame = &pcap[at + 16..(at + 16 + len).min(pcap.len())];
         at += 16 + len;
-        // Ethernet (14), EtherCAT header (2), datagram header (10): command first.
-        if frame.len() < 26 || frame[6] != 0x10 || frame[16] != 0x0C {
+        if frame.len() < 16 || frame[6] != 0x10 {
             continue;
         }
-        let n = usize::from(u16::from_le_bytes([frame[22], frame[23]]) & 0x07FF);
-        if let Some(data) = frame.get(26..26 + n) {
-            out.push((f64::from(secs) + f64::from(micros) * 1e-6, data.to_vec()));
+        // After Ethernet (14) and the EtherCAT header (2), the datagrams: a 10-byte header
+        // (command, index, address, length with the "more follows" bit 15, IRQ), the data,
+        // the working counter.
+        let mut d = 16;
+        while d + 10 <= frame.len() {
+            let word = u16::from_le_bytes([frame[d + 6], frame[d + 7]]);
+            let n = usize::from(word & 0x07FF);
+            if frame[d] == 0x0C
+                && let Some(data) = frame.get(d + 10..d + 10 + n)
+            {
+                out.push((f64::from(secs) + f64::from(micros) * 1e-6, data.to_vec()));
+                break;
+            }
+            if word & 0x8000 == 0 {
+                break;
+            }
+            d += 10 + n + 2;
         }
     }
     out

@@ -72,7 +72,12 @@ pub const EMCY_POLL_CYCLES: u64 = 10;
 /// How long a recovery step waits for a subdevice to reach a state it was asked for.
 const STATE_TIMEOUT: Duration = Duration::from_secs(2);
 
-type Group<S> = SubDeviceGroup<MAX_SUBDEVICES, PDI_LEN, ethercrab::DefaultLock, S>;
+type Group<S, DC = subdevice_group::NoDc> =
+    SubDeviceGroup<MAX_SUBDEVICES, PDI_LEN, ethercrab::DefaultLock, S, DC>;
+/// The group in Op with SYNC0 running.
+type OpGroup = Group<subdevice_group::Op, subdevice_group::HasDc>;
+/// How long after the start-up the first SYNC0 pulse comes.
+const SYNC0_START_DELAY: Duration = Duration::from_millis(100);
 
 /// A subdevice's state as the cycle sees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -523,6 +528,8 @@ struct EscSetup {
     address: u16,
     sm: [u8; 32],
     fmmu: [u8; 48],
+    /// Its DC propagation delay (0928h), as the scan measured it.
+    dc_delay: u32,
 }
 
 impl EscSetup {
@@ -530,8 +537,23 @@ impl EscSetup {
         address: 0,
         sm: [0; 32],
         fmmu: [0; 48],
+        dc_delay: 0,
     };
 }
+
+/// What a subdevice's clock and SYNC0 are set from after a power cycle.
+#[derive(Clone, Copy, Debug)]
+struct DcRestore {
+    /// The reference clock's station address.
+    reference: u16,
+    /// SYNC0's period (the cycle).
+    period: Duration,
+    /// The system time the last frame read, and when.
+    clock: Option<(u64, drivers::time::Instant)>,
+}
+
+/// 1C32h:04: the subdevice offers DC SYNC0.
+const SYNC_DC: u16 = 0x0004;
 
 struct SegmentRun {
     pump: Pump,
@@ -689,6 +711,14 @@ impl SegmentRun {
                     min / 1000
                 )));
             }
+            if !facts.dc || facts.sync_types & SYNC_DC == 0 {
+                return Err(BootEnd::Refused(format!(
+                    "subdevice {} ({}) has no distributed clock SYNC0, which the coordinator's \
+                     EtherCAT buses use",
+                    i + 1,
+                    facts.name
+                )));
+            }
             let params = self.settings.parameters.get(i).map_or(&[][..], |p| &p[..]);
             let assign = self
                 .pump
@@ -698,6 +728,30 @@ impl SegmentRun {
                 return Err(BootEnd::Refused(format!("subdevice {}: {e}", i + 1)));
             }
         }
+        // Distributed clocks: ethercrab's scan measured the delays and set every clock's
+        // offset; SYNC0 at the cycle's period, each drive in DC mode (1C32h:01 = 2, written
+        // with the parameters above).
+        let mut group = group;
+        for mut sd in group.iter_mut(md) {
+            sd.set_dc_sync(ethercrab::DcSync::Sync0);
+        }
+        let group = self
+            .pump
+            .block(group.into_pre_op_pdi(md))
+            .map_err(BootEnd::Fatal)?
+            .map_err(|e| BootEnd::Retry(format!("the process data set-up failed ({e})")))?;
+        let group = self
+            .pump
+            .block(group.configure_dc_sync(
+                md,
+                subdevice_group::DcConfiguration {
+                    start_delay: SYNC0_START_DELAY,
+                    sync0_period: self.settings.period,
+                    sync0_shift: Duration::ZERO,
+                },
+            ))
+            .map_err(BootEnd::Fatal)?
+            .map_err(|e| BootEnd::Retry(format!("SYNC0 could not be set up ({e})")))?;
         let group = self
             .pump
             .block(group.into_safe_op(md))
@@ -706,7 +760,10 @@ impl SegmentRun {
         // Valid outputs before Op (a subdevice refuses Op without them, AL status 0019h).
         for _ in 0..3 {
             self.write_outputs(&group);
-            let _ = self.pump.block(group.tx_rx(md)).map_err(BootEnd::Fatal)?;
+            let _ = self
+                .pump
+                .block(group.tx_rx_dc(md))
+                .map_err(BootEnd::Fatal)?;
         }
         let group = self
             .pump
@@ -716,7 +773,10 @@ impl SegmentRun {
         let deadline = monotonic_now() + STATE_TIMEOUT;
         loop {
             self.write_outputs(&group);
-            let r = self.pump.block(group.tx_rx(md)).map_err(BootEnd::Fatal)?;
+            let r = self
+                .pump
+                .block(group.tx_rx_dc(md))
+                .map_err(BootEnd::Fatal)?;
             if r.as_ref().is_ok_and(|r| r.all_op()) {
                 break;
             }
@@ -745,9 +805,9 @@ impl SegmentRun {
         self.cycle(&group, &setups).map_err(BootEnd::Fatal)
     }
 
-    fn write_outputs<S>(&mut self, group: &Group<S>)
+    fn write_outputs<S>(&mut self, group: &Group<S, subdevice_group::HasDc>)
     where
-        Group<S>: GroupIo,
+        Group<S, subdevice_group::HasDc>: GroupIo,
     {
         let (o, _) = self.output.read();
         group.write(self.pump.md, &o.images[..self.settings.devices.len()]);
@@ -756,7 +816,7 @@ impl SegmentRun {
     /// The exchange, once per cycle, until the stop.
     fn cycle(
         &mut self,
-        group: &Group<subdevice_group::Op>,
+        group: &OpGroup,
         setups: &[EscSetup; MAX_SUBDEVICES],
     ) -> Result<(), String> {
         let md = self.pump.md;
@@ -769,6 +829,8 @@ impl SegmentRun {
         let mut emcy_next = 0u64;
         let mut said_lost = [false; MAX_SUBDEVICES];
         let mut last_failure: Option<(usize, String)> = None;
+        // The DC system time the last frame read, and when.
+        let mut clock: Option<(u64, drivers::time::Instant)> = None;
         while !self.stopped() {
             // Sleep until the cycle hands its outputs over, or a whole period passed.
             let due = last + self.settings.period;
@@ -782,7 +844,7 @@ impl SegmentRun {
             group.write(md, &o.images[..n]);
             let sent = monotonic_now();
             let r = {
-                let fut = group.tx_rx(md);
+                let fut = group.tx_rx_dc(md);
                 let mut side = recovery.take();
                 let r = self.pump.run(fut, &mut side, &mut recovered);
                 recovery = side;
@@ -797,6 +859,7 @@ impl SegmentRun {
             p.exchanges = exchanges;
             match &r {
                 Ok(resp) => {
+                    clock = Some((resp.extra.dc_system_time, monotonic_now()));
                     for i in 0..n {
                         let state = resp.subdevice_states.get(i).copied();
                         p.states[i] = match state {
@@ -876,7 +939,14 @@ impl SegmentRun {
                 let facts = self.settings.devices[i];
                 let setup = setups[i];
                 let params = self.settings.parameters.get(i).cloned().unwrap_or_default();
-                let fut = recover(md, group, i, setup, facts, params, p.states[i]);
+                let dc = DcRestore {
+                    // ethercrab takes the first subdevice with a clock as the reference; every
+                    // subdevice here has one (the boot refuses others).
+                    reference: setups[0].address,
+                    period: self.settings.period,
+                    clock,
+                };
+                let fut = recover(md, group, i, setup, facts, params, p.states[i], dc);
                 recovery = Some(Box::pin(fut));
             }
         }
@@ -902,8 +972,8 @@ trait GroupIo {
 }
 
 macro_rules! group_io {
-    ($state:ty) => {
-        impl GroupIo for Group<$state> {
+    ($state:ty, $dc:ty) => {
+        impl GroupIo for Group<$state, $dc> {
             fn write(&self, md: &MainDevice<'_>, images: &[[u8; 8]]) {
                 for (sd, img) in self.iter(md).zip(images) {
                     let mut o = sd.outputs_raw_mut();
@@ -921,8 +991,8 @@ macro_rules! group_io {
         }
     };
 }
-group_io!(subdevice_group::SafeOp);
-group_io!(subdevice_group::Op);
+group_io!(subdevice_group::SafeOp, subdevice_group::HasDc);
+group_io!(subdevice_group::Op, subdevice_group::HasDc);
 
 /// The assignment, then the parameters.
 async fn configure<S>(
@@ -994,6 +1064,10 @@ async fn read_setup(md: &MainDevice<'_>, address: u16) -> Result<EscSetup, Strin
         .await
         .map_err(|e| format!("reading its FMMUs: {e}"))?;
     s.fmmu.copy_from_slice(&fmmu[..48]);
+    s.dc_delay = Command::fprd(address, reg::DC_SYSTEM_TIME_DELAY)
+        .receive(md)
+        .await
+        .map_err(|e| format!("reading its DC delay: {e}"))?;
     Ok(s)
 }
 
@@ -1070,15 +1144,72 @@ async fn yield_once() {
     .await
 }
 
+/// A power-cycled subdevice's clock and SYNC0: its offset so that its system time is the
+/// segment's again (the reference's, or for the reference itself the time the last frame read,
+/// carried forward), its delay as measured at the scan, and SYNC0 at the cycle's period,
+/// starting [`SYNC0_START_DELAY`] from now on a multiple of the period.
+async fn restore_clock(
+    md: &MainDevice<'_>,
+    address: u16,
+    delay: u32,
+    dc: DcRestore,
+) -> Result<(), String> {
+    fn e(what: &'static str) -> impl Fn(Error) -> String {
+        move |x| format!("{what}: {x}")
+    }
+    let system: u64 = if address != dc.reference {
+        Command::fprd(dc.reference, reg::DC_SYSTEM_TIME)
+            .receive(md)
+            .await
+            .map_err(e("reading the reference clock"))?
+    } else {
+        let (t, at) = dc.clock.ok_or("no system time read yet")?;
+        t.wrapping_add(monotonic_now().saturating_duration_since(at).as_nanos() as u64)
+    };
+    let local: u64 = Command::fprd(address, reg::DC_SYSTEM_TIME)
+        .receive(md)
+        .await
+        .map_err(e("reading its clock"))?;
+    Command::fpwr(address, reg::DC_SYSTEM_TIME_OFFSET)
+        .send(md, system.wrapping_sub(local))
+        .await
+        .map_err(e("writing its clock offset"))?;
+    Command::fpwr(address, reg::DC_SYSTEM_TIME_DELAY)
+        .send(md, delay)
+        .await
+        .map_err(e("writing its clock delay"))?;
+    let period = dc.period.as_nanos() as u64;
+    let start = (system + SYNC0_START_DELAY.as_nanos() as u64) / period * period;
+    Command::fpwr(address, reg::DC_ACTIVATION)
+        .send(md, 0u8)
+        .await
+        .map_err(e("stopping SYNC0"))?;
+    Command::fpwr(address, reg::DC_START_TIME)
+        .send(md, start)
+        .await
+        .map_err(e("writing SYNC0's start"))?;
+    Command::fpwr(address, reg::DC_SYNC0_CYCLE)
+        .send(md, period as u32)
+        .await
+        .map_err(e("writing SYNC0's period"))?;
+    Command::fpwr(address, reg::DC_ACTIVATION)
+        .send(md, 0x03u8)
+        .await
+        .map_err(e("starting SYNC0"))?;
+    Ok(())
+}
+
 /// Brings subdevice `index` back to Op beside the running cycle.
+#[allow(clippy::too_many_arguments)]
 async fn recover(
     md: &'static MainDevice<'static>,
-    group: &Group<subdevice_group::Op>,
+    group: &OpGroup,
     index: usize,
     setup: EscSetup,
     facts: &'static EthercatFacts,
     parameters: Vec<(drivers::canopen::Address, u32, u8)>,
     seen: SubState,
+    dc: DcRestore,
 ) -> Recovered {
     let result = async {
         let address = setup.address;
@@ -1111,6 +1242,7 @@ async fn recover(
                 .subdevice(md, index)
                 .map_err(|e| format!("its handle: {e}"))?;
             configure(&sd, facts, &parameters).await?;
+            restore_clock(md, address, setup.dc_delay, dc).await?;
             Command::fpwr(address, reg::SM0 + 2 * reg::SM_LEN)
                 .send(md, &setup.sm[16..])
                 .await

@@ -516,9 +516,14 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
         seg.parameters = seg
             .axes
             .iter()
-            .map(|&a| match axes[a].setup.kind {
-                DeviceKind::Emca => vec![emca_start_interrupts()],
-                _ => Vec::new(),
+            .map(|&a| {
+                // DC SYNC0 mode (1C32h:01 = 2; the coordinator's EtherCAT buses run SYNC0 at
+                // the cycle's period), then the drive's own parameters.
+                let mut p = vec![(drivers::canopen::Address::new(0x1C32, 1), 2, 2)];
+                if axes[a].setup.kind == DeviceKind::Emca {
+                    p.push(emca_start_interrupts());
+                }
+                p
             })
             .collect();
     }
