@@ -696,16 +696,23 @@ impl SegmentRun {
                 .subdevice(md, i)
                 .map_err(|e| BootEnd::Retry(e.to_string()))?;
             let facts = self.settings.devices[i];
-            let min: u32 = self
-                .pump
-                .block(sd.sdo_read(0x1C32, 5))
-                .map_err(BootEnd::Fatal)?
-                .map_err(|e| BootEnd::Retry(format!("subdevice {}: 1C32h:05: {e}", i + 1)))?;
+            // The shortest cycle, outputs (1C32h:05) and inputs (1C33h:05).
+            let mut min = 0u32;
+            for index in [0x1C32u16, 0x1C33] {
+                let m: u32 = self
+                    .pump
+                    .block(sd.sdo_read(index, 5))
+                    .map_err(BootEnd::Fatal)?
+                    .map_err(|e| {
+                        BootEnd::Retry(format!("subdevice {}: {index:04X}h:05: {e}", i + 1))
+                    })?;
+                min = min.max(m);
+            }
             let period_ns = self.settings.period.as_nanos() as u64;
             if u64::from(min) > period_ns {
                 return Err(BootEnd::Refused(format!(
                     "the cycle of {} us is shorter than subdevice {}'s shortest, {} us \
-                     (its 1C32h:05)",
+                     (its 1C32h:05/1C33h:05)",
                     period_ns / 1000,
                     i + 1,
                     min / 1000
@@ -868,6 +875,15 @@ impl SegmentRun {
                             Some(s) => SubState::NotOp(al_state(s)),
                         };
                     }
+                    // The LRW's working counter: with every subdevice in Op, 3 from each (read
+                    // and write); another count means the process image did not go through as
+                    // set up, whatever the AL states say, and no input of this frame is
+                    // trusted. (With one out of Op, what it adds depends on its state and the
+                    // ESC; that one is faulted already.)
+                    let all_op = p.states[..n].iter().all(|s| *s == SubState::Op);
+                    if all_op && usize::from(resp.working_counter) != 3 * n {
+                        p.states[..n].fill(SubState::Lost);
+                    }
                     group.read(md, &mut p.inputs[..n]);
                 }
                 Err(_) => p.states[..n].fill(SubState::Lost),
@@ -1016,7 +1032,9 @@ where
 }
 
 /// 1C12h and 1C13h: the catalog's cyclic PDOs, written (count 0, the entry, count 1) and read
-/// back.
+/// back; and each PDO's mapping read and compared with the catalog's (the EMCA's mappings are
+/// fixed: seed-002 §5.2 prints them, and a drive that maps otherwise would put other bytes
+/// where the coordinator expects FHPP's).
 async fn assign_pdos<S>(
     sd: &ethercrab::SubDeviceRef<'_, S>,
     facts: &EthercatFacts,
@@ -1025,6 +1043,23 @@ where
     S: core::ops::Deref<Target = ethercrab::SubDevice>,
 {
     let (rx, tx) = facts.cyclic_pdos();
+    for p in [rx, tx] {
+        let e = |x: Error| format!("reading the mapping {:04X}h: {x}", p.index);
+        let count: u8 = sd.sdo_read(p.index, 0).await.map_err(e)?;
+        let mut same = usize::from(count) == p.entries.len();
+        for (k, &want) in p.entries.iter().enumerate().take(usize::from(count)) {
+            let got: u32 = sd.sdo_read(p.index, k as u8 + 1).await.map_err(e)?;
+            same &= got == want;
+        }
+        if !same {
+            return Err(format!(
+                "its PDO {:04X}h is not mapped as the catalog's ({} entries expected, {count} \
+                 found, or other objects)",
+                p.index,
+                p.entries.len()
+            ));
+        }
+    }
     for (index, pdo) in [(0x1C12u16, rx.index), (0x1C13, tx.index)] {
         let e = |what: &str, e: Error| format!("{index:04X}h {what}: {e}");
         sd.sdo_write(index, 0, 0u8)
