@@ -11,26 +11,31 @@
 //!
 //! The thread:
 //! - boots the segment as seed-002 §5.2 and the EtherCAT digest describe: scan
-//!   (ethercrab's `init_single_group`: addresses, SII, mailboxes, Pre-Operational), the identity
-//!   of every subdevice against the device catalog (vendor, product, revision), 1C32h:05 (the
-//!   shortest cycle) against the configured cycle, the PDO assignment 1C12h/1C13h written
-//!   over CoE and read back, Safe-Operational with valid outputs, then Operational;
-//! - exchanges one frame per cycle (ethercrab's `tx_rx`: an LRW of the whole process image and
-//!   every subdevice's AL status), as soon as the cycle thread hands the outputs over, or
-//!   after a whole period without them (the subdevices' SM watchdog stays fed while the cycle
-//!   is not running yet);
+//!   (ethercrab's `init_single_group`: addresses, SII, mailboxes, DC delays and offsets,
+//!   Pre-Operational), the identity of every subdevice against the device catalog (vendor,
+//!   product, revision), 1C32h:05 and 1C33h:05 (the shortest cycle) against the configured
+//!   cycle, the mappings of the assigned PDOs against the catalog's, the PDO assignment
+//!   1C12h/1C13h written over CoE and read back, DC SYNC0 mode (1C32h:01 = 2) and the drive's
+//!   parameters, SYNC0 at the cycle's period, Safe-Operational with valid outputs, then
+//!   Operational;
+//! - exchanges one frame per cycle (ethercrab's `tx_rx_dc`: the reference clock's time to the
+//!   others, an LRW of the whole process image and every subdevice's AL status), as soon as
+//!   the cycle thread hands the outputs over, or after a whole period without them (the
+//!   subdevices' SM watchdog stays fed while the cycle is not running yet);
 //! - publishes each subdevice's inputs and state: in Op, not in Op (its AL state), or lost (its
-//!   AL status read did not come back: switched off, or the line is broken before it);
-//! - brings a lost or fallen-back subdevice back to Op by itself, one step per cycle, beside
-//!   the others' exchange: its station address again (a power cycle clears it), its mailbox
-//!   sync managers, Pre-Operational, the PDO assignment, its process-data sync managers and
-//!   FMMUs as ethercrab set them at boot, Safe-Operational, Operational; a subdevice that
-//!   kept its configuration only has its error acknowledged and is asked for Op again. Its
-//!   axis stays faulted until the operator acknowledges;
+//!   AL status read did not come back: switched off, or the line is broken before it; or, with
+//!   all in Op, the LRW's working counter is not 3 per subdevice);
+//! - brings a lost or fallen-back subdevice back to Op by itself, beside the others'
+//!   exchange: its station address again (a power cycle clears it), its mailbox sync managers,
+//!   Pre-Operational, the PDO assignment and parameters, its clock and SYNC0, its process-data
+//!   sync managers and FMMUs as ethercrab set them at boot, Safe-Operational, Operational; a
+//!   subdevice that kept its configuration only has its error acknowledged and is asked for Op
+//!   again. Its axis stays faulted until the operator acknowledges;
 //! - reads each subdevice's emergencies (CoE EMCY) from its input mailbox (SM1) every
 //!   [`EMCY_POLL_CYCLES`] cycles: ethercrab reads mailboxes only when it asked something;
+//! - measures each cyclic frame's round trip ([`SegmentStats`], in the run's summary);
 //! - with `--capture`, writes every frame sent and received to a pcap file (link type Ethernet,
-//!   which Wireshark decodes as EtherCAT).
+//!   which Wireshark decodes as EtherCAT), in Unix time as the CAN captures.
 
 use std::future::Future;
 use std::pin::{Pin, pin};
