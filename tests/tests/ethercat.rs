@@ -382,6 +382,43 @@ impl Drop for Procs {
     }
 }
 
+/// `coordinator run --config CONFIG --demo --no-chains` (enable and home every axis), published
+/// under `prefix`, captured into `capture`.
+fn demo_coordinator(
+    dir: &std::path::Path,
+    config: &std::path::Path,
+    prefix: &str,
+    capture: &std::path::Path,
+) -> Proc {
+    Proc::start(
+        "coordinator",
+        &workspace_bin("coordinator", "coordinator"),
+        &[
+            "run",
+            "--config",
+            config.to_str().unwrap(),
+            "--quiet",
+            "--demo",
+            "--no-chains",
+            "--shm-prefix",
+            prefix,
+            "--capture",
+            capture.to_str().unwrap(),
+        ],
+        dir,
+    )
+}
+
+/// Online, enabled, homed, standing and fault-free: ready for a move.
+fn ready(a: &shm_api::contract::AxisState) -> bool {
+    use shm_api::contract::{axis_flags, axis_mode, axis_state, fault};
+    let f = axis_flags::ONLINE | axis_flags::ENABLED | axis_flags::HOMED;
+    a.flags & f == f
+        && a.mode == axis_mode::ON
+        && a.state == axis_state::READY
+        && a.fault == fault::NONE
+}
+
 const PATIENCE: Duration = Duration::from_secs(60);
 const MM: i64 = shm_api::contract::MICRO;
 
@@ -459,34 +496,12 @@ fn the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off() {
     ));
     procs.0[0].wait_output("drive(s) running");
     let capture = dir.join("capture");
-    procs.0.push(Proc::start(
-        "coordinator",
-        &workspace_bin("coordinator", "coordinator"),
-        &[
-            "run",
-            "--config",
-            config.to_str().unwrap(),
-            "--quiet",
-            "--demo",
-            "--no-chains",
-            "--shm-prefix",
-            &prefix,
-            "--capture",
-            capture.to_str().unwrap(),
-        ],
-        &dir,
-    ));
+    procs
+        .0
+        .push(demo_coordinator(&dir, &config, &prefix, &capture));
     let mut c = shm_api::client::Client::connect_timeout(&prefix, PATIENCE)
         .expect("the coordinator publishes its state");
     let has = |a: &shm_api::contract::AxisState, f: u16| a.flags & f == f;
-    let ready = |a: &shm_api::contract::AxisState| {
-        has(
-            a,
-            axis_flags::ONLINE | axis_flags::ENABLED | axis_flags::HOMED,
-        ) && a.mode == axis_mode::ON
-            && a.state == axis_state::READY
-            && a.fault == fault::NONE
-    };
     let coord = &mut procs.0[1];
     wait_state(
         &mut c,
@@ -691,7 +706,7 @@ fn lrw_sent(pcap: &[u8]) -> Vec<(f64, Vec<u8>)> {
 #[test]
 fn a_group_across_canopen_and_ethercat_latches_in_one_cycle() {
     use integration_tests::candump::{Logged, SYNC, first_change, read_log};
-    use shm_api::contract::{CommandRequest, axis_flags, axis_mode, axis_state, fault};
+    use shm_api::contract::CommandRequest;
     let name = "a_group_across_canopen_and_ethercat_latches_in_one_cycle";
     if !in_namespace(name, None) {
         return;
@@ -743,32 +758,11 @@ fn a_group_across_canopen_and_ethercat_latches_in_one_cycle() {
     procs.0[0].wait_output("drive(s) running");
     procs.0[1].wait_output("drive(s) running");
     let capture = dir.join("capture");
-    procs.0.push(Proc::start(
-        "coordinator",
-        &workspace_bin("coordinator", "coordinator"),
-        &[
-            "run",
-            "--config",
-            config.to_str().unwrap(),
-            "--quiet",
-            "--demo",
-            "--no-chains",
-            "--shm-prefix",
-            &prefix,
-            "--capture",
-            capture.to_str().unwrap(),
-        ],
-        &dir,
-    ));
+    procs
+        .0
+        .push(demo_coordinator(&dir, &config, &prefix, &capture));
     let mut c = shm_api::client::Client::connect_timeout(&prefix, PATIENCE)
         .expect("the coordinator publishes its state");
-    let ready = |a: &shm_api::contract::AxisState| {
-        let f = axis_flags::ONLINE | axis_flags::ENABLED | axis_flags::HOMED;
-        a.flags & f == f
-            && a.mode == axis_mode::ON
-            && a.state == axis_state::READY
-            && a.fault == fault::NONE
-    };
     let coord = &mut procs.0[2];
     let s = wait_state(
         &mut c,
