@@ -188,3 +188,57 @@ fn the_counter_sees_an_allocation() {
     drop(v);
     assert!(allocations() > before);
 }
+
+/// The cycle thread's side of an EtherCAT bus (what `RealIo` calls each cycle: every
+/// subdevice's inputs and state taken, its node report looked for, its outputs put and sent
+/// with the unpark) allocates nothing, with exchanges, states out of Op, losses and
+/// emergencies coming from the bus's side.
+#[test]
+fn the_ethercat_hand_over_allocates_nothing_on_the_cycle_thread() {
+    use coordinator::runtime::ethercat::{SubState, hand_over};
+    use drivers::ethercat::esm::AlState;
+    let n = 16;
+    let (mut side, mut feed) = hand_over(n, Duration::from_millis(1));
+    // The cycle side wakes the bus's thread: here this one (an unpark sets its token).
+    side.wake(std::thread::current());
+    let mut states = vec![SubState::Op; n];
+    let inputs = vec![[0x13u8, 0, 0, 0, 0, 0, 0, 0]; n];
+    let mut taken = 0u64;
+    let before = allocations();
+    for k in 0..2000u64 {
+        // The bus's side, not counted: an exchange most cycles, with a subdevice falling back,
+        // one lost, and an emergency now and then.
+        states[3] = if k % 100 < 10 {
+            SubState::NotOp(AlState::SafeOp)
+        } else {
+            SubState::Op
+        };
+        states[5] = if k % 250 < 5 {
+            SubState::Lost
+        } else {
+            SubState::Op
+        };
+        if k % 7 != 0 {
+            let emcy = if k % 50 == 0 {
+                &[(2usize, 0x8100u16)][..]
+            } else {
+                &[]
+            };
+            feed.publish(&states, &inputs, emcy);
+        }
+        probe(true);
+        for i in 0..n {
+            let m = side.take(k, i);
+            taken += u64::from(m.fresh);
+        }
+        while side.report().is_some() {}
+        for i in 0..n {
+            side.put(i, &[k as u8; 8]);
+        }
+        side.send(k);
+        probe(false);
+        let _ = feed.outputs();
+    }
+    assert!(taken > 1000, "{taken}");
+    assert_eq!(allocations() - before, 0, "allocations on the cycle's side");
+}

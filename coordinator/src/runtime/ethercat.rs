@@ -152,7 +152,8 @@ pub struct SegmentCycleSide {
     len: usize,
     /// Cycles without an exchange before every subdevice counts as lost ([`STALE`]).
     stale_limit: u32,
-    thread: Thread,
+    /// The bus's thread, woken by [`SegmentCycleSide::send`].
+    thread: Option<Thread>,
 }
 
 impl std::fmt::Debug for SegmentCycleSide {
@@ -177,11 +178,18 @@ impl SegmentCycleSide {
         }
     }
 
+    /// The thread [`send`](Self::send) wakes (the bus's: [`spawn`] sets it).
+    pub fn wake(&mut self, thread: Thread) {
+        self.thread = Some(thread);
+    }
+
     /// Hands this cycle's outputs over, all at once, and wakes the thread to send them.
     pub fn send(&mut self, cycle: u64) {
         self.pending.cycle = cycle;
         self.output.publish(self.pending);
-        self.thread.unpark();
+        if let Some(t) = &self.thread {
+            t.unpark();
+        }
     }
 
     fn read(&mut self, cycle: u64) {
@@ -328,19 +336,12 @@ pub fn spawn(
         ),
         None => None,
     };
-    let len = settings.devices.len().min(MAX_SUBDEVICES);
-    let period = settings.period;
-    let (out_w, out_r) = triple_buffer(Outputs {
-        cycle: 0,
-        images: [[0; 8]; MAX_SUBDEVICES],
-    });
-    let initial = Published {
-        exchanges: 0,
-        inputs: [[0; 8]; MAX_SUBDEVICES],
-        states: [SubState::Booting; MAX_SUBDEVICES],
-        emcy: [(0, 0); MAX_SUBDEVICES],
-    };
-    let (in_w, in_r) = triple_buffer(initial);
+    let (mut side, feed) = hand_over(settings.devices.len(), settings.period);
+    let SegmentFeed {
+        output: out_r,
+        input: in_w,
+        ..
+    } = feed;
     let stop = Arc::new(AtomicBool::new(false));
     let stop2 = stop.clone();
     let captured = Arc::new(AtomicU64::new(0));
@@ -359,7 +360,35 @@ pub fn spawn(
             }
         })
         .map_err(|e| format!("starting the EtherCAT thread: {e}"))?;
+    side.wake(handle.thread().clone());
     Ok((
+        side,
+        SegmentThread {
+            stop,
+            handle: Some(handle),
+            captured,
+        },
+    ))
+}
+
+/// The hand-over between the cycle thread and a bus's thread, for `len` subdevices at
+/// `period`: the cycle's side, and the feed the bus's thread (or a test) takes the outputs from
+/// and publishes the inputs through. [`spawn`] makes one for its thread; alone, its cycle side
+/// wakes nobody.
+pub fn hand_over(len: usize, period: Duration) -> (SegmentCycleSide, SegmentFeed) {
+    let len = len.min(MAX_SUBDEVICES);
+    let (out_w, out_r) = triple_buffer(Outputs {
+        cycle: 0,
+        images: [[0; 8]; MAX_SUBDEVICES],
+    });
+    let initial = Published {
+        exchanges: 0,
+        inputs: [[0; 8]; MAX_SUBDEVICES],
+        states: [SubState::Booting; MAX_SUBDEVICES],
+        emcy: [(0, 0); MAX_SUBDEVICES],
+    };
+    let (in_w, in_r) = triple_buffer(initial);
+    (
         SegmentCycleSide {
             output: out_w,
             input: in_r,
@@ -376,14 +405,57 @@ pub fn spawn(
             reported: [None; MAX_SUBDEVICES],
             len,
             stale_limit: (STALE.as_nanos() / period.as_nanos().max(1)).max(3) as u32,
-            thread: handle.thread().clone(),
+            thread: None,
         },
-        SegmentThread {
-            stop,
-            handle: Some(handle),
-            captured,
+        SegmentFeed {
+            output: out_r,
+            input: in_w,
+            published: initial,
         },
-    ))
+    )
+}
+
+/// The bus thread's end of [`hand_over`].
+pub struct SegmentFeed {
+    output: TripleReader<Outputs>,
+    input: TripleWriter<Published>,
+    published: Published,
+}
+
+impl std::fmt::Debug for SegmentFeed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SegmentFeed")
+            .field("exchanges", &self.published.exchanges)
+            .finish_non_exhaustive()
+    }
+}
+
+impl SegmentFeed {
+    /// The outputs the cycle handed over last, if new since the last call: the cycle that
+    /// computed them and every subdevice's 8 bytes.
+    pub fn outputs(&mut self) -> Option<(u64, [[u8; 8]; MAX_SUBDEVICES])> {
+        let (o, fresh) = self.output.read();
+        fresh.then_some((o.cycle, o.images))
+    }
+
+    /// Publishes one exchange: each subdevice's state and inputs (position 1 first), and the
+    /// emergencies it read, as (subdevice index, error code).
+    pub fn publish(&mut self, states: &[SubState], inputs: &[[u8; 8]], emcy: &[(usize, u16)]) {
+        let p = &mut self.published;
+        p.exchanges += 1;
+        for (s, v) in p.states.iter_mut().zip(states) {
+            *s = *v;
+        }
+        for (i, v) in p.inputs.iter_mut().zip(inputs) {
+            *i = *v;
+        }
+        for &(i, code) in emcy {
+            if let Some(e) = p.emcy.get_mut(i) {
+                *e = (e.0.wrapping_add(1), code);
+            }
+        }
+        self.input.publish(*p);
+    }
 }
 
 /// ethercrab's master on the raw socket, its frames pumped by this thread (no executor):
@@ -1317,4 +1389,80 @@ async fn recover(
     }
     .await;
     Recovered { index, result }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const OP: [SubState; 2] = [SubState::Op, SubState::Op];
+
+    #[test]
+    fn the_cycle_takes_each_exchange_once_with_its_state() {
+        let (mut side, mut feed) = hand_over(2, Duration::from_millis(1));
+        // Nothing exchanged yet: nothing fresh, nothing lost, no report.
+        let i = side.take(0, 0);
+        assert!(!i.fresh && !i.lost && i.not_op == 0, "{i:?}");
+        assert_eq!(side.report(), None);
+        feed.publish(&OP, &[[0x13, 0, 0, 0, 0, 0, 0, 0], [0x17; 8]], &[]);
+        let (a, b) = (side.take(1, 0), side.take(1, 1));
+        assert!(a.fresh && b.fresh);
+        assert_eq!(a.image.bytes()[0], 0x13);
+        assert_eq!(b.image.bytes()[7], 0x17);
+        // Each subdevice reported once, when it first was in Op.
+        assert_eq!(side.report(), Some((0, true)));
+        assert_eq!(side.report(), Some((1, true)));
+        assert_eq!(side.report(), None);
+        // The same exchange is not fresh in the next cycle.
+        assert!(!side.take(2, 0).fresh);
+        // A subdevice out of Op: its state, no fresh inputs; one not answering: lost.
+        feed.publish(
+            &[SubState::NotOp(AlState::SafeOp), SubState::Lost],
+            &[[0; 8]; 2],
+            &[],
+        );
+        let (a, b) = (side.take(3, 0), side.take(3, 1));
+        assert_eq!((a.fresh, a.not_op, a.lost), (false, 4, false));
+        assert_eq!((b.fresh, b.lost), (false, true));
+    }
+
+    #[test]
+    fn an_emergency_reaches_the_cycle_once() {
+        let (mut side, mut feed) = hand_over(2, Duration::from_millis(1));
+        feed.publish(&OP, &[[0; 8]; 2], &[(1, 0x3220)]);
+        assert_eq!((side.take(1, 0).emcy, side.take(1, 1).emcy), (0, 0x3220));
+        feed.publish(&OP, &[[0; 8]; 2], &[]);
+        assert_eq!(side.take(2, 1).emcy, 0, "not again");
+        feed.publish(&OP, &[[0; 8]; 2], &[(1, 0x3220)]);
+        assert_eq!(
+            side.take(3, 1).emcy,
+            0x3220,
+            "the same code again is a new one"
+        );
+    }
+
+    #[test]
+    fn a_bus_that_stops_exchanging_is_lost_after_its_limit() {
+        // 10 ms: the limit is 3 cycles (30 ms); at 1 ms it would be 30.
+        let (mut side, mut feed) = hand_over(1, Duration::from_millis(10));
+        feed.publish(&OP[..1], &[[0; 8]], &[]);
+        assert!(side.take(1, 0).fresh);
+        assert!(!side.take(2, 0).lost);
+        assert!(!side.take(3, 0).lost);
+        assert!(side.take(4, 0).lost, "three cycles without an exchange");
+        feed.publish(&OP[..1], &[[0; 8]], &[]);
+        assert!(!side.take(5, 0).lost);
+    }
+
+    #[test]
+    fn the_outputs_go_over_as_one_set_when_sent() {
+        let (mut side, mut feed) = hand_over(2, Duration::from_millis(1));
+        side.put(0, &[1; 8]);
+        assert!(feed.outputs().is_none(), "not before send");
+        side.put(1, &[2; 8]);
+        side.send(7);
+        let (cycle, images) = feed.outputs().expect("sent");
+        assert_eq!((cycle, images[0], images[1]), (7, [1; 8], [2; 8]));
+        assert!(feed.outputs().is_none(), "taken once");
+    }
 }
