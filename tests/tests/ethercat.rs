@@ -880,3 +880,52 @@ fn the_coordinator_waits_for_a_segment_with_a_subdevice_missing() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A segment whose subdevices report another revision than the catalog's (`drive-sim
+/// --revision`): the coordinator's identity check refuses it, naming what it found and what it
+/// expects; the axes fault "boot failed" and nothing is enabled.
+#[test]
+fn the_coordinator_refuses_a_segment_of_another_revision() {
+    let name = "the_coordinator_refuses_a_segment_of_another_revision";
+    if !in_namespace(name, Some("--count 3 --revision 0x00020000")) {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("ethercat-revision-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("machine.toml");
+    std::fs::write(&config, ec_machine(10_000)).unwrap();
+    let mut procs = Procs(vec![Proc::start(
+        "coordinator",
+        &workspace_bin("coordinator", "coordinator"),
+        &[
+            "run",
+            "--config",
+            config.to_str().unwrap(),
+            "--quiet",
+            "--no-shm",
+            "--demo",
+        ],
+        &dir,
+    )]);
+    let coord = &mut procs.0[0];
+    coord.wait_output(
+        "EtherCAT bus line REFUSED: subdevice 1 is \"EMCA-EC-67-M-1TE-EC\" (vendor 0000001Dh, \
+         product 00000B0Ch, revision 00020000h); the configuration expects EMCA-EC-67-M-1TE-EC \
+         (vendor 0000001Dh, product 00000B0Ch, revision 00010000h)",
+    );
+    // SAFETY: kill(2) on our own running child.
+    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
+    let status = coord.child.wait().unwrap();
+    let out = coord.output();
+    assert_eq!(status.code(), Some(2), "a refused drive is a fault:\n{out}");
+    for axis in ["x", "y", "z"] {
+        assert!(
+            out.contains(&format!(
+                "  refused: axis {axis}: EtherCAT bus line refused: subdevice 1 is"
+            )),
+            "{axis} refused in the summary:\n{out}"
+        );
+    }
+    assert!(!out.contains(", enabled"), "nothing was enabled:\n{out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -139,6 +139,11 @@ struct Cli {
     /// With --ethercat: how many EMCA subdevices this process chains as one segment, 1..=16.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u8).range(1..=16))]
     count: Option<u8>,
+    /// With --ethercat: the revision the subdevices report (SII, 1018h:03) instead of the
+    /// catalog's, in hex (`0x00020000`) or decimal: another firmware, to see a master's
+    /// identity check refuse it.
+    #[arg(long, value_name = "REVISION", value_parser = parse_revision)]
+    revision: Option<u32>,
     /// Node-ID(s), 1..=127; one drive per `--node`.
     #[arg(long = "node", num_args = 1.., value_parser = clap::value_parser!(u8).range(1..=127))]
     nodes: Vec<u8>,
@@ -346,6 +351,20 @@ struct ModbusSpec {
 struct EcSpec {
     iface: String,
     count: u8,
+    /// The revision reported, if not the catalog's.
+    revision: Option<u32>,
+}
+
+/// `--revision`: a 32-bit number, `0x` hex or decimal.
+fn parse_revision(text: &str) -> Result<u32, String> {
+    let t = text.trim();
+    let parsed = match t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        Some(hex) => u32::from_str_radix(hex, 16),
+        None => t.parse::<u32>(),
+    };
+    parsed.map_err(|_| {
+        format!("{text:?} is not a revision: give 0x followed by up to 8 hex digits, or a decimal number up to 4294967295")
+    })
 }
 
 /// Everything one run starts.
@@ -481,6 +500,7 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
             ethercat: Some(EcSpec {
                 iface: iface.clone(),
                 count: cli.count.unwrap_or(1),
+                revision: cli.revision,
             }),
             ..Plan::default()
         });
@@ -488,6 +508,12 @@ fn plan_from_args(cli: &Cli, device: DeviceArg) -> Result<Plan, String> {
     if let Some(n) = cli.count {
         return Err(format!(
             "--count {n}: the number of EMCA subdevices in an EtherCAT segment; give it with \
+             --ethercat IFACE"
+        ));
+    }
+    if let Some(r) = cli.revision {
+        return Err(format!(
+            "--revision {r:#010x}: the revision of EMCA EtherCAT subdevices; give it with \
              --ethercat IFACE"
         ));
     }
@@ -1101,7 +1127,10 @@ fn start_ethercat(spec: &EcSpec, now: Instant) -> Result<EcRun, String> {
         RawSocket::open(&spec.iface).map_err(|e| format!("--ethercat {}: {e}", spec.iface))?;
     let mut subs = Vec::new();
     for i in 0..spec.count {
-        let d = EmcaEc::with_config(EmcaEc::drive_config(), i + 1 < spec.count, now)
+        let revision = spec
+            .revision
+            .unwrap_or(drivers::catalog::EMCA_ETHERCAT.revision);
+        let d = EmcaEc::with_revision(EmcaEc::drive_config(), i + 1 < spec.count, now, revision)
             .map_err(|e| format!("EMCA-EC {}: {e}", i + 1))?;
         subs.push(d);
     }
@@ -1476,12 +1505,16 @@ fn main() -> ExitCode {
                     Switches::given(&cli).join(" ")
                 ));
             }
-            (Some(_), _) if cli.count.is_some() => {
-                return Err(
-                    "--count: give it with --device emca --ethercat IFACE; the drives \
-                            of --config are CANopen and Modbus ones"
-                        .into(),
-                );
+            (Some(_), _) if cli.count.is_some() || cli.revision.is_some() => {
+                let option = if cli.count.is_some() {
+                    "--count"
+                } else {
+                    "--revision"
+                };
+                return Err(format!(
+                    "{option}: give it with --device emca --ethercat IFACE; the drives of \
+                     --config are CANopen and Modbus ones"
+                ));
             }
             (Some(file), _) => plan_from_config(file, &cli.only)?,
             (None, Some(device)) => plan_from_args(&cli, device)?,

@@ -117,6 +117,20 @@ struct Published {
     emcy: [(u32, u16); MAX_SUBDEVICES],
 }
 
+/// What a bus's thread tells the operator.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum SegmentReport {
+    /// A line to print as it is (it names the bus).
+    Line(String),
+    /// The segment was refused at boot (a boot failure of every axis on it): the bus and why.
+    Refused {
+        /// The bus's name.
+        bus: String,
+        /// Why, in words.
+        why: String,
+    },
+}
+
 /// How the thread runs.
 #[derive(Clone, Debug)]
 pub struct SegmentSettings {
@@ -325,7 +339,7 @@ impl Drop for SegmentThread {
 pub fn spawn(
     interface: &str,
     settings: SegmentSettings,
-    lines: Sender<String>,
+    lines: Sender<SegmentReport>,
 ) -> Result<(SegmentCycleSide, SegmentThread), String> {
     let sock = RawSocket::open(interface).map_err(|e| e.to_string())?;
     let capture = match &settings.capture {
@@ -639,7 +653,7 @@ struct SegmentRun {
     output: TripleReader<Outputs>,
     input: TripleWriter<Published>,
     published: Published,
-    lines: Sender<String>,
+    lines: Sender<SegmentReport>,
     /// The cyclic frame's round trip, ns (allocated once, before the cycle).
     round_trip: hdrhistogram::Histogram<u64>,
 }
@@ -662,7 +676,7 @@ impl SegmentRun {
         stop: Arc<AtomicBool>,
         output: TripleReader<Outputs>,
         input: TripleWriter<Published>,
-        lines: Sender<String>,
+        lines: Sender<SegmentReport>,
     ) -> SegmentRun {
         SegmentRun {
             pump: Pump::new(sock, capture),
@@ -683,9 +697,10 @@ impl SegmentRun {
     }
 
     fn say(&self, text: String) {
-        let _ = self
-            .lines
-            .send(format!("EtherCAT bus {}: {text}", self.settings.name));
+        let _ = self.lines.send(SegmentReport::Line(format!(
+            "EtherCAT bus {}: {text}",
+            self.settings.name
+        )));
     }
 
     fn stopped(&self) -> bool {
@@ -710,7 +725,10 @@ impl SegmentRun {
                     }
                 }
                 Err(BootEnd::Refused(why)) => {
-                    self.say(format!("refused: {why}"));
+                    let _ = self.lines.send(SegmentReport::Refused {
+                        bus: self.settings.name.clone(),
+                        why,
+                    });
                     let n = self.settings.devices.len();
                     self.published.states[..n].fill(SubState::Refused);
                     self.input.publish(self.published);
@@ -994,18 +1012,10 @@ impl SegmentRun {
                         SubState::NotOp(s) => format!("fell back to {s}"),
                         _ => "does not answer".into(),
                     };
-                    let _ = self.lines.send(format!(
-                        "EtherCAT bus {}: subdevice {} {what}",
-                        self.settings.name,
-                        i + 1
-                    ));
+                    self.say(format!("subdevice {} {what}", i + 1));
                 }
                 if !bad && *said {
-                    let _ = self.lines.send(format!(
-                        "EtherCAT bus {}: subdevice {} is back in Operational",
-                        self.settings.name,
-                        i + 1
-                    ));
+                    self.say(format!("subdevice {} is back in Operational", i + 1));
                 }
                 *said = bad;
             }

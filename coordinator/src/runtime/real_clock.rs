@@ -404,7 +404,7 @@ pub fn run_real(
     }
 
     // The EtherCAT buses: a thread each, with ethercrab on the bus's interface.
-    let (ec_tx, ec_rx) = mpsc::channel::<String>();
+    let (ec_tx, ec_rx) = mpsc::channel::<ec::SegmentReport>();
     let mut segments = Vec::new();
     let mut segment_threads = Vec::new();
     let mut ec_slots = Vec::new();
@@ -703,8 +703,20 @@ pub fn run_real(
                 }
                 lines = 0;
             }
-            while let Ok(line) = ec_rx.try_recv() {
-                say(out, &line);
+            while let Ok(report) = ec_rx.try_recv() {
+                match report {
+                    ec::SegmentReport::Line(line) => say(out, &line),
+                    ec::SegmentReport::Refused { bus, why } => {
+                        say(out, &format!("EtherCAT bus {bus} REFUSED: {why}"));
+                        let on_bus = plan.segments.iter().filter(|s| s.name == bus);
+                        for &a in on_bus.flat_map(|s| &s.axes) {
+                            summary.boot_failures.push(format!(
+                                "axis {}: EtherCAT bus {bus} refused: {why}",
+                                plan.axes[a].name
+                            ));
+                        }
+                    }
+                }
                 lines = 0;
             }
             while let Some(snap) = snap_rx.dequeue() {

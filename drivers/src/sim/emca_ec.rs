@@ -90,6 +90,9 @@ pub struct EmcaEc {
     /// Whether it has power (a switched-off subdevice passes no frame on).
     powered: bool,
     now: Instant,
+    /// The revision it reports (SII word 0Ch, 1018h:03): the catalog's, or another to try a
+    /// master's identity check.
+    revision: u32,
 }
 
 impl core::fmt::Debug for EmcaEc {
@@ -171,7 +174,7 @@ const fn e(
 
 /// Builds the dictionary: communication objects, PDO mapping and assignment, 1C32h/1C33h,
 /// the FHPP objects, FHPP+.
-fn dictionary() -> Result<EcDictionary, OdError> {
+fn dictionary(revision: u32) -> Result<EcDictionary, OdError> {
     use AccessType::{Const, Ro, Rw};
     use DataType::{Unsigned8 as U8, Unsigned16 as U16, Unsigned32 as U32};
     let mut od = EcDictionary::new();
@@ -189,7 +192,7 @@ fn dictionary() -> Result<EcDictionary, OdError> {
     for (sub, name, v) in [
         (1, "vendor-ID", catalog::FESTO_VENDOR_ID),
         (2, "product code", FACTS.product_code),
-        (3, "revision number", FACTS.revision),
+        (3, "revision number", revision),
         (4, "serial number", 0),
     ] {
         od.insert(e(0x1018, sub, name, U32, Const).default_value(u(v)))?;
@@ -287,7 +290,21 @@ impl EmcaEc {
         port1_connected: bool,
         now: Instant,
     ) -> Result<EmcaEc, EcSimError> {
-        let sii = SiiImage::build(&sii_spec())?;
+        EmcaEc::with_revision(cfg, port1_connected, now, FACTS.revision)
+    }
+
+    /// As [`EmcaEc::with_config`], reporting `revision` instead of the catalog's (another
+    /// firmware than the master expects).
+    pub fn with_revision(
+        cfg: DriveConfig,
+        port1_connected: bool,
+        now: Instant,
+        revision: u32,
+    ) -> Result<EmcaEc, EcSimError> {
+        let sii = SiiImage::build(&SiiSpec {
+            revision,
+            ..sii_spec()
+        })?;
         let esc = Esc::new(
             EscConfig {
                 dc: FACTS.dc,
@@ -299,7 +316,7 @@ impl EmcaEc {
         drive.start_at(now);
         Ok(EmcaEc {
             esc,
-            od: dictionary()?,
+            od: dictionary(revision)?,
             coe: CoeServer::new(),
             drive,
             state: AlState::Init,
@@ -309,6 +326,7 @@ impl EmcaEc {
             dropped: 0,
             powered: true,
             now,
+            revision,
         })
     }
 
@@ -361,7 +379,7 @@ impl EmcaEc {
     pub fn power_on(&mut self, now: Instant) -> Result<(), EcSimError> {
         let cfg = *self.drive.config();
         let port1 = self.esc.memory()[usize::from(reg::DL_STATUS)] & 0x20 != 0;
-        *self = EmcaEc::with_config(cfg, port1, now)?;
+        *self = EmcaEc::with_revision(cfg, port1, now, self.revision)?;
         Ok(())
     }
 
