@@ -293,6 +293,23 @@ fn drive_sim_refuses_ethercat_options_it_cannot_honour() {
         &["--ethercat lo with --bus"],
     );
     refused(
+        &[
+            "--device",
+            "emca",
+            "--bus",
+            "vbus:x",
+            "--node",
+            "5",
+            "--revision",
+            "0x20000",
+        ],
+        &[
+            "--revision 0x00020000",
+            "give it with
+--ethercat",
+        ],
+    );
+    refused(
         &["--device", "emca"],
         &["give --bus vbus:NAME", "--ethercat IFACE"],
     );
