@@ -303,11 +303,7 @@ fn drive_sim_refuses_ethercat_options_it_cannot_honour() {
             "--revision",
             "0x20000",
         ],
-        &[
-            "--revision 0x00020000",
-            "give it with
---ethercat",
-        ],
+        &["--revision 0x00020000", "give it with --ethercat IFACE"],
     );
     refused(
         &["--device", "emca"],
