@@ -432,6 +432,41 @@ fn ready(a: &shm_api::contract::AxisState) -> bool {
         && a.fault == fault::NONE
 }
 
+/// A directory of its own for a test and the three-EMCA machine in it at 10 ms.
+fn scratch(tag: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = std::env::temp_dir().join(format!("ethercat-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("machine.toml");
+    std::fs::write(&config, ec_machine(10_000)).unwrap();
+    (dir, config)
+}
+
+/// `coordinator run --config CONFIG --quiet --no-shm EXTRA...`.
+fn quiet_coordinator(dir: &std::path::Path, config: &std::path::Path, extra: &[&str]) -> Proc {
+    let mut args = vec![
+        "run",
+        "--config",
+        config.to_str().unwrap(),
+        "--quiet",
+        "--no-shm",
+    ];
+    args.extend_from_slice(extra);
+    Proc::start(
+        "coordinator",
+        &workspace_bin("coordinator", "coordinator"),
+        &args,
+        dir,
+    )
+}
+
+/// Ctrl-C's signal to `p`; its exit status and everything it printed.
+fn interrupt(p: &mut Proc) -> (std::process::ExitStatus, String) {
+    // SAFETY: kill(2) on our own running child.
+    unsafe { libc::kill(p.child.id() as libc::pid_t, libc::SIGINT) };
+    let status = p.child.wait().unwrap();
+    (status, p.output())
+}
+
 const PATIENCE: Duration = Duration::from_secs(60);
 const MM: i64 = shm_api::contract::MICRO;
 
@@ -612,10 +647,7 @@ fn the_coordinator_runs_a_segment_and_brings_back_a_subdevice_switched_off() {
     let coord = &mut procs.0[1];
 
     // Ctrl-C: status 2 (there was a fault), z's fault in the summary, the capture written.
-    // SAFETY: kill(2) on our own running child.
-    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
-    let status = coord.child.wait().unwrap();
-    let out = coord.output();
+    let (status, out) = interrupt(coord);
     assert_eq!(
         status.code(),
         Some(2),
@@ -800,10 +832,7 @@ fn a_group_across_canopen_and_ethercat_latches_in_one_cycle() {
             .zip(&s.axes[..3])
             .all(|(&t, a)| (a.position - t * MM).abs() <= MM / 20 && ready(a))
     });
-    // SAFETY: kill(2) on our own running child.
-    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
-    let status = coord.child.wait().unwrap();
-    let out = coord.output();
+    let (status, out) = interrupt(coord);
     assert_eq!(status.code(), Some(0), "a normal end:\n{out}");
 
     let log: Vec<Logged> = read_log(&capture.join(format!("{bus}.log")));
@@ -856,22 +885,8 @@ fn the_coordinator_waits_for_a_segment_with_a_subdevice_missing() {
     if !in_namespace(name, Some("--count 2")) {
         return;
     }
-    let dir = std::env::temp_dir().join(format!("ethercat-missing-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let config = dir.join("machine.toml");
-    std::fs::write(&config, ec_machine(10_000)).unwrap();
-    let mut procs = Procs(vec![Proc::start(
-        "coordinator",
-        &workspace_bin("coordinator", "coordinator"),
-        &[
-            "run",
-            "--config",
-            config.to_str().unwrap(),
-            "--quiet",
-            "--no-shm",
-        ],
-        &dir,
-    )]);
+    let (dir, config) = scratch("missing");
+    let mut procs = Procs(vec![quiet_coordinator(&dir, &config, &[])]);
     let coord = &mut procs.0[0];
     coord.wait_output("EtherCAT bus line: found 2 subdevice(s), the configuration has 3");
     std::thread::sleep(Duration::from_millis(1200));
@@ -881,10 +896,7 @@ fn the_coordinator_waits_for_a_segment_with_a_subdevice_missing() {
         1,
         "said once, not every scan:\n{out}"
     );
-    // SAFETY: kill(2) on our own running child.
-    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
-    let status = coord.child.wait().unwrap();
-    let out = coord.output();
+    let (status, out) = interrupt(coord);
     assert_eq!(status.code(), Some(0), "a normal end:\n{out}");
     assert!(!out.contains("FAULT"), "nothing faulted:\n{out}");
     assert!(
@@ -896,40 +908,22 @@ fn the_coordinator_waits_for_a_segment_with_a_subdevice_missing() {
 
 /// A segment whose subdevices report another revision than the catalog's (`drive-sim
 /// --revision`): the coordinator's identity check refuses it, naming what it found and what it
-/// expects; the axes fault "boot failed" and nothing is enabled.
+/// expects; each axis is listed as refused, nothing is enabled, the run ends with status 2.
 #[test]
 fn the_coordinator_refuses_a_segment_of_another_revision() {
     let name = "the_coordinator_refuses_a_segment_of_another_revision";
     if !in_namespace(name, Some("--count 3 --revision 0x00020000")) {
         return;
     }
-    let dir = std::env::temp_dir().join(format!("ethercat-revision-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let config = dir.join("machine.toml");
-    std::fs::write(&config, ec_machine(10_000)).unwrap();
-    let mut procs = Procs(vec![Proc::start(
-        "coordinator",
-        &workspace_bin("coordinator", "coordinator"),
-        &[
-            "run",
-            "--config",
-            config.to_str().unwrap(),
-            "--quiet",
-            "--no-shm",
-            "--demo",
-        ],
-        &dir,
-    )]);
+    let (dir, config) = scratch("revision");
+    let mut procs = Procs(vec![quiet_coordinator(&dir, &config, &["--demo"])]);
     let coord = &mut procs.0[0];
     coord.wait_output(
         "EtherCAT bus line REFUSED: subdevice 1 is \"EMCA-EC-67-M-1TE-EC\" (vendor 0000001Dh, \
          product 00000B0Ch, revision 00020000h); the configuration expects EMCA-EC-67-M-1TE-EC \
          (vendor 0000001Dh, product 00000B0Ch, revision 00010000h)",
     );
-    // SAFETY: kill(2) on our own running child.
-    unsafe { libc::kill(coord.child.id() as libc::pid_t, libc::SIGINT) };
-    let status = coord.child.wait().unwrap();
-    let out = coord.output();
+    let (status, out) = interrupt(coord);
     assert_eq!(status.code(), Some(2), "a refused drive is a fault:\n{out}");
     for axis in ["x", "y", "z"] {
         assert!(
