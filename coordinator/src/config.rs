@@ -392,7 +392,7 @@ fn check_ethercat_bus(key: &str, b: &BusConfig, err: &mut Errors) {
         err.push(
             format!("{key}.interface"),
             Problem::Ethercat(format!(
-                "{:?} is not a network interface name (1 to 15 bytes)",
+                "\"{}\" is not a network interface name (1 to 15 bytes)",
                 b.interface()
             )),
         );
@@ -456,7 +456,7 @@ fn check_ethercat_axis(
         err.push(
             cycle_key,
             Problem::Ethercat(format!(
-                "the cycle of {cycle_us} us is shorter than the {}'s shortest on EtherCAT, {min_us} us (1C32h:05), for axis {:?}",
+                "the cycle of {cycle_us} us is shorter than the {}'s shortest on EtherCAT, {min_us} us (1C32h:05), for axis \"{}\"",
                 device.device().name,
                 a.name
             )),
@@ -1163,7 +1163,7 @@ pub enum Problem {
     ConsumerNotAlone(String),
     /// A group mixing Modbus and CANopen axes: Modbus has no SYNC to latch on.
     #[error(
-        "axis {0:?} is on Modbus, which has no SYNC; it cannot move with CANopen or EtherCAT axes"
+        "axis \"{0}\" is on Modbus, which has no SYNC; it cannot move with CANopen or EtherCAT axes"
     )]
     ModbusInGroup(String),
     /// An EtherCAT setting that cannot work (the message says why and what is allowed).
@@ -1849,7 +1849,7 @@ impl Config {
                 err.push(
                     format!("buses[{i}]"),
                     Problem::Ethercat(format!(
-                        "no axis is on ethercat bus {:?}: give an axis `bus = {:?}` and its `position`",
+                        "no axis is on ethercat bus \"{}\": give an axis `bus = \"{}\"` and its `position`",
                         b.name, b.name
                     )),
                 );
@@ -1861,7 +1861,7 @@ impl Config {
                 err.push(
                     format!("buses[{i}]"),
                     Problem::Ethercat(format!(
-                        "the axes on ethercat bus {:?} must sit at positions 1 to {n} (every subdevice of the segment is an axis), and no axis has position {gap}",
+                        "the axes on ethercat bus \"{}\" must sit at positions 1 to {n} (every subdevice of the segment is an axis), and no axis has position {gap}",
                         b.name
                     )),
                 );

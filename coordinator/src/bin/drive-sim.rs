@@ -363,7 +363,7 @@ fn parse_revision(text: &str) -> Result<u32, String> {
         None => t.parse::<u32>(),
     };
     parsed.map_err(|_| {
-        format!("{text:?} is not a revision: give 0x followed by up to 8 hex digits, or a decimal number up to 4294967295")
+        format!("\"{text}\" is not a revision: give 0x followed by up to 8 hex digits, or a decimal number up to 4294967295")
     })
 }
 
@@ -1112,7 +1112,7 @@ fn power_commands(count: u8) -> std::sync::mpsc::Receiver<(usize, Switch)> {
                         }
                     }
                     None => eprintln!(
-                        "drive-sim: {line:?}: give `off N`, `on N`, `drop N` or `restore N` with N a subdevice 1 to {count}"
+                        "drive-sim: \"{line}\": give `off N`, `on N`, `drop N` or `restore N` with N a subdevice 1 to {count}"
                     ),
                 }
             }

@@ -440,7 +440,7 @@ pub fn run(cfg: &Config, opts: &RunOptions, out: &mut dyn Write) -> Result<Summa
         }
         if let Some(s) = plan.segments.first() {
             return Err(RunError::Config(format!(
-                "--virtual-time: bus {:?} is of kind \"ethercat\" (interface {}); virtual time runs only machines whose drives are all simulated inside the coordinator: EtherCAT subdevices keep their own clock",
+                "--virtual-time: bus \"{}\" is of kind \"ethercat\" (interface {}); virtual time runs only machines whose drives are all simulated inside the coordinator: EtherCAT subdevices keep their own clock",
                 s.name, s.interface
             )));
         }
