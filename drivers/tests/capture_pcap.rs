@@ -6,7 +6,6 @@ mod tshark;
 use drivers::can::Frame;
 use drivers::can::pcap::{PcapWriter, TSHARK_CANOPEN_ARGS, read_pcap};
 use drivers::time::Instant;
-use std::process::Command;
 use tshark::tshark_or_skip;
 
 /// An SDO upload of 1000h:00 from node 1 and its reply (seed-003 section 8.1), NMT start, SYNC,
@@ -80,32 +79,20 @@ fn tshark_decodes_canopen() {
     if !tshark_or_skip("tshark_decodes_canopen") {
         return;
     }
-    let path = std::env::temp_dir().join(format!("capture_pcap_{}.pcap", std::process::id()));
-    std::fs::write(&path, write_capture()).unwrap();
-    let out = Command::new("tshark")
-        .args(TSHARK_CANOPEN_ARGS)
-        .arg("-r")
-        .arg(&path)
-        .args(["-T", "fields", "-E", "separator=;"])
-        .args([
-            "-e",
+    let text = tshark::fields(
+        "capture_pcap",
+        &write_capture(),
+        &TSHARK_CANOPEN_ARGS,
+        &[
             "can.id",
-            "-e",
             "canopen.function_code",
-            "-e",
             "canopen.node_id",
-        ])
-        .args(["-e", "canopen.sdo.main_idx", "-e", "canopen.sdo.sub_idx"])
-        .args(["-e", "canopen.sdo.data.bytes", "-e", "_ws.col.Info"])
-        .output()
-        .unwrap();
-    let _ = std::fs::remove_file(&path);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+            "canopen.sdo.main_idx",
+            "canopen.sdo.sub_idx",
+            "canopen.sdo.data.bytes",
+            "_ws.col.Info",
+        ],
     );
-    let text = String::from_utf8_lossy(&out.stdout);
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines.len(), 6, "{text}");
     let f = |i: usize| lines[i].split(';').collect::<Vec<_>>();

@@ -395,7 +395,6 @@ proptest::proptest! {
 fn tshark_decodes_a_capture_of_the_segment_as_ethercat() {
     use drivers::ethercat::frame::{Command, FrameBuilder};
     use drivers::ethercat::pcap::EcPcapWriter;
-    use std::process::Command as Process;
     if !tshark_or_skip("tshark_decodes_a_capture_of_the_segment_as_ethercat") {
         return;
     }
@@ -419,24 +418,12 @@ fn tshark_decodes_a_capture_of_the_segment_as_ethercat() {
         segment::pass(&mut buf[..n], &mut subs, t).unwrap();
         w.write(t, &buf[..n]).unwrap();
     }
-    let path = std::env::temp_dir().join(format!("sim_emca_ec_{}.pcap", std::process::id()));
-    std::fs::write(&path, w.into_inner()).unwrap();
-    let out = Process::new("tshark")
-        .arg("-r")
-        .arg(&path)
-        .args(["-T", "fields", "-E", "separator=;"])
-        .args([
-            "-e", "ecat.cmd", "-e", "ecat.idx", "-e", "ecat.cnt", "-e", "eth.src",
-        ])
-        .output()
-        .unwrap();
-    let _ = std::fs::remove_file(&path);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let text = tshark::fields(
+        "sim_emca_ec",
+        &w.into_inner(),
+        &[],
+        &["ecat.cmd", "ecat.idx", "ecat.cnt", "eth.src"],
     );
-    let text = String::from_utf8_lossy(&out.stdout);
     let lines: Vec<Vec<&str>> = text.lines().map(|l| l.split(';').collect()).collect();
     assert_eq!(lines.len(), 4, "{text}");
     // Requests with working counter 0 from the master; replies counted and marked.

@@ -20,3 +20,27 @@ pub fn tshark_or_skip(test: &str) -> bool {
     );
     false
 }
+
+/// The `fields` tshark reads from the capture `bytes` (written to a temporary file named after
+/// `name` and removed again), a line per packet, fields separated by `;`; `options` come first
+/// (how to decode). Fails the test, with tshark's message, when tshark fails.
+pub fn fields(name: &str, bytes: &[u8], options: &[&str], fields: &[&str]) -> String {
+    let path = std::env::temp_dir().join(format!("{name}_{}.pcap", std::process::id()));
+    std::fs::write(&path, bytes).unwrap();
+    let mut cmd = Command::new("tshark");
+    cmd.args(options)
+        .arg("-r")
+        .arg(&path)
+        .args(["-T", "fields", "-E", "separator=;"]);
+    for f in fields {
+        cmd.args(["-e", f]);
+    }
+    let out = cmd.output().unwrap();
+    let _ = std::fs::remove_file(&path);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
