@@ -9,17 +9,11 @@
 //! sockets are refused, the test says it skipped and why; `MOTION_REQUIRE_ALL=1` (`.ci/run`)
 //! makes that a failure.
 
-use std::future::Future;
-use std::pin::pin;
 use std::process::Command;
-use std::task::{Context, Poll, Waker};
 use std::time::{Duration, Instant};
 
-use drivers::ethercat::frame::MAX_FRAME_LEN;
-use drivers::ethercat::raw::RawSocket;
-use ethercrab::error::Error;
+use coordinator::runtime::ethercat::Pump;
 use ethercrab::std::ethercat_now;
-use ethercrab::{MainDevice, MainDeviceConfig, PduRx, PduStorage, PduTx, Timeouts};
 use integration_tests::{skip_or_fail, workspace_bin};
 
 /// Set in the second run, inside the namespace.
@@ -103,63 +97,9 @@ fn in_namespace(test: &str, sim_args: Option<&str>) -> bool {
     false
 }
 
-/// An ethercrab master on a raw socket, its frames pumped by hand (one thread, no executor).
-struct Master {
-    md: &'static MainDevice<'static>,
-    tx: PduTx<'static>,
-    rx: PduRx<'static>,
-    sock: RawSocket,
-}
-
-impl Master {
-    fn open(iface: &str) -> Master {
-        const DATA: usize = PduStorage::element_size(1100);
-        let storage: &'static PduStorage<16, DATA> = Box::leak(Box::new(PduStorage::new()));
-        let (tx, rx, pdu_loop) = storage.try_split().unwrap();
-        let md = Box::leak(Box::new(MainDevice::new(
-            pdu_loop,
-            Timeouts::default(),
-            MainDeviceConfig {
-                dc_static_sync_iterations: 0,
-                ..MainDeviceConfig::default()
-            },
-        )));
-        let sock = RawSocket::open(iface).unwrap_or_else(|e| panic!("{e}"));
-        Master { md, tx, rx, sock }
-    }
-
-    fn run<T>(&mut self, fut: impl Future<Output = T>) -> T {
-        let mut fut = pin!(fut);
-        let mut cx = Context::from_waker(Waker::noop());
-        let mut buf = [0u8; MAX_FRAME_LEN];
-        loop {
-            if let Poll::Ready(r) = fut.as_mut().poll(&mut cx) {
-                return r;
-            }
-            let mut sent = false;
-            while let Some(frame) = self.tx.next_sendable_frame() {
-                let sock = &self.sock;
-                frame
-                    .send_blocking(|b| {
-                        sock.send(b).map_err(|_| Error::SendFrame)?;
-                        Ok(b.len())
-                    })
-                    .unwrap();
-                sent = true;
-            }
-            let mut wait = if sent {
-                Duration::from_millis(2)
-            } else {
-                Duration::from_micros(200)
-            };
-            while let Some(n) = self.sock.recv(&mut buf, wait).unwrap() {
-                // A reply to a frame ethercrab gave up on (while drive-sim was still starting)
-                // is refused; it changes nothing.
-                let _ = self.rx.receive_frame(&buf[..n]);
-                wait = Duration::ZERO;
-            }
-        }
-    }
+/// `fut` run to its end on the pump; the socket does not fail on a veth pair.
+fn run<T>(m: &mut Pump, fut: impl std::future::Future<Output = T>) -> T {
+    m.block(fut).unwrap_or_else(|e| panic!("{e}"))
 }
 
 #[test]
@@ -168,12 +108,13 @@ fn a_drive_sim_segment_of_three_emcas_boots_to_op_over_a_veth_pair() {
     if !in_namespace(name, Some("--count 3")) {
         return;
     }
-    let mut m = Master::open(MASTER_IF);
-    let md = m.md;
+    // The coordinator's own pump (a raw socket, ethercrab's frames sent and taken in by hand).
+    let mut m = Pump::open(MASTER_IF).unwrap_or_else(|e| panic!("{e}"));
+    let md = m.main_device();
     // drive-sim may still be starting: count again until three answer.
     let start = Instant::now();
     let group = loop {
-        let found = match m.run(md.init_single_group::<4, 256>(ethercat_now)) {
+        let found = match run(&mut m, md.init_single_group::<4, 256>(ethercat_now)) {
             Ok(g) if g.len() == 3 => break g,
             Ok(g) => format!("{} subdevice(s)", g.len()),
             Err(e) => format!("start-up failed: {e}"),
@@ -188,17 +129,17 @@ fn a_drive_sim_segment_of_three_emcas_boots_to_op_over_a_veth_pair() {
         assert_eq!(sd.name(), drivers::catalog::EMCA_ETHERCAT.name);
     }
     let sd = group.subdevice(md, 2).unwrap();
-    let device_type: u32 = m.run(sd.sdo_read(0x1000, 0)).unwrap();
+    let device_type: u32 = run(&mut m, sd.sdo_read(0x1000, 0)).unwrap();
     assert_eq!(device_type, 0x0000_012D);
-    let group = m.run(group.into_safe_op(md)).expect("SafeOp");
+    let group = run(&mut m, group.into_safe_op(md)).expect("SafeOp");
     // Valid outputs before Op (the subdevice refuses Op without them, 0019h).
     for _ in 0..3 {
-        m.run(group.tx_rx(md)).expect("cycle in SafeOp");
+        run(&mut m, group.tx_rx(md)).expect("cycle in SafeOp");
     }
-    let group = m.run(group.request_into_op(md)).expect("Op requested");
+    let group = run(&mut m, group.request_into_op(md)).expect("Op requested");
     let mut op = false;
     for _ in 0..500 {
-        let r = m.run(group.tx_rx(md)).expect("cycle");
+        let r = run(&mut m, group.tx_rx(md)).expect("cycle");
         if r.all_op() {
             op = true;
             break;
@@ -212,7 +153,7 @@ fn a_drive_sim_segment_of_three_emcas_boots_to_op_over_a_veth_pair() {
         for sd in group.iter(md) {
             sd.outputs_raw_mut()[..2].copy_from_slice(&[0x23, 0x01]);
         }
-        let r = m.run(group.tx_rx(md)).expect("cycle");
+        let r = run(&mut m, group.tx_rx(md)).expect("cycle");
         assert_eq!(
             r.working_counter, 9,
             "three subdevices, read and write each"
@@ -233,7 +174,7 @@ fn a_drive_sim_segment_of_three_emcas_boots_to_op_over_a_veth_pair() {
         let mut next = Instant::now();
         for _ in 0..2000 {
             let t0 = Instant::now();
-            let r = m.run(group.tx_rx(md)).expect("cycle");
+            let r = run(&mut m, group.tx_rx(md)).expect("cycle");
             rtt.push(t0.elapsed());
             assert_eq!(r.working_counter, 9);
             assert!(r.all_op(), "a subdevice left Op at {period_us} µs");

@@ -341,8 +341,8 @@ pub fn spawn(
     settings: SegmentSettings,
     lines: Sender<SegmentReport>,
 ) -> Result<(SegmentCycleSide, SegmentThread), String> {
-    let sock = RawSocket::open(interface).map_err(|e| e.to_string())?;
-    let capture = match &settings.capture {
+    let mut pump = Pump::open(interface)?;
+    pump.capture = match &settings.capture {
         Some(path) => Some(
             std::fs::File::create(path)
                 .and_then(|f| EcPcapWriter::new(std::io::BufWriter::new(f)))
@@ -351,20 +351,13 @@ pub fn spawn(
         None => None,
     };
     let (mut side, feed) = hand_over(settings.devices.len(), settings.period);
-    let SegmentFeed {
-        output: out_r,
-        input: in_w,
-        ..
-    } = feed;
     let stop = Arc::new(AtomicBool::new(false));
     let stop2 = stop.clone();
-    let captured = Arc::new(AtomicU64::new(0));
-    let captured2 = captured.clone();
+    let captured = pump.captured.clone();
     let handle = thread::Builder::new()
         .name(format!("ethercat-{interface}"))
         .spawn(move || {
-            let mut t = SegmentRun::new(sock, capture, settings, stop2, out_r, in_w, lines);
-            t.pump.captured = captured2;
+            let mut t = SegmentRun::new(pump, settings, stop2, feed, lines);
             t.run();
             let h = &t.round_trip;
             SegmentStats {
@@ -472,10 +465,11 @@ impl SegmentFeed {
     }
 }
 
-/// ethercrab's master on the raw socket, its frames pumped by this thread (no executor):
+/// ethercrab's master on a raw socket, its frames pumped by the calling thread (no executor):
 /// futures are polled with a no-op waker, and between polls the pump sends what ethercrab
-/// queued and hands back what came in.
-struct Pump {
+/// queued and hands back what came in. A bus's thread runs one; [`Pump::open`] gives one to
+/// any other master (the EtherCAT tests drive ethercrab by hand with it).
+pub struct Pump {
     md: &'static MainDevice<'static>,
     tx: PduTx<'static>,
     rx: PduRx<'static>,
@@ -489,11 +483,28 @@ struct Pump {
     buf: Box<[u8; MAX_FRAME_LEN]>,
 }
 
+impl std::fmt::Debug for Pump {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pump")
+            .field("interface", &self.sock.interface())
+            .finish_non_exhaustive()
+    }
+}
+
 impl Pump {
-    fn new(
-        sock: RawSocket,
-        capture: Option<EcPcapWriter<std::io::BufWriter<std::fs::File>>>,
-    ) -> Pump {
+    /// A master on `interface` (raw sockets need CAP_NET_RAW), without a capture. Its
+    /// ethercrab storage lives as long as the process.
+    pub fn open(interface: &str) -> Result<Pump, String> {
+        let sock = RawSocket::open(interface).map_err(|e| e.to_string())?;
+        Ok(Pump::new(sock))
+    }
+
+    /// ethercrab's main device, to build the futures [`Pump::block`] runs.
+    pub fn main_device(&self) -> &'static MainDevice<'static> {
+        self.md
+    }
+
+    fn new(sock: RawSocket) -> Pump {
         const DATA: usize = PduStorage::element_size(1100);
         // Once per segment per run: ethercrab's master borrows its storage for its life.
         let storage: &'static PduStorage<MAX_FRAMES, DATA> = Box::leak(Box::new(PduStorage::new()));
@@ -517,7 +528,7 @@ impl Pump {
             tx,
             rx,
             sock,
-            capture,
+            capture: None,
             captured: Arc::new(AtomicU64::new(0)),
             epoch_offset: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
@@ -587,8 +598,8 @@ impl Pump {
         }
     }
 
-    /// Runs `fut` alone.
-    fn block<T>(&mut self, fut: impl Future<Output = T>) -> Result<T, String> {
+    /// Runs `fut` to its end alone; fails only when the socket does.
+    pub fn block<T>(&mut self, fut: impl Future<Output = T>) -> Result<T, String> {
         let mut fut = pin!(fut);
         let mut cx = Context::from_waker(Waker::noop());
         loop {
@@ -650,9 +661,7 @@ struct SegmentRun {
     pump: Pump,
     settings: SegmentSettings,
     stop: Arc<AtomicBool>,
-    output: TripleReader<Outputs>,
-    input: TripleWriter<Published>,
-    published: Published,
+    feed: SegmentFeed,
     lines: Sender<SegmentReport>,
     /// The cyclic frame's round trip, ns (allocated once, before the cycle).
     round_trip: hdrhistogram::Histogram<u64>,
@@ -670,26 +679,17 @@ enum BootEnd {
 
 impl SegmentRun {
     fn new(
-        sock: RawSocket,
-        capture: Option<EcPcapWriter<std::io::BufWriter<std::fs::File>>>,
+        pump: Pump,
         settings: SegmentSettings,
         stop: Arc<AtomicBool>,
-        output: TripleReader<Outputs>,
-        input: TripleWriter<Published>,
+        feed: SegmentFeed,
         lines: Sender<SegmentReport>,
     ) -> SegmentRun {
         SegmentRun {
-            pump: Pump::new(sock, capture),
+            pump,
             settings,
             stop,
-            output,
-            input,
-            published: Published {
-                exchanges: 0,
-                inputs: [[0; 8]; MAX_SUBDEVICES],
-                states: [SubState::Booting; MAX_SUBDEVICES],
-                emcy: [(0, 0); MAX_SUBDEVICES],
-            },
+            feed,
             lines,
             round_trip: hdrhistogram::Histogram::new_with_bounds(1, 10_000_000_000, 3)
                 .unwrap_or_else(|_| unreachable!("valid bounds")),
@@ -730,8 +730,8 @@ impl SegmentRun {
                         why,
                     });
                     let n = self.settings.devices.len();
-                    self.published.states[..n].fill(SubState::Refused);
-                    self.input.publish(self.published);
+                    self.feed.published.states[..n].fill(SubState::Refused);
+                    self.feed.input.publish(self.feed.published);
                     while !self.stopped() {
                         thread::park_timeout(Duration::from_millis(100));
                     }
@@ -911,7 +911,7 @@ impl SegmentRun {
     where
         Group<S, subdevice_group::HasDc>: GroupIo,
     {
-        let (o, _) = self.output.read();
+        let (o, _) = self.feed.output.read();
         group.write(self.pump.md, &o.images[..self.settings.devices.len()]);
     }
 
@@ -936,7 +936,7 @@ impl SegmentRun {
         while !self.stopped() {
             // Sleep until the cycle hands its outputs over, or a whole period passed.
             let due = last + self.settings.period;
-            let (o, fresh) = self.output.read();
+            let (o, fresh) = self.feed.output.read();
             let now = monotonic_now();
             if !fresh && now < due {
                 thread::park_timeout(due.saturating_duration_since(now));
@@ -957,7 +957,7 @@ impl SegmentRun {
                 let _ = self.round_trip.record(ns.max(1));
             }
             exchanges += 1;
-            let mut p = self.published;
+            let mut p = self.feed.published;
             p.exchanges = exchanges;
             match &r {
                 Ok(resp) => {
@@ -983,8 +983,8 @@ impl SegmentRun {
                 }
                 Err(_) => p.states[..n].fill(SubState::Lost),
             }
-            self.published = p;
-            self.input.publish(p);
+            self.feed.published = p;
+            self.feed.input.publish(p);
             // EMCYs: every few cycles, each answering subdevice's input mailbox, after the
             // inputs are out (an emergency goes out with the next cycle's).
             if exchanges >= emcy_next && recovery.is_none() {
@@ -999,7 +999,7 @@ impl SegmentRun {
                         self.pump
                             .run(read_emcy(md, s.address, facts), &mut none, &mut None)?
                     {
-                        let e = &mut self.published.emcy[i];
+                        let e = &mut self.feed.published.emcy[i];
                         *e = (e.0.wrapping_add(1), code);
                         self.say(format!("subdevice {}: emergency {code:04X}h", i + 1));
                     }
