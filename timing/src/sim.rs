@@ -4,10 +4,13 @@
 //! A synthetic machine of N drives ([`synthetic::Spec`], no groups) at the chosen SYNC period
 //! runs in virtual time ([`VirtualRun`]), as `coordinator run --virtual-time` runs it: the
 //! coordinator's cycle, its boot of the drives (which sets every TPDO to transmission type 1,
-//! every SYNC), the demo script homing the axes and then moving them, and the drives'
-//! simulators on the virtual bus. Boot and homing are run first, unmeasured; then every cycle
-//! (the drives up to the SYNC, the coordinator's receive, step and send) is one sample: its
-//! wall time between two `CLOCK_MONOTONIC` readings. The machine time those cycles covered,
+//! every SYNC), the demo script homing the axes, and the drives' simulators on the virtual bus.
+//! Boot and homing are run first, unmeasured. Then every axis moves back and forth between a
+//! quarter and three quarters of its range, as a client would move it ([`Mover`]: a move
+//! through the client's path each time the axis is at a standstill again), since a machine
+//! that stands still costs its simulators less than one that works. Every cycle (the drives
+//! up to the SYNC, the coordinator's receive, step and send) is one sample: its wall time
+//! between two `CLOCK_MONOTONIC` readings; the moves are submitted between the samples. The machine time those cycles covered,
 //! times the drives, over the sum of the samples, is the drive-seconds per wall second.
 //!
 //! A monitor on each bus counts the frames by COB-ID (outside the timed spans), so the summary
@@ -48,6 +51,9 @@ pub struct SimOptions {
     pub period_us: u32,
     /// Wall time per machine, s (the machine's boot and homing come on top).
     pub seconds_per_machine: f64,
+    /// Instead of the wall time: exactly this many cycles per machine (1..=10^9), so that two
+    /// runs do the same work (instruction counts under valgrind compare exactly).
+    pub cycles: Option<u64>,
     /// The drives.
     pub profiles: Vec<Profile>,
 }
@@ -71,6 +77,11 @@ impl SimOptions {
         }
         Allowed::new("seconds", 0.01, 86_400.0)
             .check_flag("--duration", self.seconds_per_machine)?;
+        if let Some(n) = self.cycles
+            && !(1..=1_000_000_000).contains(&n)
+        {
+            return Err(format!("--cycles {n}: measure 1 to 1000000000 cycles"));
+        }
         Ok(())
     }
 }
@@ -118,6 +129,104 @@ impl Counts {
                     *self.tpdo.entry((b, node)).or_default() += 1;
                     *self.by_cob.entry((b, cob)).or_default() += 1;
                 }
+            }
+        }
+    }
+}
+
+/// The moves' speed, percent of each axis's limit: at 100 % the MTR-DCI in its CiA 402 profile
+/// lags its setpoint by a little more than the default following-error limit (the distance of
+/// 106 ms at full speed at 1 ms) on long moves, and faults.
+const MOVE_VELOCITY_PERCENT: u8 = 80;
+
+/// Moves every axis back and forth between a quarter and three quarters of its range, each
+/// move submitted as a client's ([`VirtualRun::submit`]) once the axis stands still again.
+///
+/// Except the MTR-DCIs in their CiA 402 profile: the coordinator moves a CiA 402 axis by
+/// streaming profile-position set-points with "change set immediately", which the MTR-DCI
+/// does not support (seed 000 §7.9): each set-point waits for the last to be reached, the axis
+/// crawls and faults on its following error. Those stand still, and the summary says how many.
+struct Mover {
+    /// Per axis: the next move goes to three quarters (else to a quarter) of the range.
+    up: Vec<bool>,
+    /// Per axis: moved (else left standing).
+    moved: Vec<bool>,
+    /// Per axis: the cycle before which the axis is not looked at (its last move's answer and
+    /// first setpoint take a few cycles).
+    wait_until: Vec<u64>,
+    /// Moves submitted.
+    moves: u64,
+    /// Moves the coordinator refused, with the first refusal's reason.
+    refused: u64,
+    first_refusal: Option<String>,
+    /// Axis-cycles in which the axis moved.
+    moving_axis_cycles: u64,
+    /// The first fault of an axis, by name: the run ends there (a faulted axis takes no moves).
+    fault: Option<String>,
+}
+
+impl Mover {
+    fn new(plan: &coordinator::runtime::plan::MachinePlan) -> Mover {
+        use coordinator::axis::{DeviceKind, Profile};
+        let axes = plan.axes.len();
+        Mover {
+            up: vec![true; axes],
+            moved: plan
+                .axes
+                .iter()
+                .map(|a| {
+                    !(a.setup.kind == DeviceKind::MtrDci && a.setup.profile == Profile::Cia402)
+                })
+                .collect(),
+            wait_until: vec![0; axes],
+            moves: 0,
+            refused: 0,
+            first_refusal: None,
+            moving_axis_cycles: 0,
+            fault: None,
+        }
+    }
+
+    /// Looks at every axis after a cycle and submits the next move of those at a standstill.
+    fn after_cycle(&mut self, run: &mut VirtualRun<'_>) {
+        use coordinator::command::{BufferMode, Command, Reply};
+        let cycle = run.cycles();
+        let plan = run.io.plan();
+        for a in 0..self.up.len() {
+            let Some(st) = run.stepper.cycle.axis_status(a as coordinator::ids::AxisId) else {
+                continue;
+            };
+            if st.fault != coordinator::fault::FaultReason::None && self.fault.is_none() {
+                self.fault = Some(format!(
+                    "axis \"{}\" faulted after {} moves: {}",
+                    plan.axes[a].name, self.moves, st.fault
+                ));
+            }
+            if st.moving {
+                self.moving_axis_cycles += 1;
+                continue;
+            }
+            if cycle < self.wait_until[a] || !st.online || !self.moved[a] {
+                continue;
+            }
+            let max = plan.axes[a].setup.position_max;
+            let position = if self.up[a] { max / 4 * 3 } else { max / 4 };
+            self.up[a] = !self.up[a];
+            self.wait_until[a] = cycle + 5;
+            let cmd = Command::MoveAxis {
+                axis: a as coordinator::ids::AxisId,
+                position,
+                velocity_percent: MOVE_VELOCITY_PERCENT,
+                buffer: BufferMode::Aborting,
+            };
+            if run.submit(cmd).is_some() {
+                self.moves += 1;
+            }
+        }
+        for answer in run.take_answers() {
+            if let Reply::Rejected(why) = answer.reply {
+                self.refused += 1;
+                self.first_refusal.get_or_insert_with(|| why.to_string());
             }
         }
     }
@@ -177,6 +286,8 @@ fn measure(
     let mut s = Series::new(&name);
     let mut wall_ns = 0u64;
     let budget = Duration::from_secs_f64(o.seconds_per_machine);
+    let mut mover = Mover::new(&plan);
+    mover.after_cycle(&mut run);
     let w0 = monotonic_now();
     let mut last_progress = w0;
     loop {
@@ -190,19 +301,41 @@ fn measure(
         );
         wall_ns += ns;
         counts.drain(&mut monitors, true);
+        mover.after_cycle(&mut run);
         text.clear();
         let spent = t1.saturating_duration_since(w0);
+        let done_cycles = run.cycles() - cycles0;
         if t1.saturating_duration_since(last_progress) > Duration::from_millis(100) {
             last_progress = t1;
-            let pct = (spent.as_secs_f64() / budget.as_secs_f64() * 100.0).min(100.0);
+            let share = match o.cycles {
+                Some(n) => done_cycles as f64 / n as f64,
+                None => spent.as_secs_f64() / budget.as_secs_f64(),
+            };
+            let pct = (share * 100.0).min(100.0);
             progress.set(k * 100 + pct as u64);
         }
-        if spent >= budget || run.lp.script.phase() == Phase::Done {
+        if let Some(f) = &mover.fault {
+            return Err(format!("{name}: {f}"));
+        }
+        let enough = match o.cycles {
+            Some(n) => done_cycles >= n,
+            None => spent >= budget,
+        };
+        if enough || run.lp.script.phase() == Phase::Done {
             break;
         }
     }
     let elapsed_wall_s = monotonic_now().saturating_duration_since(w0).as_secs_f64();
     let cycles = run.cycles() - cycles0;
+    if mover.refused > 0 {
+        return Err(format!(
+            "{name}: the coordinator refused {} of {} moves; the first: {}",
+            mover.refused,
+            mover.moves,
+            mover.first_refusal.as_deref().unwrap_or("no reason given")
+        ));
+    }
+    let moving_share = mover.moving_axis_cycles as f64 / (cycles.max(1) * n as u64) as f64;
     let machine_s = (run.elapsed() - machine0).as_secs_f64();
     let wall_s = wall_ns as f64 / 1e9;
     let dsps = n as f64 * machine_s / wall_s.max(1e-12);
@@ -251,6 +384,9 @@ fn measure(
         "syncs_on_buses": syncs,
         "frames_on_buses": counts.frames,
         "frames_per_cycle": counts.frames as f64 / cycles.max(1) as f64,
+        "moves": mover.moves,
+        "axes_moved": mover.moved.iter().filter(|&&m| m).count(),
+        "moving_share": moving_share,
         "tpdo_frames": tpdo_frames,
         "tpdo_senders": counts.tpdo.len(),
         "drive_syncs": drive_syncs,
@@ -271,10 +407,12 @@ pub fn run(o: &SimOptions) -> Result<(Run, Vec<Series>), String> {
     );
     run.set("period_us", o.period_us);
     run.set("seconds_per_machine", o.seconds_per_machine);
+    run.set("cycles_per_machine", o.cycles);
     run.set(
         "machines",
         "coordinator::runtime::synthetic, no groups; booted (TPDOs on every SYNC) and homed \
-         unmeasured, then the demo script's moves",
+         unmeasured, then every axis moving back and forth between a quarter and three \
+         quarters of its range (a move as a client's each time it stands still)",
     );
     let mut list = Vec::new();
     for &p in &o.profiles {
@@ -318,7 +456,7 @@ pub fn run(o: &SimOptions) -> Result<(Run, Vec<Series>), String> {
     }
     for r in &results {
         run.notes.push(format!(
-            "{}: {:.0} drive-seconds per wall second ({:.2} s of machine time in {:.3} s of wall time); {:.1} frames per cycle on the bus, {:.3} TPDO frames per CANopen drive per cycle ({} of {} drives on CAN)",
+            "{}: {:.0} drive-seconds per wall second ({:.2} s of machine time in {:.3} s of wall time); {:.1} frames per cycle on the bus, {:.3} TPDO frames per CANopen drive per cycle ({} of {} drives on CAN); {} of {} axes moved back and forth, in {:.0} % of the axis-cycles ({} moves; an MTR-DCI in its CiA 402 profile stands still: the coordinator's streamed set-points need \"change set immediately\", which it lacks)",
             r["series"].as_str().unwrap_or_default(),
             r["drive_seconds_per_wall_second"].as_f64().unwrap_or(0.0),
             r["machine_s"].as_f64().unwrap_or(0.0),
@@ -327,6 +465,10 @@ pub fn run(o: &SimOptions) -> Result<(Run, Vec<Series>), String> {
             r["tpdos_per_drive_per_cycle"].as_f64().unwrap_or(0.0),
             r["can_drives"],
             r["drives"],
+            r["axes_moved"],
+            r["drives"],
+            r["moving_share"].as_f64().unwrap_or(0.0) * 100.0,
+            r["moves"],
         ));
     }
     run.set("results", results);
@@ -343,6 +485,7 @@ mod tests {
             drives: vec![8, 129],
             period_us: 1000,
             seconds_per_machine: 1.0,
+            cycles: None,
             profiles: vec![Profile::Cia402],
         };
         assert!(o.check().unwrap_err().contains("--drives 129"));
@@ -358,6 +501,12 @@ mod tests {
             ..o.clone()
         };
         assert!(d.check().unwrap_err().contains("--duration"));
+        let c = SimOptions {
+            drives: vec![8],
+            cycles: Some(0),
+            ..o.clone()
+        };
+        assert!(c.check().unwrap_err().contains("--cycles 0"));
         let e = SimOptions {
             drives: vec![],
             ..o

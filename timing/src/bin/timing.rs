@@ -3,7 +3,7 @@
 //!
 //! - `timing cycle [--period-us 1000] [--priority 80] [--cpu N] [--duration S] [--window-s 1]`
 //! - `timing step --axes 8,128 [--profile fhpp|cia402|both] [--grouped|--single]`
-//! - `timing sim [--drives 8] [--period-us 1000] [--duration S] [--profile fhpp|cia402|both]`
+//! - `timing sim [--drives 8] [--period-us 1000] [--duration S | --cycles N] [--profile fhpp|cia402|both]`
 //! - `timing publish [--duration S] [--window-s 0.5]`: the real coordinator's state to a
 //!   client process beside a bare iceoryx2 pair
 //! - `timing loop [--drives vbus|in-process|both] [--duration S | --samples N] [--cycle-us 2000]`
@@ -153,6 +153,10 @@ enum Cmd {
         /// Wall time per machine, s (boot and homing, unmeasured, come on top).
         #[arg(long, default_value_t = 5.0)]
         duration: f64,
+        /// Measure exactly this many cycles per machine instead of --duration's wall time: the
+        /// same work in every run, so that instruction counts (valgrind) compare exactly.
+        #[arg(long)]
+        cycles: Option<u64>,
         /// The drives' profile: FHPP drives, CiA 402 drives, or the four kinds in turn.
         #[arg(long, value_enum, default_value = "cia402")]
         profile: ProfileArg,
@@ -367,6 +371,7 @@ fn main() -> ExitCode {
             drives,
             period_us,
             duration,
+            cycles,
             profile,
             common,
         } => (|| {
@@ -374,6 +379,7 @@ fn main() -> ExitCode {
                 drives,
                 period_us,
                 seconds_per_machine: duration,
+                cycles,
                 profiles: match profile {
                     ProfileArg::Fhpp => vec![Profile::Fhpp],
                     ProfileArg::Cia402 => vec![Profile::Cia402],
@@ -416,6 +422,7 @@ fn main() -> ExitCode {
                 drives: vec![8],
                 period_us: 1000,
                 seconds_per_machine: duration / 10.0,
+                cycles: None,
                 profiles: vec![Profile::Cia402],
             };
             sim.check()?;
