@@ -36,6 +36,7 @@ pub mod cia402;
 pub mod cli_number;
 pub mod ethercat;
 pub mod fhpp;
+pub mod hash_index;
 pub mod modbus;
 pub mod sim;
 pub mod time;

@@ -5,6 +5,7 @@
 //! names (a value out of range, a write in the wrong state).
 
 use super::{AbortCode, Address};
+use crate::hash_index::HashIndex;
 
 /// Read and write access to an object dictionary, by address.
 pub trait ObjectAccess {
@@ -390,16 +391,6 @@ const fn key(a: Address) -> u32 {
     (a.index as u32) << 8 | a.sub as u32
 }
 
-/// An empty cell of the dictionary's hash index.
-const EMPTY: u16 = u16::MAX;
-/// Cells tried from a key's home cell before the binary search takes over.
-const PROBES: usize = 4;
-
-/// The home cell of `k` in an index of `n` cells (a multiplicative hash mapped onto `0..n`).
-fn home_cell(k: u32, n: usize) -> usize {
-    ((u64::from(k.wrapping_mul(0x9E37_79B1)) * n as u64) >> 32) as usize
-}
-
 /// The two's-complement raw form of an integer value, checked against the type's range.
 fn int_to_raw(dt: DataType, v: &Value<'_>) -> Result<u64, AbortCode> {
     let bits = int_bits(dt);
@@ -592,13 +583,16 @@ pub struct ObjectDictionary<'a, const N: usize, const BYTES: usize> {
     defs: heapless::Vec<EntryDef<'a>, N>,
     /// `index << 8 | sub` of each slot, in the same order: a compact array to search.
     keys: heapless::Vec<u32, N>,
-    /// A hash index over `keys`: the position of a key sits in one of the first `PROBES`
-    /// cells from its home cell, or the key is not indexed (then a binary search finds it).
+    /// A hash index over `keys` ([`HashIndex`]): a key it does not hold is found by a binary
+    /// search.
     /// Device code reads and writes dozens of values a cycle by address; a probe or two is
     /// cheaper than a binary search over hundreds of keys.
-    index: [u16; N],
+    index: HashIndex<N>,
     /// Bumped by every change of a stored value.
     generation: u32,
+    /// Bumped by every insert: positions from [`ObjectDictionary::position`] hold while it
+    /// does not change.
+    layout: u32,
     arena: [u8; BYTES],
     used: usize,
 }
@@ -616,8 +610,9 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             slots: heapless::Vec::new(),
             defs: heapless::Vec::new(),
             keys: heapless::Vec::new(),
-            index: [EMPTY; N],
+            index: HashIndex::new(),
             generation: 0,
+            layout: 0,
             arena: [0; BYTES],
             used: 0,
         }
@@ -669,6 +664,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         let _ = self.defs.insert(pos, def);
         self.reindex();
         self.used += size;
+        self.layout = self.layout.wrapping_add(1);
         Ok(())
     }
 
@@ -719,38 +715,13 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     /// Rebuilds the hash index (an insert moves the positions after it).
     fn reindex(&mut self) {
-        self.index = [EMPTY; N];
-        for (pos, &k) in self.keys.iter().enumerate() {
-            // A position that does not fit a cell is left to the binary search.
-            let Ok(pos) = u16::try_from(pos) else { break };
-            if pos == EMPTY {
-                break;
-            }
-            let mut cell = home_cell(k, N);
-            for _ in 0..PROBES {
-                if self.index[cell] == EMPTY {
-                    self.index[cell] = pos;
-                    break;
-                }
-                cell = if cell + 1 == N { 0 } else { cell + 1 };
-            }
-        }
+        self.index.rebuild(self.keys.iter().copied());
     }
 
     fn find(&self, addr: Address) -> Result<usize, AbortCode> {
         let k = key(addr);
-        let mut cell = home_cell(k, N);
-        for _ in 0..PROBES {
-            let Some(&pos) = self.index.get(cell) else {
-                break;
-            };
-            if pos == EMPTY {
-                break;
-            }
-            if self.keys.get(usize::from(pos)) == Some(&k) {
-                return Ok(usize::from(pos));
-            }
-            cell = if cell + 1 == N { 0 } else { cell + 1 };
+        if let Some(pos) = self.index.find(k, |p| self.keys.get(p).copied()) {
+            return Ok(pos);
         }
         match self.keys.binary_search(&k) {
             Ok(i) => Ok(i),
@@ -772,6 +743,22 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// the value looks the address up once. Valid until the next insert.
     pub(crate) fn position(&self, addr: Address) -> Result<usize, AbortCode> {
         self.find(addr)
+    }
+
+    /// A counter bumped by every insert: positions from [`ObjectDictionary::position`] taken
+    /// under one value stay valid while it holds (device code that writes the same objects
+    /// every cycle keeps them).
+    pub(crate) fn layout(&self) -> u32 {
+        self.layout
+    }
+
+    /// [`ObjectDictionary::set_int`] at a position from [`ObjectDictionary::position`].
+    pub(crate) fn set_int_at(&mut self, i: usize, v: i64) -> Result<(), AbortCode> {
+        match self.slots.get(i).map(|s| s.data_type.class()) {
+            Some(TypeClass::Signed | TypeClass::Unsigned) => self.store_int(i, Value::Signed(v)),
+            Some(_) => Err(AbortCode::TypeMismatch),
+            None => Err(AbortCode::NoObject),
+        }
     }
 
     /// The definition at a position from [`ObjectDictionary::position`].

@@ -13,6 +13,7 @@
 use super::fpc::{Channel, ErrorKind, Param, Value};
 use super::{ControlMode, Variant};
 use crate::canopen::Address;
+use crate::hash_index::HashIndex;
 
 /// The data type of a parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -377,6 +378,9 @@ pub struct ParamStore<const N: usize> {
     values: heapless::Vec<i64, N>,
     /// Where each (PNU, sub-index) of the table keeps its value, sorted by PNU and sub-index.
     keys: heapless::Vec<Key, N>,
+    /// A hash index over `keys` ([`HashIndex`]): a key it does not hold is found by a binary
+    /// search.
+    hashed: HashIndex<N>,
     /// The output stage is on: rw2 writes are refused.
     pub stage_on: bool,
     /// The fieldbus holds device control: without it writes are refused ("no control").
@@ -400,6 +404,7 @@ impl<const N: usize> ParamStore<N> {
             table,
             values,
             keys: heapless::Vec::new(),
+            hashed: HashIndex::new(),
             stage_on: false,
             fieldbus_control: true,
         };
@@ -421,6 +426,7 @@ impl<const N: usize> ParamStore<N> {
             }
         }
         store.keys.sort_unstable_by_key(|k| k.key);
+        store.hashed.rebuild(store.keys.iter().map(|k| k.key));
         Ok(store)
     }
 
@@ -430,12 +436,16 @@ impl<const N: usize> ParamStore<N> {
     }
 
     fn index(&self, param: Param) -> Result<(&'static ParamDef, usize), ParamError> {
-        // The simulated drives read and write tens of values every control cycle: a binary
-        // search of the sorted keys instead of two scans of the table. What the keys do not
-        // hold exactly (sub-index 0 of a simple EFPC variable, errors) takes the scans.
-        if let Ok(k) = self
-            .keys
-            .binary_search_by_key(&param_key(param.pnu, param.sub), |k| k.key)
+        // The simulated drives read and write tens of values every control cycle: the hash
+        // index or a binary search of the sorted keys instead of two scans of the table. What
+        // the keys do not hold exactly (sub-index 0 of a simple EFPC variable, errors) takes
+        // the scans.
+        let key = param_key(param.pnu, param.sub);
+        let found = match self.hashed.find(key, |p| self.keys.get(p).map(|k| k.key)) {
+            Some(k) => Ok(k),
+            None => self.keys.binary_search_by_key(&key, |k| k.key),
+        };
+        if let Ok(k) = found
             && let Some(d) = self.table.entry(usize::from(self.keys[k].def))
         {
             return Ok((d, usize::from(self.keys[k].value)));
