@@ -525,3 +525,24 @@ fn two_runs_give_identical_frame_logs() {
     assert!(a.len() > 1_000);
     assert_eq!(a, b);
 }
+
+#[test]
+fn a_tpdo_switched_between_sync_and_event_driven_follows_its_type() {
+    // The device polls its TPDOs for changes only while one is event-driven: switching the
+    // type by SDO must switch the polling too.
+    let mut r = homed();
+    r.sdo_write(Address::new(0x1800, 2), &[1]).unwrap();
+    // A record move changes the image every few milliseconds; with no SYNC on this bus a
+    // synchronous TPDO1 never goes out.
+    r.pnu_write(404, 2, &20_000i32.to_le_bytes()).unwrap();
+    let from = r.log.len();
+    r.rpdo(1, rec(0x03, 0x03, 1));
+    r.run_for(50 * MS);
+    assert!(r.frames(0x183, from).is_empty());
+    // Back to event-driven (255): the changes go out again.
+    r.sdo_write(Address::new(0x1800, 2), &[255]).unwrap();
+    let from = r.log.len();
+    r.rpdo(1, rec(0x03, 0x01, 1));
+    r.run_for(50 * MS);
+    assert!(!r.frames(0x183, from).is_empty());
+}

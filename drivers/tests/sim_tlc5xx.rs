@@ -969,6 +969,30 @@ fn arbitrary_frames_never_panic() {
 }
 
 #[test]
+fn p_max_diff_written_by_sdo_takes_effect_at_once() {
+    // The drive keeps 2010h out of its per-tick lookups: a write must still act on the next tick.
+    let mut rig = Rig::node1();
+    rig.run_for(MS);
+    rig.ok(0x2010, 0, &131_072u32.to_le_bytes());
+    rig.ok(0x6081, 0, &600u32.to_le_bytes());
+    pdo2_async(&mut rig);
+    rig.enable();
+    rig.tlc().inject_block(true);
+    // 600 rpm against a blocked axis for 0.7 s: the following error grows past the default
+    // 16384 inc, and the 131072 written above holds.
+    rig.send(&["301#5F00A0860100", "301#4F00A0860100"], 700 * MS);
+    assert!(rig.tlc().faults().is_empty(), "{:?}", rig.tlc().faults());
+    assert_eq!(rig.tlc().drive_state(), State::OperationEnabled);
+    let peak = rig.tlc().od().get_u32(Address::new(0x2013, 0)).unwrap();
+    assert!(peak > 16_384, "p_DifPeak {peak}");
+    // Back to the default: the next tick faults.
+    rig.ok(0x2010, 0, &16_384u32.to_le_bytes());
+    rig.run_for(5 * MS);
+    assert_eq!(rig.tlc().faults(), &[TlcFault::FollowingError]);
+    assert_eq!(rig.tlc().drive_state(), State::Fault);
+}
+
+#[test]
 fn following_error_of_class_1_only_warns() {
     let mut rig = Rig::node1();
     rig.run_for(MS);

@@ -400,6 +400,10 @@ pub struct Device<'a, const N: usize, const B: usize, const SDO: usize, H: Devic
     config_errors: u32,
     /// The dictionary generation the TPDOs were last packed from.
     packed: Option<u32>,
+    /// Some TPDO is valid and event-driven (254/255): only then does a poll read the
+    /// dictionary's data of now or a TPDO have a deadline. Kept by [`Device::load_pdo`], the
+    /// only place a TPDO's parameters change.
+    event_tpdos: bool,
 }
 
 impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
@@ -430,6 +434,7 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
             lost_events: 0,
             config_errors: 0,
             packed: None,
+            event_tpdos: false,
         };
         d.load_communication(Instant::ZERO);
         d
@@ -450,6 +455,12 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
     /// The dictionary, for the application's own values (actual position, statusword...).
     pub fn od_mut(&mut self) -> &mut ObjectDictionary<'a, N, B> {
         &mut self.od
+    }
+    /// The mapping RPDO `pdo` (1..=4) applies, as its engine was built from 1600h.. (what an
+    /// [`DeviceEvent::RpdoApplied`] wrote, without reading the mapping objects again).
+    pub fn rpdo_mapping(&self, pdo: u8) -> Option<&Mapping> {
+        let k = usize::from(pdo.checked_sub(1)?);
+        self.rpdo.get(k)?.as_ref().map(|r| r.mapping())
     }
     /// The application hooks, read-only (a device's deadline may depend on its application).
     pub fn hooks(&self) -> &H {
@@ -606,6 +617,11 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
                 }
             }
         }
+        self.event_tpdos = self
+            .tpdo
+            .iter()
+            .flatten()
+            .any(|t| t.comm().cob_id.valid && t.comm().transmission.is_event_driven());
     }
 }
 
@@ -720,8 +736,10 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
         self.push_event(DeviceEvent::Reset(kind));
     }
 
-    /// Packs every TPDO's data from the dictionary (before a SYNC samples it or an event fires),
-    /// unless no value changed since the last time.
+    /// Packs the data of every TPDO that can send (valid COB-ID) from the dictionary (before a
+    /// SYNC samples it, an RTR asks for it or an event fires), unless no value changed since
+    /// the last time. An invalid TPDO samples and sends nothing; making it valid rebuilds it
+    /// ([`Device::load_pdo`]), which packs again.
     fn refresh_tpdos(&mut self) {
         let generation = self.od.generation();
         if self.packed == Some(generation) {
@@ -729,6 +747,9 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
         }
         self.packed = Some(generation);
         for t in self.tpdo.iter_mut().flatten() {
+            if !t.comm().cob_id.valid {
+                continue;
+            }
             let mut buf = [0u8; 8];
             if let Ok(n) = t.mapping().pack_from_od(&self.od, &mut buf) {
                 t.set_data(&buf[..n]);
@@ -894,10 +915,13 @@ impl<const N: usize, const B: usize, const SDO: usize, H: DeviceHooks> Endpoint
                 }
             }
             self.drain_rpdo_events();
-            self.refresh_tpdos();
-            for t in self.tpdo.iter_mut().flatten() {
-                if t.handle_frame(frame, now) {
-                    break;
+            // Only a remote frame can ask a TPDO for its current data.
+            if frame.is_remote() {
+                self.refresh_tpdos();
+                for t in self.tpdo.iter_mut().flatten() {
+                    if t.handle_frame(frame, now) {
+                        break;
+                    }
                 }
             }
         }
@@ -930,7 +954,11 @@ impl<const N: usize, const B: usize, const SDO: usize, H: DeviceHooks> Endpoint
             return Some(f);
         }
         if state == NmtState::Operational {
-            self.refresh_tpdos();
+            // What SYNCs and RTRs queued was packed then; only an event-driven TPDO sends the
+            // dictionary's data of now.
+            if self.event_tpdos {
+                self.refresh_tpdos();
+            }
             for t in self.tpdo.iter_mut().flatten() {
                 if let Some(f) = t.poll_transmit(now) {
                     return Some(f);
@@ -950,7 +978,8 @@ impl<const N: usize, const B: usize, const SDO: usize, H: DeviceHooks> Endpoint
         let mut t = min(self.sdo.poll_timeout(), self.heartbeat.poll_timeout());
         t = min(t, self.guarding.poll_timeout());
         t = min(t, self.emcy.poll_timeout());
-        if self.nmt.state() == NmtState::Operational {
+        // Only an event-driven TPDO has a deadline of its own.
+        if self.event_tpdos && self.nmt.state() == NmtState::Operational {
             for p in self.tpdo.iter().flatten() {
                 t = min(t, p.poll_timeout());
             }

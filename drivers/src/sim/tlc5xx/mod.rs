@@ -414,8 +414,40 @@ pub struct Tlc5xx {
     next_tick: Instant,
     /// The values `publish` last wrote, in its order (`None`: write it next time).
     published: [Option<i64>; PUBLISHED],
+    /// Where `publish`'s objects sit in the dictionary, and the layout they were found under
+    /// (found again after an insert).
+    publish_at: Option<(u32, [Option<u16>; PUBLISHED])>,
     /// 6093h/6094h/6097h as last read (they change only by SDO or RPDO writes and resets).
     scaling: Scaling,
+    /// The settings a tick and every frame read, as last read (the same way).
+    settings: Settings,
+}
+
+/// Objects the drive reads every tick or every frame, kept out of the dictionary's lookups:
+/// they change only by SDO or RPDO writes ([`Tlc5xx::written`]) and resets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Settings {
+    /// 2010h p_maxDiff: the following-error limit, increments.
+    max_diff: u32,
+    /// 2011h p_winDiff: the position window, increments.
+    p_win: u64,
+    /// 6068h position window time.
+    win_time: Duration,
+    /// 1005h's COB-ID of the SYNC.
+    sync_cob: u16,
+    /// 1007h the synchronous window, µs (0: none).
+    sync_window_us: u32,
+}
+
+impl Settings {
+    /// The objects whose writes change the settings.
+    const OBJECTS: [(u16, u8); 5] = [
+        (0x2010, 0),
+        (0x2011, 0),
+        (0x6068, 0),
+        (0x1005, 0),
+        (0x1007, 0),
+    ];
 }
 
 impl Tlc5xx {
@@ -489,14 +521,23 @@ impl Tlc5xx {
             late: [None; 4],
             next_tick: now + cfg.tick,
             published: [None; PUBLISHED],
+            publish_at: None,
             scaling: Scaling {
                 increments_per_rev: 1,
                 position: (1, 1),
                 velocity: (1, 1),
                 acceleration: (1, 1),
             },
+            settings: Settings {
+                max_diff: 0,
+                p_win: 0,
+                win_time: Duration::ZERO,
+                sync_cob: 0x080,
+                sync_window_us: 0,
+            },
         };
         t.scaling = t.compute_scaling();
+        t.settings = t.read_settings();
         let p = t.actual_usr();
         t.pp.reset(p);
         t.publish();
@@ -552,6 +593,18 @@ impl Tlc5xx {
     /// The current user-unit scaling.
     pub fn scaling(&self) -> Scaling {
         self.scaling
+    }
+
+    /// Reads [`Settings`] from the dictionary (at the start, after a write to one of its
+    /// objects or a reset).
+    fn read_settings(&self) -> Settings {
+        Settings {
+            max_diff: self.od_u32(0x2010, 0),
+            p_win: u64::from(self.od_u16(0x2011, 0)),
+            win_time: Duration::from_millis(u64::from(self.od_u16(0x6068, 0))),
+            sync_cob: (self.od_u32(0x1005, 0) & 0x7FF) as u16,
+            sync_window_us: self.od_u32(0x1007, 0),
+        }
     }
 
     /// Reads the scaling objects again (after a write to 6093h/6094h/6097h or a reset).
@@ -1107,6 +1160,12 @@ impl Tlc5xx {
         {
             self.scaling = self.compute_scaling();
         }
+        if addrs
+            .iter()
+            .any(|x| Settings::OBJECTS.contains(&(x.index, x.sub)))
+        {
+            self.settings = self.read_settings();
+        }
         let has = |i: u16, s: u8| addrs.contains(&a(i, s));
         if has(0x6060, 0) {
             let code = self.dev.od().get_i8(a(0x6060, 0)).unwrap_or(1);
@@ -1188,12 +1247,9 @@ impl Tlc5xx {
             match e {
                 DeviceEvent::SdoWritten { addr } => self.written(&[addr]),
                 DeviceEvent::RpdoApplied { pdo } => {
-                    let map = 0x15FF + pdo as u16;
-                    let n = self.dev.od().get_u8(a(map, 0)).unwrap_or(0).min(8);
                     let mut addrs = heapless::Vec::<Address, 8>::new();
-                    for s in 1..=n {
-                        let raw = self.od_u32(map, s);
-                        let _ = addrs.push(a((raw >> 16) as u16, (raw >> 8) as u8));
+                    for e in self.dev.rpdo_mapping(pdo).map_or(&[][..], |m| m.entries()) {
+                        let _ = addrs.push(e.addr);
                     }
                     self.written(&addrs);
                 }
@@ -1201,6 +1257,7 @@ impl Tlc5xx {
                     // The dictionary holds its defaults again: publish everything anew.
                     self.published = [None; PUBLISHED];
                     self.scaling = self.compute_scaling();
+                    self.settings = self.read_settings();
                     self.last_sync = None;
                     self.late = [None; 4];
                     if kind == ResetKind::Node {
@@ -1259,8 +1316,7 @@ impl Tlc5xx {
         }
         let dif = st.following_error.unsigned_abs().min(u32::MAX as u64) as u32;
         self.dif_peak = self.dif_peak.max(dif);
-        let max_diff = self.od_u32(0x2010, 0);
-        if self.axis.is_enabled() && self.homing.is_none() && dif > max_diff {
+        if self.axis.is_enabled() && self.homing.is_none() && dif > self.settings.max_diff {
             self.raise_fault(TlcFault::FollowingError);
         }
         // Fault reaction: once stopped (or unpowered), the power stage goes off: Tr.14.
@@ -1279,8 +1335,9 @@ impl Tlc5xx {
                 s => self.homing_finished(s),
             }
         }
-        let p_win = self.od_u16(0x2011, 0) as u64;
-        let win_time = Duration::from_millis(self.od_u16(0x6068, 0) as u64);
+        let Settings {
+            p_win, win_time, ..
+        } = self.settings;
         if let Some(m) = self.pp.active()
             && !self.halted
             && st.generator_done
@@ -1413,9 +1470,26 @@ impl Tlc5xx {
         // Most of these change rarely: write only what differs from the last publish (a tick
         // would otherwise cost two dozen dictionary writes per drive).
         let od = self.dev.od_mut();
-        for (k, &(i, sub, v)) in values.iter().enumerate() {
+        let layout = od.layout();
+        let at = match self.publish_at {
+            Some((l, at)) if l == layout => at,
+            _ => {
+                let mut at = [None; PUBLISHED];
+                for (slot, &(i, sub, _)) in at.iter_mut().zip(&values) {
+                    *slot = od
+                        .position(a(i, sub))
+                        .ok()
+                        .and_then(|p| u16::try_from(p).ok());
+                }
+                self.publish_at = Some((layout, at));
+                at
+            }
+        };
+        for (k, &(_, _, v)) in values.iter().enumerate() {
             if self.published[k] != Some(v) {
-                let _ = od.set_int(a(i, sub), v);
+                if let Some(p) = at[k] {
+                    let _ = od.set_int_at(usize::from(p), v);
+                }
                 self.published[k] = Some(v);
             }
         }
@@ -1424,7 +1498,7 @@ impl Tlc5xx {
     // ---- the 1007h window ----------------------------------------------------------------
 
     fn sync_cob(&self) -> u16 {
-        (self.od_u32(0x1005, 0) & 0x7FF) as u16
+        self.settings.sync_cob
     }
 
     /// The synchronous RPDO `frame` is for, if it arrives after the 1007h window.
@@ -1432,7 +1506,7 @@ impl Tlc5xx {
         if self.dev.state() != NmtState::Operational || frame.is_remote() {
             return None;
         }
-        let window = self.od_u32(0x1007, 0);
+        let window = self.settings.sync_window_us;
         let last = self.last_sync?;
         if window == 0
             || now.saturating_duration_since(last) <= Duration::from_micros(window as u64)
