@@ -711,6 +711,12 @@ impl FestoNode {
 
     /// After an NMT reset the dictionary holds its defaults again: the images are re-mirrored.
     /// Reset node also restarts the application (E8): the drive powers on again, unreferenced.
+    ///
+    /// Never inlined: the new drive is built on the stack (tens of kilobytes), and inlined into
+    /// `drain_device_events` that frame was reserved, page by page, on every frame the node
+    /// handled.
+    #[cold]
+    #[inline(never)]
     fn after_reset(&mut self, kind: ResetKind, now: Instant) {
         if kind == ResetKind::Node {
             let app = self.dev.hooks_mut();
