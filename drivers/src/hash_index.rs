@@ -91,7 +91,20 @@ mod tests {
     #[test]
     fn finds_every_indexed_key_and_nothing_else() {
         // Keys that collide on purpose (a small table) and keys spread out.
-        let keys: [u32; 12] = [1, 2, 3, 5, 8, 13, 0x6041_00, 0x6064_00, 0x1A00_01, 7, 9, 11];
+        let keys: [u32; 12] = [
+            1,
+            2,
+            3,
+            5,
+            8,
+            13,
+            0x0060_4100,
+            0x0060_6400,
+            0x001A_0001,
+            7,
+            9,
+            11,
+        ];
         let mut sorted = keys;
         sorted.sort_unstable();
         let mut idx = HashIndex::<16>::default();
@@ -100,16 +113,13 @@ mod tests {
         let mut found = 0;
         for (pos, &k) in sorted.iter().enumerate() {
             // Found at its own position, or not indexed: never at another position.
-            match idx.find(k, at) {
-                Some(p) => {
-                    assert_eq!(p, pos);
-                    found += 1;
-                }
-                None => {}
+            if let Some(p) = idx.find(k, at) {
+                assert_eq!(p, pos);
+                found += 1;
             }
         }
         assert!(found >= 10, "most keys fit their cells: {found}");
-        for absent in [0u32, 4, 6, 100, 0x6040_00] {
+        for absent in [0u32, 4, 6, 100, 0x0060_4000] {
             assert_eq!(idx.find(absent, at), None);
         }
         // An empty index finds nothing.
