@@ -478,8 +478,6 @@ impl Core {
     }
 }
 
-/// Queues a received frame, or counts it dropped when the queue is at its configured limit
-/// (`VecDeque::with_capacity` may round up, so the limit is checked, not the capacity).
 /// The front of a queue; a queue left empty starts again at the front of its buffer. The
 /// receive queues hold thousands of frames and mostly one or two at a time: without the reset
 /// each frame would land in the next slot of the ring, a cache line not touched since the last
@@ -493,6 +491,8 @@ fn take_front<T>(q: &mut VecDeque<T>) -> Option<T> {
     f
 }
 
+/// Queues a received frame, or counts it dropped when the queue is at its configured limit
+/// (`VecDeque::with_capacity` may round up, so the limit is checked, not the capacity).
 fn push_rx(p: &mut PortSlot, frame: Frame, cap: usize) {
     if p.rx.len() < cap {
         p.rx.push_back(frame);
