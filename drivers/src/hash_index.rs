@@ -5,9 +5,9 @@
 //! walks and the error codes of a miss) and look them up by key many times per simulated
 //! control cycle. The index is an open-addressing table of positions: each key has a home cell
 //! (a multiplicative hash), and collisions take the next cells, at most [`PROBES`] of them. A
-//! key that found no free cell among those is simply not indexed: [`HashIndex::find`] answers
-//! `None` and the caller falls back to its binary search, so the index only ever speeds a
-//! lookup up and never decides one.
+//! key that found no free cell among those is simply not indexed: [`HashIndex::search`] then
+//! answers by a binary search of the sorted array, so the index only ever speeds a lookup up
+//! and never decides one.
 
 /// Cells tried from a key's home cell.
 pub const PROBES: usize = 4;
@@ -59,6 +59,16 @@ impl<const N: usize> HashIndex<N> {
                 }
                 cell = if cell + 1 == N { 0 } else { cell + 1 };
             }
+        }
+    }
+
+    /// The position of `k` in `items`, sorted by `key`, as `binary_search_by_key` answers it
+    /// (`Err`: where `k` would go): from the index when it holds `k`, else by that search.
+    #[inline]
+    pub fn search<T>(&self, k: u32, items: &[T], key: impl Fn(&T) -> u32) -> Result<usize, usize> {
+        match self.find(k, |p| items.get(p).map(&key)) {
+            Some(p) => Ok(p),
+            None => items.binary_search_by_key(&k, key),
         }
     }
 
@@ -121,6 +131,10 @@ mod tests {
         assert!(found >= 10, "most keys fit their cells: {found}");
         for absent in [0u32, 4, 6, 100, 0x0060_4000] {
             assert_eq!(idx.find(absent, at), None);
+        }
+        // `search` answers as the binary search does, hit or miss.
+        for k in [0u32, 1, 4, 13, 0x0060_4100, 0x0070_0000] {
+            assert_eq!(idx.search(k, &sorted, |&k| k), sorted.binary_search(&k));
         }
         // An empty index finds nothing.
         let empty = HashIndex::<0>::default();

@@ -719,11 +719,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     }
 
     fn find(&self, addr: Address) -> Result<usize, AbortCode> {
-        let k = key(addr);
-        if let Some(pos) = self.index.find(k, |p| self.keys.get(p).copied()) {
-            return Ok(pos);
-        }
-        match self.keys.binary_search(&k) {
+        match self.index.search(key(addr), &self.keys, |&k| k) {
             Ok(i) => Ok(i),
             Err(p) => {
                 // A neighbour with the same index means the object exists but not the sub.
@@ -934,10 +930,7 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// many values of different types.
     pub fn set_int(&mut self, addr: Address, v: i64) -> Result<(), AbortCode> {
         let i = self.find(addr)?;
-        match self.slots[i].data_type.class() {
-            TypeClass::Signed | TypeClass::Unsigned => self.store_int(i, Value::Signed(v)),
-            _ => Err(AbortCode::TypeMismatch),
-        }
+        self.set_int_at(i, v)
     }
 
     fn set_unsigned(&mut self, addr: Address, v: u64, max_bits: u32) -> Result<(), AbortCode> {

@@ -441,11 +441,7 @@ impl<const N: usize> ParamStore<N> {
         // the keys do not hold exactly (sub-index 0 of a simple EFPC variable, errors) takes
         // the scans.
         let key = param_key(param.pnu, param.sub);
-        let found = match self.hashed.find(key, |p| self.keys.get(p).map(|k| k.key)) {
-            Some(k) => Ok(k),
-            None => self.keys.binary_search_by_key(&key, |k| k.key),
-        };
-        if let Ok(k) = found
+        if let Ok(k) = self.hashed.search(key, &self.keys, |k| k.key)
             && let Some(d) = self.table.entry(usize::from(self.keys[k].def))
         {
             return Ok((d, usize::from(self.keys[k].value)));

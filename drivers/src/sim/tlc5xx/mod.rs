@@ -425,7 +425,7 @@ pub struct Tlc5xx {
 
 /// Objects the drive reads every tick or every frame, kept out of the dictionary's lookups:
 /// they change only by SDO or RPDO writes ([`Tlc5xx::written`]) and resets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 struct Settings {
     /// 2010h p_maxDiff: the following-error limit, increments.
     max_diff: u32,
@@ -528,13 +528,8 @@ impl Tlc5xx {
                 velocity: (1, 1),
                 acceleration: (1, 1),
             },
-            settings: Settings {
-                max_diff: 0,
-                p_win: 0,
-                win_time: Duration::ZERO,
-                sync_cob: 0x080,
-                sync_window_us: 0,
-            },
+            // Read below, once the dictionary is there.
+            settings: Settings::default(),
         };
         t.scaling = t.compute_scaling();
         t.settings = t.read_settings();
