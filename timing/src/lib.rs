@@ -13,7 +13,8 @@
 //!   state the client sees, stage by stage, with drive-sim processes and in-process drives;
 //! - the framework: [`stats`] (a histogram and timeline per series, the table's figures),
 //!   [`report`] (table, `summary.json`, histogram files, plots, reading a folder back),
-//!   [`machine`] (CPU, kernel, preemption, load, real-time settings granted), [`progress`]
+//!   [`machine`] (CPU, kernel, preemption, load, real-time settings granted), [`busy`] (other
+//!   processes busy on the CPUs when a run starts), [`progress`]
 //!   (a bar on a terminal, lines otherwise), [`load`] (`--load`), [`session`] (one invocation,
 //!   its folder), [`binaries`] (the coordinator's binaries beside `timing`), [`child`] (a
 //!   started process: its output kept, its stop).
@@ -37,6 +38,7 @@
 //! ```
 
 pub mod binaries;
+pub mod busy;
 pub mod child;
 pub mod cycle;
 pub mod cyclictest;

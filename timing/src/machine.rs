@@ -6,6 +6,8 @@ use serde::{Deserialize, Serialize};
 
 use coordinator::runtime::realtime_thread::RealtimeReport;
 
+use crate::busy::{self, BusyProcess};
+
 /// What the machine is.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Machine {
@@ -23,6 +25,10 @@ pub struct Machine {
     pub load_before: [f64; 3],
     /// Load average when the run ended.
     pub load_after: [f64; 3],
+    /// Other processes that used at least [`crate::busy::THRESHOLD_PERCENT`] of a CPU just
+    /// before the run (empty in folders written before this was kept).
+    #[serde(default)]
+    pub busy_before: Vec<BusyProcess>,
 }
 
 impl Machine {
@@ -39,6 +45,11 @@ impl Machine {
             kernel_version,
             load_before: load,
             load_after: load,
+            busy_before: busy::busy_processes(
+                busy::WINDOW,
+                busy::THRESHOLD_PERCENT,
+                busy::MAX_NAMED,
+            ),
         }
     }
 
@@ -47,10 +58,14 @@ impl Machine {
         self.load_after = load_average();
     }
 
-    /// Two lines for a reader: CPU and kernel; load.
+    /// Two lines for a reader: CPU and kernel; load (and a third naming the processes that
+    /// were busy before the run, if any were).
     pub fn describe(&self) -> String {
+        let busy = busy::describe(&self.busy_before)
+            .map(|b| format!("\n{b}"))
+            .unwrap_or_default();
         format!(
-            "machine: {} ({} CPUs), kernel {} ({}), preemption {}\nload average: {:.2} {:.2} {:.2} at the start, {:.2} {:.2} {:.2} at the end",
+            "machine: {} ({} CPUs), kernel {} ({}), preemption {}\nload average: {:.2} {:.2} {:.2} at the start, {:.2} {:.2} {:.2} at the end{busy}",
             self.cpu,
             self.cpus,
             self.kernel,

@@ -28,6 +28,10 @@ impl Session {
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs());
         let machine = Machine::read();
+        // Said now as well as in the table, so that the run can be stopped and started again.
+        if let Some(b) = crate::busy::describe(&machine.busy_before) {
+            eprintln!("note: {b}");
+        }
         let load = with_load.then(Load::start);
         Session {
             report: Report {
