@@ -600,6 +600,17 @@ pub fn axis_pdos_in(
     // PDO2 (the FPC), equally long both ways.
     rpdos.extend(both.iter().skip(1).copied());
     tpdos.extend(both.iter().skip(1).copied());
+    // A move's profile on RPDO2 (at most one a cycle: counted as if every cycle had one).
+    if crate::axis::takes_one_set_point_per_move(device.axis_kind(), profile.into(), mode)
+        && let Some(m) = device
+            .axis_kind()
+            .device()
+            .profile(profile.into())
+            .and_then(|f| f.profile_rpdo2)
+    {
+        let bytes: u32 = m.iter().map(|e| (e & 0xFF) / 8).sum();
+        rpdos.push(Pdo::every_sync(bytes as u8));
+    }
     (rpdos, tpdos)
 }
 

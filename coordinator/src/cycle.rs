@@ -33,7 +33,8 @@ use crate::admission::{
     self, Admit, AxisActivity, AxisVerb, BufferMode, GroupActivity, GroupVerb, Refusal,
 };
 use crate::axis::{
-    AxisError, AxisState, CyclicMode, Demand, DeviceKind, DriveAxis, Feedback, Image, Profile,
+    AxisError, AxisState, CyclicMode, Demand, DeviceKind, DriveAxis, Feedback, Image, PointMove,
+    Profile, takes_one_set_point_per_move,
 };
 use crate::command::{AxisId, Command, GroupId, Rejected, Reply, Target};
 use crate::event::Event;
@@ -1263,6 +1264,26 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     Target::Axis(_) => (0, 0),
                     t => self.groups_of(t)?,
                 };
+                // Such a drive runs the move on its own generator at the speed it was sent:
+                // a path running faster or slower would leave it behind or ahead.
+                let groups_moving = self.groups[g0..g1].iter().filter(|g| g.motion.is_some());
+                let members =
+                    groups_moving.flat_map(|g| g.setup.axes.iter().map(|&m| usize::from(m)));
+                let solos = self
+                    .target_axes(target)?
+                    .into_iter()
+                    .map(usize::from)
+                    .filter(|&i| self.solos.is_some(i));
+                if members
+                    .chain(solos)
+                    .any(|i| one_set_point_per_move(&self.cold[i].setup))
+                {
+                    return Err(Rejected::WrongState(
+                        "a running move of an axis whose drive takes one set-point per move \
+                         (MTR-DCI in CiA 402) keeps its speed: change the override before the \
+                         move, or halt it",
+                    ));
+                }
                 for g in &mut self.groups[g0..g1] {
                     g.override_percent = percent;
                     if let Some(m) = &mut g.motion {
@@ -1425,11 +1446,22 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             start[i] = 0;
             end[i] = 0;
         }
+        // A member that takes one set-point per move runs a trapezoid (see `solo_shape`).
+        let shape = if g
+            .setup
+            .axes
+            .iter()
+            .any(|&m| one_set_point_per_move(&self.cold[usize::from(m)].setup))
+        {
+            Shape::Trapezoid
+        } else {
+            g.setup.shape
+        };
         let mut m = PathMove::plan(
             start,
             PathTarget::Absolute(end),
             &limits,
-            g.setup.shape,
+            shape,
             self.setup.cycle_ns,
         )
         .map_err(|_| Rejected::Plan)?;
@@ -1933,6 +1965,20 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     self.solos.set(i, solo);
                 }
             }
+            if a.drive.one_set_point_per_move() {
+                let point = match (self.solos.get(i), a.group) {
+                    (Some(s), _) => Some(point_move(&s.motion, 0)),
+                    (None, Some(g)) => {
+                        let g = &self.groups[usize::from(g)];
+                        g.motion.as_ref().and_then(|m| {
+                            let k = g.setup.axes.iter().position(|&x| usize::from(x) == i)?;
+                            Some(point_move(m, k))
+                        })
+                    }
+                    (None, None) => None,
+                };
+                a.drive.set_move(point);
+            }
             // A velocity or force record stands while its group is held or stopping.
             let group_halted = a
                 .group
@@ -2070,12 +2116,19 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 }
             }
         }
-        // The parameter channels after every RPDO1: the motion images come first.
+        // The parameter channels after every RPDO1: the motion images come first. RPDO2 is
+        // also where a drive that takes one set-point per move gets the move's profile (never
+        // both: such a drive has no parameter channel).
         for a in &self.axes {
-            if let (true, Some(client), Transport::Can { bus, node: n }) =
-                (a.online, &a.fpc, a.transport)
-                && let Some(id) = node(n)
-                && let Ok(f) = Frame::new_std(FunctionCode::Rpdo(2).cob_id(id), &client.output())
+            let Transport::Can { bus, node: n } = a.transport else {
+                continue;
+            };
+            let rpdo2 = match &a.fpc {
+                Some(client) => Some(client.output()),
+                None => a.drive.profile_pdo(),
+            };
+            if let (true, Some(bytes), Some(id)) = (a.online, rpdo2, node(n))
+                && let Ok(f) = Frame::new_std(FunctionCode::Rpdo(2).cob_id(id), &bytes)
             {
                 out.push(bus, f);
             }
@@ -2148,6 +2201,36 @@ fn jog_velocity(l: &AxisLimits, permille: i16) -> i64 {
 /// Plans a single-axis motion from `from`: a move at its share of the limits, or a jog to the
 /// software limit in its direction at its speed with the full acceleration (so it stops
 /// exactly at the limit at the latest, and a release ramps down within the limits).
+/// A single axis's moves are jerk-limited, except on a drive that takes one set-point per move:
+/// it runs each on its own trapezoidal generator (the MTR-DCI: 6086h linear only, seed 000
+/// §7.8), and the path, which supervision compares it with, is planned the same way.
+fn solo_shape(setup: &AxisSetup) -> Shape {
+    if one_set_point_per_move(setup) {
+        Shape::Trapezoid
+    } else {
+        Shape::SCurve
+    }
+}
+
+/// Whether the axis's drive takes one set-point per move (see [`takes_one_set_point_per_move`]).
+fn one_set_point_per_move(setup: &AxisSetup) -> bool {
+    takes_one_set_point_per_move(setup.kind, setup.profile, setup.mode)
+}
+
+/// The move a drive that takes one set-point per move runs for member `k` of `m`.
+fn point_move<const N: usize>(m: &PathMove<N>, k: usize) -> PointMove {
+    let (velocity, acceleration) = m.axis_limits(k);
+    PointMove {
+        end: m.target().get(k).copied().unwrap_or_default(),
+        velocity: velocity.min(u64::from(u32::MAX)) as u32,
+        acceleration: acceleration.min(u64::from(u32::MAX)) as u32,
+        halt: matches!(
+            m.state(),
+            MoveState::Holding | MoveState::QuickStopping | MoveState::Stopped
+        ),
+    }
+}
+
 fn plan_solo(
     setup: &AxisSetup,
     from: i64,
@@ -2180,7 +2263,7 @@ fn plan_solo(
         [from],
         PathTarget::Absolute([target]),
         &[limits],
-        Shape::SCurve,
+        solo_shape(setup),
         cycle_ns,
     )
     .map_err(|_| Rejected::Plan)?;

@@ -713,6 +713,29 @@ impl<const N: usize> PathMove<N> {
         self.limits
     }
 
+    /// Axis `i`'s share of the planned limits at the override aimed at: its speed limit, inc/s,
+    /// and acceleration, inc/s² (truncated): the trapezoid a drive with its own profile
+    /// generator runs to follow this path, where the path is a trapezoid. 0 for an axis that
+    /// does not move.
+    pub fn axis_limits(&self, i: usize) -> (u64, u64) {
+        let d = self.delta.get(i).copied().unwrap_or(0);
+        let rate = |x: u128, power: u32| {
+            PathRate::from_int(x)
+                .per_second(d, self.cycle_ns, power)
+                .unsigned_abs()
+        };
+        let (v, a) = (
+            rate(self.limits.velocity, 1),
+            rate(self.limits.acceleration, 2),
+        );
+        // The override scales velocity by r and acceleration by r² (time scaling).
+        let r = self.rate_target.raw().max(0) as u128;
+        let one = Time::ONE.raw() as u128;
+        let v = (u128::from(v) * r / one).min(u128::from(u64::MAX)) as u64;
+        let a = (u128::from(a) * r * r / (one * one)).min(u128::from(u64::MAX)) as u64;
+        (v, a)
+    }
+
     /// The arrival cycle of the plan (without override or hold): the first cycle whose sample
     /// is exactly the target.
     pub fn duration_cycles(&self) -> u64 {

@@ -4,7 +4,9 @@
 
 use core::time::Duration;
 
-use coordinator::axis::{AxisState, Demand, DeviceKind, DriveAxis, Feedback, Image, Profile};
+use coordinator::axis::{
+    AxisState, Demand, DeviceKind, DriveAxis, Feedback, Image, PointMove, Profile,
+};
 use coordinator::profile::{AxisLimits, Trapezoid};
 use drivers::fhpp::Variant;
 use drivers::fhpp::pnu::record_subindex;
@@ -283,6 +285,8 @@ struct CoRig<E: Endpoint> {
     missing: u32,
     /// Controlword bit 4 rising edges sent (new set-points, homing starts).
     set_points: u64,
+    /// RPDO2 frames sent (a move's profile, for a drive that takes one set-point per move).
+    profiles: u64,
 }
 
 impl<E: Endpoint> CoRig<E> {
@@ -298,6 +302,7 @@ impl<E: Endpoint> CoRig<E> {
             fb: Feedback::default(),
             missing: 0,
             set_points: 0,
+            profiles: 0,
         }
     }
 
@@ -389,9 +394,15 @@ impl<E: Endpoint> CoRig<E> {
         if was == 0 && self.out.data[0] & 0x10 != 0 {
             self.set_points += 1;
         }
+        let at = self.t + Duration::from_micros(300);
+        if let Some(p) = self.axis.profile_pdo() {
+            // Event-driven RPDO2: applied as it arrives, before the next SYNC applies RPDO1.
+            let rx2 = FunctionCode::Rpdo(2).cob_id(self.node);
+            self.dev.handle_frame(&Frame::std8(rx2, p), at);
+            self.profiles += 1;
+        }
         let rx = FunctionCode::Rpdo(1).cob_id(self.node);
         let rpdo = Frame::new_std(rx, self.out.bytes()).unwrap();
-        let at = self.t + Duration::from_micros(300);
         self.dev.handle_frame(&rpdo, at);
         self.fb
     }
@@ -538,22 +549,34 @@ fn cia402_mtr_dci_static_pdo1_enable_home_follow() {
     let fb = r.done(Demand::Home, 30_000);
     assert!(fb.homed && !fb.failed, "{fb:?}");
     assert_eq!(fb.status & 0x8000, 0x8000);
-    // The MTR-DCI queues set-points (no change set immediately): the stream still arrives.
+    // The MTR-DCI queues set-points (no change set immediately): the axis sends the move's end
+    // once, with its profile on RPDO2, and the drive's generator follows the path closely.
+    assert!(r.axis.one_set_point_per_move());
     let from = fb.position;
     let target = from + 20_000;
     let limits = AxisLimits::new(30_000, 200_000, 0);
     let ramp = Trapezoid::plan(from, target, limits, r.cycle.as_nanos() as u32).unwrap();
-    r.stream(&ramp, ramp.duration_cycles(), |d| {
+    r.axis.set_move(Some(PointMove {
+        end: target,
+        velocity: 30_000,
+        acceleration: 200_000,
+        halt: false,
+    }));
+    let (edges, profiles) = (r.set_points, r.profiles);
+    let worst = r.stream(&ramp, ramp.duration_cycles(), |d| {
         d.drive().axis().status().position
     });
+    // Two cycles of transport at 30 000 inc/s, and the drive's loop.
+    assert!(worst <= 2_000, "{worst} inc behind the path");
     let fb = r.until(
         Demand::Follow {
             position: target,
             velocity: 0,
         },
-        5_000,
+        200,
         |f| f.motion_complete,
     );
-    assert!((fb.position - target).abs() <= 750, "{fb:?}");
+    assert!((fb.position - target).abs() <= 2, "{fb:?}");
+    assert_eq!((r.set_points - edges, r.profiles - profiles), (1, 1));
     assert_eq!(r.missing, 0);
 }

@@ -102,6 +102,10 @@ pub struct ProfileFacts {
     pub pdo1_static: bool,
     /// The Festo parameter channel (FPC/EFPC) on PDO2, static, where this profile has it.
     pub fpc_pdo2: Option<PdoPair>,
+    /// An RPDO2 carrying a move's profile (6081h velocity, 6083h acceleration), static, where
+    /// this profile has one: the coordinator sends it with each set-point of a drive that takes
+    /// one set-point per move.
+    pub profile_rpdo2: Option<&'static [u32]>,
 }
 
 /// A device's own table of positioning records.
@@ -410,6 +414,9 @@ pub const FPC_TPDO2: &[u32] = &[0x3030_0008, 0x3031_0008, 0x3032_0010, 0x3033_00
 /// The MTR-DCI's static CiA 402 RPDO1: controlword, record number 2032h:01, modes of operation,
 /// target position (seed-000 §7.4).
 pub const MTR_DCI_402_RPDO1: &[u32] = &[0x6040_0010, 0x2032_0108, 0x6060_0008, 0x607A_0020];
+/// MTR-DCI CiA 402 RPDO2 (static, §7.4): 6081h profile velocity, 6083h profile acceleration,
+/// taken over at the next set-point edge when 2032h = 0 ("direct set").
+pub const MTR_DCI_402_RPDO2: &[u32] = &[0x6081_0020, 0x6083_0020];
 /// Its TPDO1: statusword, record number, modes display, position actual value (seed-000 §7.4).
 pub const MTR_DCI_402_TPDO1: &[u32] = &[0x6041_0010, 0x2032_0108, 0x6061_0008, 0x6064_0020];
 /// The TLC5xx's RPDO1 as the coordinator maps it (7 bytes; PDO1 is dynamic, at most 64 bits,
@@ -446,6 +453,7 @@ const FESTO_FHPP: ProfileFacts = ProfileFacts {
     pdo1_power_up: Some(FHPP_PDO1),
     pdo1_static: true,
     fpc_pdo2: Some(FPC_PDO2),
+    profile_rpdo2: None,
 };
 
 /// Festo MTR-DCI-...-CO (seed-000).
@@ -465,6 +473,7 @@ pub const MTR_DCI: Device = Device {
             pdo1_power_up: Some(MTR_DCI_402_PDO1),
             pdo1_static: true,
             fpc_pdo2: None,
+            profile_rpdo2: Some(MTR_DCI_402_RPDO2),
         },
     ],
     vendor_id: Some(FESTO_VENDOR_ID),
@@ -527,6 +536,7 @@ pub const CMMO_ST: Device = Device {
         pdo1_power_up: None,
         pdo1_static: false,
         fpc_pdo2: None,
+        profile_rpdo2: None,
     }],
     vendor_id: None,
     product_code: None,
@@ -567,6 +577,7 @@ pub const TLC5XX: Device = Device {
         pdo1_power_up: Some(TLC_PDO1_POWER_UP),
         pdo1_static: false,
         fpc_pdo2: None,
+        profile_rpdo2: None,
     }],
     vendor_id: Some(TLC5XX_VENDOR_ID),
     // 1018h:02 default 0 (§5.1).
@@ -622,6 +633,7 @@ pub const CIA402_GENERIC: Device = Device {
         pdo1_power_up: Some(CIA402_PDO1_POWER_UP),
         pdo1_static: false,
         fpc_pdo2: None,
+        profile_rpdo2: None,
     }],
     vendor_id: Some(CIA402_SIM_VENDOR_ID),
     product_code: Some(CIA402_SIM_PRODUCT_CODE),

@@ -416,6 +416,62 @@ fn cia402_profile_enables_homes_and_moves() {
 }
 
 #[test]
+fn cia402_moves_run_at_6081h_brake_with_6083h_under_bit_15_and_resume_after_a_halt() {
+    let mut r = mtr(Profile::Cia402);
+    r.run_for(MS);
+    r.nmt(NmtCommand::Start);
+    let cia = |cw: u16, mode: i8, target: i32| {
+        let c = cw.to_le_bytes();
+        let t = target.to_le_bytes();
+        [c[0], c[1], 0, mode as u8, t[0], t[1], t[2], t[3]]
+    };
+    let sw = |s: &[u8; 8]| u16::from_le_bytes([s[0], s[1]]);
+    r.pdo1_until(cia(0x06, 1, 0), 20, "ready", |s| sw(s) & 0x6F == 0x21);
+    r.pdo1_until(cia(0x0F, 6, 0), 20, "enabled", |s| sw(s) & 0x6F == 0x27);
+    r.pdo1_until(cia(0x1F, 6, 0), 30_000, "homed", |s| {
+        sw(s) & 0x9000 == 0x9000
+    });
+    // 12 345 inc/s (not a whole per cent of the drive's maximum) and a gentle 20 000 inc/s²,
+    // taken over with bit 15 "symmetrical ramp via PDO".
+    let v = 12_345u32.to_le_bytes();
+    let a = 20_000u32.to_le_bytes();
+    r.rpdo(2, [v[0], v[1], v[2], v[3], a[0], a[1], a[2], a[3]]);
+    let sym = 0x8000;
+    r.pdo1_until(cia(sym | 0x0F, 1, 30_000), 20, "PP", |s| s[3] == 1);
+    r.pdo1_until(cia(sym | 0x1F, 1, 30_000), 20, "set-point ack", |s| {
+        sw(s) & 0x1000 != 0
+    });
+    // Accelerating at 20 000 inc/s², the speed is reached after about 0.62 s: at 0.3 s the drive
+    // is still accelerating (at the stored ramp it would be at full speed within milliseconds).
+    r.run_for(300 * MS);
+    let speed = r.dev.endpoint.drive().axis().status().velocity;
+    assert!(
+        (4_000..=8_000).contains(&speed),
+        "{speed} inc/s after 0.3 s"
+    );
+    r.run_for(700 * MS);
+    let speed = r.dev.endpoint.drive().axis().status().velocity;
+    assert!(
+        (12_300..=12_345).contains(&speed),
+        "{speed} inc/s, not 6081h"
+    );
+    // Halt (bit 8): the drive stops and keeps the move; released, it goes on to the target.
+    let s = r.pdo1_until(cia(sym | 0x10F, 1, 30_000), 2_000, "halted", |s| {
+        sw(s) & 0x0400 != 0
+    });
+    assert!(pos(&s) < 29_000, "halted at {}", pos(&s));
+    // Bit 10 comes within the standstill window; the last increments settle after it.
+    r.run_for(100 * MS);
+    let halted_at = r.dev.endpoint.drive().axis().status().position;
+    r.run_for(200 * MS);
+    assert_eq!(r.dev.endpoint.drive().axis().status().position, halted_at);
+    let s = r.pdo1_until(cia(sym | 0x0F, 1, 30_000), 10_000, "target reached", |s| {
+        sw(s) & 0x0400 != 0
+    });
+    assert!((pos(&s) - 30_000).abs() <= 2, "{}", pos(&s));
+}
+
+#[test]
 fn synchronous_tpdo1_after_switching_the_transmission_type() {
     let mut r = mtr(Profile::Fhpp);
     r.run_for(MS);

@@ -48,7 +48,7 @@ use drivers::cia402::state::{State, next_controlword};
 use drivers::cia402::statusword::Statusword;
 use drivers::cia402::{DeviceProfile, GENERIC, MTR_DCI, TLC5XX};
 
-use super::{AxisError, AxisState, CyclicMode, Demand, Feedback, IMAGE_BYTES, Image};
+use super::{AxisError, AxisState, CyclicMode, Demand, Feedback, IMAGE_BYTES, Image, PointMove};
 use crate::profile::fixed_point::div_i128;
 
 /// The fewest cycles a streamed set-point is placed ahead of the path.
@@ -291,6 +291,16 @@ pub struct Cia402Axis {
     homed: bool,
     /// Cycles since the last image arrived.
     gap: u32,
+    /// One set-point per move (see [`Cia402Axis::one_set_point_per_move`]): the move the path
+    /// runs, as given this cycle.
+    point: Option<PointMove>,
+    /// The move whose set-point was sent last.
+    point_sent: Option<PointMove>,
+    /// The drive holds a set-point it acknowledged and has not reached: halted on its way, it
+    /// would resume it when the halt bit drops.
+    task_open: bool,
+    /// The RPDO2 image to send this cycle.
+    profile_pdo: Option<[u8; 8]>,
 }
 
 impl Cia402Axis {
@@ -323,7 +333,32 @@ impl Cia402Axis {
             jog_nano: None,
             homed: false,
             gap: 0,
+            point: None,
+            point_sent: None,
+            task_open: false,
+            profile_pdo: None,
         }
+    }
+
+    /// Whether `Follow` sends one set-point per move: profile position on a drive without
+    /// "change set immediately" (the MTR-DCI, seed 000 §7.9). Such a drive queues a new
+    /// set-point behind the running one, so a stream of set-points would stop at each: the axis
+    /// sends the move's end once, with its speed and acceleration on RPDO2 (6081h, 6083h) and
+    /// controlword bit 15 so that the drive brakes with it too, and the drive runs the move on
+    /// its own profile generator (the cycle plans the path as a trapezoid with the same
+    /// limits, so the two agree).
+    pub fn one_set_point_per_move(&self) -> bool {
+        self.cyclic == CyclicMode::Pp && !self.profile.change_set_immediately
+    }
+
+    /// The move the path runs this cycle (see [`super::DriveAxis::set_move`]).
+    pub fn set_move(&mut self, m: Option<PointMove>) {
+        self.point = m;
+    }
+
+    /// The RPDO2 image to send this cycle (see [`super::DriveAxis::profile_pdo`]).
+    pub fn profile_pdo(&self) -> Option<[u8; 8]> {
+        self.profile_pdo
     }
 
     /// The same axis streaming `Follow` in cyclic synchronous position (mode 8), for a drive
@@ -376,6 +411,7 @@ impl Cia402Axis {
         out: &mut Image,
     ) -> Result<Feedback, AxisError> {
         let mut fresh = false;
+        self.profile_pdo = None;
         // Cycles since the last image, for the velocity estimate.
         self.gap = self.gap.saturating_add(1);
         if let Some(bytes) = input {
@@ -431,6 +467,10 @@ impl Cia402Axis {
         };
         self.gap = 0;
         self.feedback.position = position;
+        if State::from_statusword(i.statusword) != Ok(State::OperationEnabled) {
+            // Leaving Operation enabled (quick stop, disable, fault) ends every move.
+            self.task_open = false;
+        }
         if self.layout == Layout::MtrDci && i.statusword.has(Statusword::MTR_HOMING_PERFORMED) {
             self.homed = true;
         }
@@ -507,6 +547,18 @@ impl Cia402Axis {
     }
 
     fn run(&mut self, fresh: bool) {
+        let keeps_task = matches!(
+            self.demand,
+            Demand::Follow { .. }
+                | Demand::Halt
+                | Demand::QuickStop
+                | Demand::Disable
+                | Demand::Acknowledge
+        );
+        if self.task_open && !keeps_task && self.clear_open_task() {
+            self.step = Step::Start;
+            return;
+        }
         match self.demand {
             Demand::Disable => {
                 self.cw = Command::DisableVoltage.controlword();
@@ -543,6 +595,7 @@ impl Cia402Axis {
                 CyclicMode::Csv => self.csv_follow(position, velocity),
                 // Refused by `check`.
                 CyclicMode::Cst => {}
+                CyclicMode::Pp if self.one_set_point_per_move() => self.point_follow(fresh),
                 CyclicMode::Pp => {
                     self.mode = OperationMode::ProfilePosition;
                     self.stream(fresh, position, velocity, Some(position));
@@ -733,6 +786,99 @@ impl Cia402Axis {
                 && self.sw().target_reached();
             self.step = if arrived { Step::Done } else { Step::Start };
         }
+    }
+
+    /// One set-point per move: the move's end, once, with its profile on RPDO2 and bit 15;
+    /// bit 8 while the path holds; done once the drive acknowledged the end and reached it.
+    fn point_follow(&mut self, fresh: bool) {
+        self.mode = OperationMode::ProfilePosition;
+        let sym = Controlword::MTR_SYMMETRICAL_RAMP;
+        if !self.power() || !self.mode_active() {
+            if self.state() == Some(State::OperationEnabled) {
+                self.cw = Self::enable_op();
+                self.pp.reset();
+            }
+            self.step = Step::Start;
+            return;
+        }
+        if fresh {
+            for e in self.pp.handle_statusword(self.sw()) {
+                match e {
+                    PpEvent::Acknowledged => {
+                        self.acked = Some(self.requested);
+                        self.reached = false;
+                        self.task_open = true;
+                    }
+                    PpEvent::TargetReached => self.reached = true,
+                    PpEvent::Ready => {}
+                }
+            }
+        }
+        let Some(m) = self.point else {
+            // No path: stand where the drive is.
+            self.cw = self.pp.controlword(Self::enable_op()).with(sym, true);
+            self.step = Step::Start;
+            return;
+        };
+        let end = clamp_i32(m.end);
+        let halt = m.halt;
+        if self.reached && !halt && self.sw().target_reached() {
+            self.task_open = false;
+        }
+        let new_move = !self.point_sent.is_some_and(|s| s.same_move(&m));
+        if new_move && self.task_open {
+            // The drive would queue the new end behind the one it holds: the old one goes
+            // first, halted (the path stood still before it changed), then dropped.
+            if halt || self.feedback.velocity != 0 || !self.sw().target_reached() {
+                self.cw = self.cw.with(Controlword::HALT, true);
+            } else {
+                self.clear_open_task();
+            }
+            self.step = Step::Start;
+            return;
+        }
+        if new_move && !halt && self.pp.state() == PpMasterState::Idle {
+            let r = SetPointRequest {
+                target: end,
+                relative: false,
+                immediate: false,
+            };
+            if self.pp.request(r).is_ok() {
+                self.requested = end;
+                self.acked = None;
+                self.reached = false;
+                self.point_sent = Some(m);
+                // Taken as it arrives, so it is in place when the set-point is applied at the
+                // next SYNC.
+                self.profile_pdo = Some(m.profile_bytes());
+            }
+        }
+        self.target = self.pp.target().unwrap_or(end);
+        self.cw = self
+            .pp
+            .controlword(Self::enable_op())
+            .with(sym, true)
+            .with(Controlword::HALT, halt);
+        let arrived = !halt
+            && self.pp.state() == PpMasterState::Idle
+            && self.acked == Some(end)
+            && self.reached
+            && self.sw().target_reached();
+        self.step = if arrived { Step::Done } else { Step::Start };
+    }
+
+    /// Drops a move the drive holds unfinished (see `task_open`) with a quick stop, which keeps
+    /// the power stage on (the drive leaves Operation enabled, which ends every move; the
+    /// demand then brings it back, transition 16). `true` while under way.
+    fn clear_open_task(&mut self) -> bool {
+        if self.state() == Some(State::OperationEnabled) {
+            self.cw = Command::QuickStop.controlword();
+            self.pp.reset();
+            self.point_sent = None;
+            return true;
+        }
+        self.task_open = false;
+        false
     }
 
     /// Cyclic synchronous position: the setpoint every cycle, no handshake.

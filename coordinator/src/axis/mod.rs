@@ -96,6 +96,17 @@ impl DeviceKind {
     pub fn label(self) -> &'static str {
         self.device().name
     }
+
+    /// How the device's CiA 402 profile differs from the standard, where the coordinator
+    /// commands it in CiA 402.
+    pub const fn cia402_profile(self) -> Option<&'static drivers::cia402::DeviceProfile> {
+        match self {
+            DeviceKind::MtrDci => Some(&drivers::cia402::MTR_DCI),
+            DeviceKind::Tlc5xx => Some(&drivers::cia402::TLC5XX),
+            DeviceKind::Cia402 => Some(&drivers::cia402::GENERIC),
+            DeviceKind::Emca | DeviceKind::CmmoSt => None,
+        }
+    }
 }
 
 impl core::fmt::Display for DeviceKind {
@@ -232,6 +243,49 @@ pub enum Demand {
     Halt,
     /// Quick stop (FHPP CCON.STOP = 0; CiA 402 quick-stop command).
     QuickStop,
+}
+
+/// The move a drive that takes one set-point per move runs (see
+/// [`DriveAxis::one_set_point_per_move`]): given by the cycle every cycle its path runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct PointMove {
+    /// The path's end for this axis, increments.
+    pub end: i64,
+    /// The path's speed limit for this axis, inc/s (6081h).
+    pub velocity: u32,
+    /// The path's acceleration for this axis, inc/s² (6083h; the drive brakes with it too).
+    pub acceleration: u32,
+    /// The path is holding or stopped on its way: the drive halts (controlword bit 8), keeping
+    /// the move to resume.
+    pub halt: bool,
+}
+
+impl PointMove {
+    /// The RPDO2 image of a drive with a profile RPDO2 (6081h, 6083h, little-endian).
+    pub fn profile_bytes(&self) -> [u8; 8] {
+        let mut b = [0u8; 8];
+        b[..4].copy_from_slice(&self.velocity.to_le_bytes());
+        b[4..].copy_from_slice(&self.acceleration.to_le_bytes());
+        b
+    }
+
+    /// The same move as far as the drive is concerned (end and profile; not the halt).
+    pub fn same_move(&self, other: &PointMove) -> bool {
+        (self.end, self.velocity, self.acceleration)
+            == (other.end, other.velocity, other.acceleration)
+    }
+}
+
+/// Whether a `kind` drive in `profile` commanded in `mode` takes one set-point per move: profile
+/// position on a drive without "change set immediately" (the MTR-DCI, seed 000 §7.9), which
+/// queues a new set-point behind the running one instead of taking it over, so that a stream
+/// of set-points would stop at each.
+pub fn takes_one_set_point_per_move(kind: DeviceKind, profile: Profile, mode: CyclicMode) -> bool {
+    profile == Profile::Cia402
+        && mode == CyclicMode::Pp
+        && kind
+            .cia402_profile()
+            .is_some_and(|p| !p.change_set_immediately)
 }
 
 /// Where an axis is, as the coordinator sees it.
@@ -440,6 +494,34 @@ impl DriveAxis {
         match self {
             DriveAxis::Cia402(a) => DriveAxis::Cia402(a.with_csp()),
             f => f,
+        }
+    }
+
+    /// Whether the drive takes one set-point per move (see
+    /// [`takes_one_set_point_per_move`]): `Follow` then sends the move's end once, with its
+    /// profile on RPDO2, and the cycle gives the move with [`DriveAxis::set_move`].
+    pub fn one_set_point_per_move(&self) -> bool {
+        match self {
+            DriveAxis::Fhpp(_) => false,
+            DriveAxis::Cia402(a) => a.one_set_point_per_move(),
+        }
+    }
+
+    /// The move the path runs this cycle, for a drive that takes one set-point per move
+    /// (ignored otherwise); `None` while no path runs.
+    pub fn set_move(&mut self, m: Option<PointMove>) {
+        if let DriveAxis::Cia402(a) = self {
+            a.set_move(m);
+        }
+    }
+
+    /// The RPDO2 image (6081h, 6083h) to send this cycle, before the set-point it belongs to
+    /// is applied at the next SYNC (the drive takes RPDO2 as it arrives); `None` in most
+    /// cycles.
+    pub fn profile_pdo(&self) -> Option<[u8; 8]> {
+        match self {
+            DriveAxis::Fhpp(_) => None,
+            DriveAxis::Cia402(a) => a.profile_pdo(),
         }
     }
 

@@ -429,6 +429,16 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                     }
                 }
             }
+            if axis::takes_one_set_point_per_move(k, p, a.mode())
+                && let Some(mapping) = k.device().profile(p).and_then(|f| f.profile_rpdo2)
+                && let Some(mut pp) = PdoPlan::sync(PdoDirection::Rpdo, 2, mapping)
+            {
+                // Each move's profile (6081h, 6083h), taken as it arrives: in place before the
+                // set-point it belongs to is applied at the next SYNC.
+                pp.static_mapping = true;
+                pp.transmission_type = 255;
+                bp.pdos.push(pp);
+            }
             if k == DeviceKind::Emca && p == Profile::Fhpp {
                 bp.parameters = vec![emca_start_interrupts()];
             }

@@ -44,16 +44,18 @@ use crate::canopen::od::{AccessType, DataType, EntryDef, ObjectDictionary, OdErr
 use crate::canopen::{AbortCode, Address, NodeId};
 use crate::catalog::{
     self, FHPP_RPDO1, FHPP_TPDO1, FPC_RPDO2 as FHPP_RPDO2, FPC_TPDO2 as FHPP_TPDO2,
-    MTR_DCI_402_RPDO1 as CIA_RPDO1, MTR_DCI_402_TPDO1 as CIA_TPDO1,
+    MTR_DCI_402_RPDO1 as CIA_RPDO1, MTR_DCI_402_RPDO2 as CIA_RPDO2, MTR_DCI_402_TPDO1 as CIA_TPDO1,
 };
 use crate::cia402::controlword::Controlword;
-use crate::cia402::modes::{ModeSelector, OperationMode, PpAction, PpDevice, PpObjects};
+use crate::cia402::modes::{ModeSelector, Move, OperationMode, PpAction, PpDevice, PpObjects};
 use crate::cia402::state::{DeviceStateMachine, State};
 use crate::cia402::statusword::Statusword;
 use crate::cia402::{MTR_DCI as MTR_DCI_402, homing::HomingMethod};
 use crate::fhpp::Variant;
 use crate::fhpp::pnu::DataType as PnuType;
-use crate::sim::fhpp_drive::{DriveConfig, DriveError, FhppDrive, Injection, PnuError};
+use crate::sim::fhpp_drive::{
+    DirectProfile, DriveConfig, DriveError, FhppDrive, Injection, PnuError,
+};
 use crate::time::{Instant, earliest};
 
 /// Entries of a Festo node's dictionary.
@@ -215,8 +217,6 @@ pub const MTR_DCI_FHPP: CommProfile = CommProfile {
     ],
     tpdo_sync_start: false,
 };
-
-const CIA_RPDO2: &[u32] = &[0x6081_0020, 0x6083_0020];
 
 /// The MTR-DCI's communication objects in the CiA 402 profile (§7.4): device type 00020192h
 /// (erratum E1), RPDO1/2 and TPDO1 (TPDO2 is not supported).
@@ -973,6 +973,15 @@ impl Cia402Face {
             self.job = None;
             self.pp.reset(drive.axis().status().position as i32);
         }
+        if prev.has(Controlword::HALT)
+            && !i.cw.has(Controlword::HALT)
+            && let Some((Job::Move { .. }, phase @ (Phase::Started | Phase::Running))) =
+                self.job.as_mut()
+        {
+            // The halted move goes on (CiA 402): FHPP resumes it with a new START edge while
+            // HALT is released (TA4).
+            *phase = Phase::Pending;
+        }
         let rising = i.cw.has(Controlword::NEW_SET_POINT) && !prev.has(Controlword::NEW_SET_POINT);
         if enabled {
             match self.modes.active() {
@@ -981,8 +990,13 @@ impl Cia402Face {
                     if i.record != 0 {
                         o.target = 0;
                     }
+                    // 6083h from the PDO is the move's ramp, accelerating and braking, only
+                    // with bit 15 (Tab. C/3); without it the stored ramp applies (0 here).
+                    if !i.cw.has(Controlword::MTR_SYMMETRICAL_RAMP) {
+                        o.acceleration = 0;
+                    }
                     if let Some(PpAction::Start(m)) = self.pp.handle_controlword(i.cw, &o) {
-                        self.start_move(m.target, m.velocity, drive);
+                        self.start_move(m, drive);
                     }
                 }
                 OperationMode::Homing if rising && !busy => {
@@ -1003,12 +1017,17 @@ impl Cia402Face {
         self.command(drive, now);
     }
 
-    fn start_move(&mut self, target: i32, velocity: u32, drive: &FhppDrive) {
+    fn start_move(&mut self, m: Move, drive: &mut FhppDrive) {
         let vmax = stored_pnu(drive, 502).max(1);
-        let percent = (u64::from(velocity) * 100 / vmax as u64).clamp(1, 100) as u8;
+        let percent = (u64::from(m.velocity) * 100 / vmax as u64).clamp(1, 100) as u8;
+        // The FHPP image carries the speed in whole per cent; the move runs at 6081h itself.
+        drive.set_direct_profile(DirectProfile {
+            velocity: (m.velocity > 0).then_some(m.velocity),
+            acceleration: (m.acceleration > 0).then_some(m.acceleration),
+        });
         self.job = Some((
             Job::Move {
-                target,
+                target: m.target,
                 percent,
                 record: self.record,
             },
@@ -1121,7 +1140,7 @@ impl Cia402Face {
             }
         }
         if let Some(m) = next {
-            self.start_move(m.target, m.velocity, drive);
+            self.start_move(m, drive);
         }
         self.command(drive, now);
     }

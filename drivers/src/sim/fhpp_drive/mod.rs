@@ -130,6 +130,17 @@ impl DriveConfig {
     }
 }
 
+/// The profile the MTR-DCI's CiA 402 face gives a direct-mode positioning (seed 000 §7.4,
+/// §7.9): the FHPP image has only a speed byte in per cent of PNU 502 and no ramp.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DirectProfile {
+    /// 6081h profile velocity, inc/s (at most PNU 502); `None`: the speed byte.
+    pub velocity: Option<u32>,
+    /// 6083h profile acceleration, inc/s² (at most PNU 503), also for braking (controlword bit
+    /// 15 "symmetrical ramp via PDO"); `None`: the stored ramp.
+    pub acceleration: Option<u32>,
+}
+
 /// Why a drive could not be built.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum DriveError {
@@ -346,6 +357,10 @@ pub struct FhppDrive {
     input: [u8; 8],
     fpc_reply: [u8; 8],
     next_cycle: Instant,
+    /// The MTR-DCI's CiA 402 face: the profile of the direct-mode positionings it starts
+    /// (6081h; 6083h with controlword bit 15), instead of the speed byte's per cent and the
+    /// stored ramp.
+    direct_profile: DirectProfile,
     activity: Activity,
     chain: Option<Chain>,
     direct_cmp: ComparatorSet,
@@ -422,6 +437,7 @@ impl FhppDrive {
             input: [0; 8],
             fpc_reply: fpc.reply(),
             next_cycle: Instant::ZERO,
+            direct_profile: DirectProfile::default(),
             activity: Activity::Idle,
             chain: None,
             direct_cmp: ComparatorSet::default(),
@@ -555,6 +571,12 @@ impl FhppDrive {
     pub fn start_at(&mut self, now: Instant) {
         self.axis.set_clock(now);
         self.next_cycle = now;
+    }
+
+    /// The MTR-DCI's CiA 402 face: the profile of the direct-mode positionings started from now
+    /// on (see [`DirectProfile`]).
+    pub fn set_direct_profile(&mut self, profile: DirectProfile) {
+        self.direct_profile = profile;
     }
 
     /// Advances the internal cycle and the axis to `now` (never backwards).
@@ -1032,7 +1054,10 @@ impl FhppDrive {
         };
         match cdir.com {
             ControlMode::Position => {
-                let v = percent_of(base_v, value1).min(max_v);
+                let v = match self.direct_profile.velocity {
+                    Some(v) if mtr => v.min(max_v),
+                    _ => percent_of(base_v, value1).min(max_v),
+                };
                 if v == 0 {
                     return Err(FaultKind::InvalidSetpoint);
                 }
@@ -1049,6 +1074,10 @@ impl FhppDrive {
                 self.limit_check(target)?;
                 let acc = clamp_u32(self.pget(541));
                 let acc = if acc == 0 { max_a } else { acc };
+                let acc = match self.direct_profile.acceleration {
+                    Some(r) if mtr && r > 0 => r.min(max_a),
+                    _ => acc,
+                };
                 let dec = if mtr {
                     acc
                 } else {
