@@ -1409,6 +1409,78 @@ fn a_recording_of_a_machine_with_an_eds_replays_without_the_file() {
 /// A user's coordinator homes a TLC5xx with method 17 (`homing_method = 17`) on the negative
 /// limit switch of a standalone drive-sim (`--limit-negative`): the boot writes 6098h, the
 /// script's homing finishes at the switch.
+/// The MTR-DCI in its CiA 402 profile takes one set-point per move (no "change set
+/// immediately"): across the process boundary, the move's profile goes out once on RPDO2 and
+/// the drive-sim process runs the move to its end, where the axis stands fault-free.
+#[test]
+fn an_mtr_dci_in_cia_402_in_another_process_runs_a_move_from_one_set_point() {
+    let mut sc = Scene::new("mtr402");
+    let bus = unique("rdm");
+    let prefix = unique("t-real-mtr402-");
+    let config = sc.write(
+        "mtr402.toml",
+        &one_axis_machine(
+            &bus,
+            "m",
+            "mtr-dci",
+            "profile = \"cia402\"\n",
+            &limits(0.0, 200.0, 20.0, 200.0),
+            "[[groups]]\nname = \"solo\"\naxes = [\"m\"]\n",
+        ),
+    );
+    check(&config);
+    let m_sim = sc.drive_sim(&config, &["m"]);
+    sc.wait_running(&[m_sim]);
+    let capture = sc.path("capture");
+    let coord = sc.coordinator(
+        &config,
+        &prefix,
+        &[
+            "--demo",
+            "--no-chains",
+            "--capture",
+            capture.to_str().unwrap(),
+        ],
+    );
+    let mut c = connect(&prefix);
+    let s = sc.wait_state(&mut c, coord, "m online, enabled and homed", |s| {
+        s.axis_count == 1 && axes(s).iter().all(ready)
+    });
+    let (m, solo) = (index_of(&s, "m"), group_of(&s, "solo"));
+    let target = 120 * MM;
+    c.command(&CommandRequest::move_group(solo, &[target], 80), REPLY)
+        .expect("the move is latched");
+    sc.wait_state(&mut c, coord, "m under way", |s| {
+        s.axes[m].position > 10 * MM
+    });
+    let s = sc.wait_state(&mut c, coord, "m arrived", |s| {
+        (s.axes[m].position - target).abs() <= MM / 100
+            && has(&s.axes[m], axis_flags::MOTION_COMPLETE)
+            && s.axes[m].state == axis_state::READY
+    });
+    assert_eq!(s.axes[m].fault, fault::NONE, "{}", describe(&s));
+    sc.signal(coord, libc::SIGINT);
+    let status = sc.wait_exit(coord);
+    let out = sc.output(coord);
+    assert_eq!(status.code(), Some(0), "a run without faults:\n{out}");
+    // One RPDO2 to node 5 (305h): 6081h = 80 % of 20 mm/s, 6083h = 200 mm/s², at 1000 inc/mm.
+    let log = read_log(&capture.join(format!("{bus}.log")));
+    let profiles: Vec<&Vec<u8>> = log
+        .iter()
+        .filter(|f| f.id == 0x305)
+        .filter_map(|f| f.data.as_ref())
+        .collect();
+    assert_eq!(
+        profiles.len(),
+        1,
+        "one profile for one move: {profiles:02X?}"
+    );
+    let word = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+    let (v, a) = (word(&profiles[0][..4]), word(&profiles[0][4..]));
+    assert!((15_990..=16_000).contains(&v), "6081h {v}");
+    assert!((199_990..=200_000).contains(&a), "6083h {a}");
+}
+
 #[test]
 fn the_configured_homing_method_homes_a_drive_sim_tlc5xx_on_its_limit_switch() {
     let mut sc = Scene::new("home17");
