@@ -362,6 +362,31 @@ fn node_guarding_and_life_guarding_timeout() {
     assert_eq!(r.dev.endpoint.drive().fault_number(), Some(51));
 }
 
+/// The CiA 402 RPDO1 image: controlword, 2032h record number 0, 6060h mode, 607Ah target (or
+/// 6071h torque in PT).
+fn cia(cw: u16, mode: i8, value: i32) -> [u8; 8] {
+    let c = cw.to_le_bytes();
+    let t = value.to_le_bytes();
+    [c[0], c[1], 0, mode as u8, t[0], t[1], t[2], t[3]]
+}
+
+/// The statusword of a CiA 402 TPDO1 image.
+fn sw(s: &[u8; 8]) -> u16 {
+    u16::from_le_bytes([s[0], s[1]])
+}
+
+/// A CiA 402 MTR-DCI started, enabled (transitions 20, 21) and homed (method 27, bits 12 + 15).
+fn cia402_homed(mut r: Rig<MtrDci>) -> Rig<MtrDci> {
+    r.run_for(MS);
+    r.nmt(NmtCommand::Start);
+    r.pdo1_until(cia(0x06, 6, 0), 20, "ready", |s| sw(s) & 0x6F == 0x21);
+    r.pdo1_until(cia(0x0F, 6, 0), 20, "enabled", |s| sw(s) & 0x6F == 0x27);
+    r.pdo1_until(cia(0x1F, 6, 0), 30_000, "homed", |s| {
+        sw(s) & 0x9000 == 0x9000
+    });
+    r
+}
+
 #[test]
 fn cia402_profile_enables_homes_and_moves() {
     let mut r = mtr(Profile::Cia402);
@@ -371,13 +396,6 @@ fn cia402_profile_enables_homes_and_moves() {
         r.sdo_read(Address::new(0x1000, 0)).unwrap(),
         0x0002_0192u32.to_le_bytes()
     );
-    // RPDO1: controlword, 2032h record number, 6060h mode, 607Ah target.
-    let cia = |cw: u16, mode: i8, target: i32| {
-        let c = cw.to_le_bytes();
-        let t = target.to_le_bytes();
-        [c[0], c[1], 0, mode as u8, t[0], t[1], t[2], t[3]]
-    };
-    let sw = |s: &[u8; 8]| u16::from_le_bytes([s[0], s[1]]);
     // Shutdown: transition 20 to Ready to switch on; enable operation: 21 straight to
     // Operation enabled (Festo).
     let s = r.pdo1_until(cia(0x06, 1, 0), 20, "ready", |s| sw(s) & 0x6F == 0x21);
@@ -417,20 +435,7 @@ fn cia402_profile_enables_homes_and_moves() {
 
 #[test]
 fn cia402_moves_run_at_6081h_brake_with_6083h_under_bit_15_and_resume_after_a_halt() {
-    let mut r = mtr(Profile::Cia402);
-    r.run_for(MS);
-    r.nmt(NmtCommand::Start);
-    let cia = |cw: u16, mode: i8, target: i32| {
-        let c = cw.to_le_bytes();
-        let t = target.to_le_bytes();
-        [c[0], c[1], 0, mode as u8, t[0], t[1], t[2], t[3]]
-    };
-    let sw = |s: &[u8; 8]| u16::from_le_bytes([s[0], s[1]]);
-    r.pdo1_until(cia(0x06, 1, 0), 20, "ready", |s| sw(s) & 0x6F == 0x21);
-    r.pdo1_until(cia(0x0F, 6, 0), 20, "enabled", |s| sw(s) & 0x6F == 0x27);
-    r.pdo1_until(cia(0x1F, 6, 0), 30_000, "homed", |s| {
-        sw(s) & 0x9000 == 0x9000
-    });
+    let mut r = cia402_homed(mtr(Profile::Cia402));
     // 12 345 inc/s (not a whole per cent of the drive's maximum) and a gentle 20 000 inc/s²,
     // taken over with bit 15 "symmetrical ramp via PDO".
     let v = 12_345u32.to_le_bytes();
@@ -509,22 +514,9 @@ fn cia402_profile_torque_against_a_stop() {
         position: 65_400,
         side: Direction::Positive,
     };
-    let mut r = Rig::new(3, |n, now| {
+    let mut r = cia402_homed(Rig::new(3, |n, now| {
         MtrDci::with_config(n, Profile::Cia402, cfg, now).unwrap()
-    });
-    r.run_for(MS);
-    r.nmt(NmtCommand::Start);
-    let cia = |cw: u16, mode: i8, value: i32| {
-        let c = cw.to_le_bytes();
-        let t = value.to_le_bytes();
-        [c[0], c[1], 0, mode as u8, t[0], t[1], t[2], t[3]]
-    };
-    let sw = |s: &[u8; 8]| u16::from_le_bytes([s[0], s[1]]);
-    r.pdo1_until(cia(0x06, 6, 0), 20, "ready", |s| sw(s) & 0x6F == 0x21);
-    r.pdo1_until(cia(0x0F, 6, 0), 20, "enabled", |s| sw(s) & 0x6F == 0x27);
-    r.pdo1_until(cia(0x1F, 6, 0), 30_000, "homed", |s| {
-        sw(s) & 0x9000 == 0x9000
-    });
+    }));
     // The force-mode speed limit (PNU 554, 2000h + 554) at 10 % of the rated speed, so the
     // acceleration current stays out of the force window.
     r.pnu_write(554, 0, &10_000u32.to_le_bytes()).unwrap();

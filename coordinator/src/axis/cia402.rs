@@ -750,18 +750,7 @@ impl Cia402Axis {
             self.step = Step::Start;
             return;
         }
-        if fresh {
-            for e in self.pp.handle_statusword(self.sw()) {
-                match e {
-                    PpEvent::Acknowledged => {
-                        self.acked = Some(self.requested);
-                        self.reached = false;
-                    }
-                    PpEvent::TargetReached => self.reached = true,
-                    PpEvent::Ready => {}
-                }
-            }
-        }
+        self.handshake(fresh);
         let lead = self.since_request.clamp(MIN_LEAD_CYCLES, MAX_LEAD_CYCLES);
         let target = self.ahead(position, velocity, lead);
         if self.pp.state() == PpMasterState::Idle && self.acked != Some(target) {
@@ -788,6 +777,26 @@ impl Cia402Axis {
         }
     }
 
+    /// The set-point handshake's news in a fresh image: the request acknowledged (`true`), its
+    /// target reached since.
+    fn handshake(&mut self, fresh: bool) -> bool {
+        let mut acknowledged = false;
+        if fresh {
+            for e in self.pp.handle_statusword(self.sw()) {
+                match e {
+                    PpEvent::Acknowledged => {
+                        self.acked = Some(self.requested);
+                        self.reached = false;
+                        acknowledged = true;
+                    }
+                    PpEvent::TargetReached => self.reached = true,
+                    PpEvent::Ready => {}
+                }
+            }
+        }
+        acknowledged
+    }
+
     /// One set-point per move: the move's end, once, with its profile on RPDO2 and bit 15;
     /// bit 8 while the path holds; done once the drive acknowledged the end and reached it.
     fn point_follow(&mut self, fresh: bool) {
@@ -801,18 +810,8 @@ impl Cia402Axis {
             self.step = Step::Start;
             return;
         }
-        if fresh {
-            for e in self.pp.handle_statusword(self.sw()) {
-                match e {
-                    PpEvent::Acknowledged => {
-                        self.acked = Some(self.requested);
-                        self.reached = false;
-                        self.task_open = true;
-                    }
-                    PpEvent::TargetReached => self.reached = true,
-                    PpEvent::Ready => {}
-                }
-            }
+        if self.handshake(fresh) {
+            self.task_open = true;
         }
         let Some(m) = self.point else {
             // No path: stand where the drive is.
