@@ -824,6 +824,21 @@ impl Cia402Axis {
         if self.reached && !halt && self.sw().target_reached() {
             self.task_open = false;
         }
+        if (m.velocity == 0 || m.acceleration == 0) && !self.task_open {
+            // A group member that does not move: no set-point (a task with v = 0 is not
+            // executable on the MTR-DCI, seed 000 §5.6.4), done where it stands.
+            self.cw = self
+                .pp
+                .controlword(Self::enable_op())
+                .with(sym, true)
+                .with(Controlword::HALT, halt);
+            self.step = if !halt && self.sw().target_reached() {
+                Step::Done
+            } else {
+                Step::Start
+            };
+            return;
+        }
         let new_move = !self.point_sent.is_some_and(|s| s.same_move(&m));
         if new_move && self.task_open {
             // The drive would queue the new end behind the one it holds: the old one goes
@@ -1065,6 +1080,75 @@ mod tests {
 
     fn axis() -> Cia402Axis {
         Cia402Axis::new(Layout::Tlc5xx, CYCLE)
+    }
+
+    /// The MTR-DCI's 8-byte TPDO1: statusword, record, mode display, position.
+    fn mtr_tpdo(sw: u16, pos: i32) -> [u8; 8] {
+        let s = sw.to_le_bytes();
+        let p = pos.to_le_bytes();
+        [s[0], s[1], 0, 1, p[0], p[1], p[2], p[3]]
+    }
+
+    fn follow() -> Demand {
+        Demand::Follow {
+            position: 0,
+            velocity: 0,
+        }
+    }
+
+    #[test]
+    fn one_set_point_per_move_on_the_mtr_dci() {
+        // Operation enabled, target reached, mode PP.
+        let (ready, acked, moving) = (0x0637, 0x1237, 0x1237);
+        let mut a = Cia402Axis::new(Layout::MtrDci, CYCLE);
+        assert!(a.one_set_point_per_move());
+        assert!(!axis().one_set_point_per_move());
+        let m = PointMove {
+            end: 5_000,
+            velocity: 12_000,
+            acceleration: 80_000,
+            halt: false,
+        };
+        a.set_move(Some(m));
+        let (o, _) = ex(&mut a, &mtr_tpdo(ready, 0), follow());
+        // The end with bit 4, absolute (bit 6 = 0 on the MTR-DCI), bit 15, no bit 5; the profile
+        // on RPDO2 in the same cycle.
+        assert_eq!(o.target, 5_000);
+        assert_eq!(o.controlword.0 & 0x8170, 0x8010, "{:04X}", o.controlword.0);
+        assert_eq!(a.profile_pdo(), Some(m.profile_bytes()));
+        // Acknowledged: bit 4 falls, nothing is sent again while the move runs.
+        let (o, _) = ex(&mut a, &mtr_tpdo(acked, 100), follow());
+        assert_eq!(o.controlword.0 & 0x0010, 0);
+        for pos in [1_000, 3_000] {
+            let (o, fb) = ex(&mut a, &mtr_tpdo(moving & !0x1000, pos), follow());
+            assert_eq!(o.controlword.0 & 0x0110, 0, "no new set-point, no halt");
+            assert_eq!(a.profile_pdo(), None);
+            assert!(!fb.motion_complete);
+        }
+        // Held: bit 8 only.
+        a.set_move(Some(PointMove { halt: true, ..m }));
+        let (o, _) = ex(&mut a, &mtr_tpdo(0x0237, 3_500), follow());
+        assert_eq!(o.controlword.0 & 0x0110, 0x0100);
+        // Stopped there, the move dropped: a standstill demand first quick-stops (0002h) to end
+        // the drive's held move instead of releasing the halt into it.
+        a.set_move(None);
+        let (o, _) = ex(&mut a, &mtr_tpdo(0x0637, 3_600), Demand::Standstill);
+        assert_eq!(o.controlword.0 & 0x000F, 0x0002, "{:04X}", o.controlword.0);
+        // Quick stop active (bits 0..2 without bit 5): enabled again, transition 16.
+        let (o, _) = ex(&mut a, &mtr_tpdo(0x0217, 3_600), Demand::Standstill);
+        assert_eq!(o.controlword.0 & 0x000F, 0x000F);
+        // A member that does not move: no set-point at all, done at once.
+        let mut b = Cia402Axis::new(Layout::MtrDci, CYCLE);
+        b.set_move(Some(PointMove {
+            end: 0,
+            velocity: 0,
+            acceleration: 0,
+            halt: false,
+        }));
+        let (o, fb) = ex(&mut b, &mtr_tpdo(ready, 0), follow());
+        assert_eq!(o.controlword.0 & 0x0010, 0);
+        assert_eq!(b.profile_pdo(), None);
+        assert!(fb.motion_complete);
     }
 
     #[test]
