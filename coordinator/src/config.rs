@@ -608,8 +608,7 @@ pub fn axis_pdos_in(
             .profile(profile.into())
             .and_then(|f| f.profile_rpdo2)
     {
-        let bytes: u32 = m.iter().map(|e| (e & 0xFF) / 8).sum();
-        rpdos.push(Pdo::every_sync(bytes as u8));
+        rpdos.push(Pdo::every_sync(drivers::catalog::mapped_bytes(m) as u8));
     }
     (rpdos, tpdos)
 }

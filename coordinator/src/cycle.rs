@@ -2198,9 +2198,6 @@ fn jog_velocity(l: &AxisLimits, permille: i16) -> i64 {
     v.max(1).min(i64::MAX as u64) as i64
 }
 
-/// Plans a single-axis motion from `from`: a move at its share of the limits, or a jog to the
-/// software limit in its direction at its speed with the full acceleration (so it stops
-/// exactly at the limit at the latest, and a release ramps down within the limits).
 /// A single axis's moves are jerk-limited, except on a drive that takes one set-point per move:
 /// it runs each on its own trapezoidal generator (the MTR-DCI: 6086h linear only, seed 000
 /// §7.8), and the path, which supervision compares it with, is planned the same way.
@@ -2231,6 +2228,9 @@ fn point_move<const N: usize>(m: &PathMove<N>, k: usize) -> PointMove {
     }
 }
 
+/// Plans a single-axis motion from `from`: a move at its share of the limits, or a jog to the
+/// software limit in its direction at its speed with the full acceleration (so it stops
+/// exactly at the limit at the latest, and a release ramps down within the limits).
 fn plan_solo(
     setup: &AxisSetup,
     from: i64,
