@@ -2905,6 +2905,18 @@ mod tests {
             assert_eq!(DeviceKind::deserialize(de), Ok(d));
         }
         assert!(axis_pdos(DeviceKind::CmmoSt, Profile::Fhpp, false).is_empty());
+        // The MTR-DCI in CiA 402 takes one set-point per move: its profile RPDO2 (6081h, 6083h)
+        // is counted beside PDO1, as if every cycle sent one; the TLC5xx has none.
+        let lens = |d, p| {
+            let (r, t) = axis_pdos_in(d, p, crate::axis::CyclicMode::Pp, false);
+            (
+                r.iter().map(|p| p.len).collect::<std::vec::Vec<_>>(),
+                t.len(),
+            )
+        };
+        assert_eq!(lens(DeviceKind::MtrDci, Profile::Cia402), (vec![8, 8], 1));
+        assert_eq!(lens(DeviceKind::MtrDci, Profile::Fhpp), (vec![8], 1));
+        assert_eq!(lens(DeviceKind::Tlc5xx, Profile::Cia402), (vec![7], 1));
         // The EMCA with its parameter channel beside the other two drives on can0 does not fit
         // 80 % (which is why the example gives it a bus of its own).
         let e = errors(&edited(&[(
