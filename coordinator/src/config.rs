@@ -2290,6 +2290,25 @@ impl Config {
                 continue;
             };
             match target(rc, axis, v) {
+                Ok(AxisTarget::Relative(_))
+                    if rc.mode == GroupRecordMode::Velocity
+                        && crate::axis::takes_one_set_point_per_move(
+                            axis.device.axis_kind(),
+                            axis.profile().into(),
+                            axis.mode(),
+                        ) =>
+                {
+                    err.push(
+                        k,
+                        Problem::NotAllowed {
+                            device: axis.device,
+                            reason: "in the CiA 402 profile takes one set-point per move (no \
+                                     \"change set immediately\"): it cannot run a velocity \
+                                     record; give it 0 here, a position record, or the fhpp profile",
+                        },
+                    );
+                    ok = false;
+                }
                 Ok(t) => rec.targets[i] = t,
                 Err(p) => {
                     err.push(k, p);
@@ -3518,6 +3537,32 @@ mod tests {
         chain
             .start(gantry, 10, drivers::time::Instant::ZERO)
             .unwrap();
+    }
+
+    #[test]
+    fn a_velocity_record_cannot_drive_an_axis_that_takes_one_set_point_per_move() {
+        let machine = |profile: &str, target: f64| {
+            format!(
+                "cycle_us = 2000\n\n[[buses]]\nname = \"can0\"\nkind = \"simulated\"\n\n\
+                 [[axes]]\nname = \"m\"\ndevice = \"mtr-dci\"\nprofile = \"{profile}\"\n\
+                 bus = \"can0\"\nnode = 1\nunit = \"mm\"\nincrements_per_unit = 400.0\n\
+                 limits = {{ position_min = 0.0, position_max = 200.0, velocity = 50.0, \
+                 acceleration = 200.0 }}\n\n\
+                 [[groups]]\nname = \"g\"\naxes = [\"m\"]\n\n\
+                 [[groups.records]]\nnumber = 1\nmode = \"velocity\"\nvelocity = 50\n\
+                 targets = {{ m = {target:?} }}\n"
+            )
+        };
+        let refused = errors(&machine("cia402", 1.0));
+        assert_eq!(refused.len(), 1, "{refused:?}");
+        assert!(
+            refused[0].starts_with("groups[0].records[0].targets.m: a mtr-dci axis in the CiA 402")
+                && refused[0].contains("cannot run a velocity record"),
+            "{refused:?}"
+        );
+        // Standing still in it, or in FHPP, is fine.
+        assert_eq!(errors(&machine("cia402", 0.0)), Vec::<String>::new());
+        assert_eq!(errors(&machine("fhpp", 1.0)), Vec::<String>::new());
     }
 
     #[test]
