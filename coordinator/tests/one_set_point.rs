@@ -102,6 +102,16 @@ fn run_until(
     );
 }
 
+/// The MTR-DCI's actual position.
+fn position(run: &VirtualRun<'_>) -> i64 {
+    run.stepper
+        .cycle
+        .axis_status(MTR)
+        .unwrap()
+        .feedback
+        .position
+}
+
 fn standing_at(run: &VirtualRun<'_>, target: i64) -> bool {
     let s = run.stepper.cycle.axis_status(MTR).unwrap();
     !s.moving && s.feedback.motion_complete && (s.feedback.position - target).abs() <= 2
@@ -114,13 +124,7 @@ fn a_move_is_one_set_point_and_follows_the_path() {
     let setup = &plan.axes[usize::from(MTR)].setup;
     let target = setup.position_max * 3 / 4;
     let limit = setup.following_error;
-    let from = run
-        .stepper
-        .cycle
-        .axis_status(MTR)
-        .unwrap()
-        .feedback
-        .position;
+    let from = position(&run);
     let (_, node) = bus_node(&plan);
     profiles_sent(&mut monitor, node);
     let r = command(
@@ -174,9 +178,7 @@ fn a_halted_move_is_dropped_not_resumed_and_a_held_one_resumes() {
         command(&mut run, mv(first)),
         Reply::Latched { .. }
     ));
-    run_until(&mut run, &mut out, 5_000, |r| {
-        r.stepper.cycle.axis_status(MTR).unwrap().feedback.position > max / 4
-    });
+    run_until(&mut run, &mut out, 5_000, |r| position(r) > max / 4);
     assert!(matches!(
         command(&mut run, Command::Hold(Target::Axis(MTR))),
         Reply::Latched { .. }
@@ -184,13 +186,7 @@ fn a_halted_move_is_dropped_not_resumed_and_a_held_one_resumes() {
     run_until(&mut run, &mut out, 5_000, |r| {
         r.stepper.cycle.axis_status(MTR).unwrap().feedback.velocity == 0
     });
-    let held_at = run
-        .stepper
-        .cycle
-        .axis_status(MTR)
-        .unwrap()
-        .feedback
-        .position;
+    let held_at = position(&run);
     assert!(held_at < first - 1000, "held at {held_at}");
     assert!(matches!(
         command(&mut run, Command::Resume(Target::Axis(MTR))),
@@ -203,9 +199,7 @@ fn a_halted_move_is_dropped_not_resumed_and_a_held_one_resumes() {
         command(&mut run, mv(second)),
         Reply::Latched { .. }
     ));
-    run_until(&mut run, &mut out, 5_000, |r| {
-        r.stepper.cycle.axis_status(MTR).unwrap().feedback.position < max / 2
-    });
+    run_until(&mut run, &mut out, 5_000, |r| position(r) < max / 2);
     assert!(matches!(
         command(&mut run, Command::Stop(Target::Axis(MTR))),
         Reply::Latched { .. }
@@ -214,13 +208,7 @@ fn a_halted_move_is_dropped_not_resumed_and_a_held_one_resumes() {
         let s = r.stepper.cycle.axis_status(MTR).unwrap();
         !s.moving && s.feedback.velocity == 0
     });
-    let stopped_at = run
-        .stepper
-        .cycle
-        .axis_status(MTR)
-        .unwrap()
-        .feedback
-        .position;
+    let stopped_at = position(&run);
     assert!(stopped_at > second + 1000, "stopped at {stopped_at}");
     for _ in 0..3000 {
         run.step(&mut out);

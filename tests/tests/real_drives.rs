@@ -220,6 +220,19 @@ impl Scene {
         self.spawn("coordinator", &coordinator_bin(), &args)
     }
 
+    /// The coordinator enabling and homing (`--demo --no-chains`) with `--capture`: the
+    /// process and the capture's folder.
+    fn capturing_coordinator(&mut self, config: &Path, prefix: &str) -> (P, PathBuf) {
+        let capture = self.path("capture");
+        let dir = capture.to_str().unwrap().to_string();
+        let coord = self.coordinator(
+            config,
+            prefix,
+            &["--demo", "--no-chains", "--capture", &dir],
+        );
+        (coord, capture)
+    }
+
     fn output(&self, p: P) -> String {
         std::fs::read_to_string(&self.procs[p.0].log).unwrap_or_default()
     }
@@ -493,17 +506,7 @@ fn a_machine_of_drives_in_other_processes() {
     let e_sim = sc.drive_sim(&config, &["e"]);
     let g_sim = sc.drive_sim(&config, &["g"]);
     sc.wait_running(&[t_sim, m_sim, e_sim, g_sim]);
-    let capture = sc.path("capture");
-    let coord = sc.coordinator(
-        &config,
-        &prefix,
-        &[
-            "--demo",
-            "--no-chains",
-            "--capture",
-            capture.to_str().unwrap(),
-        ],
-    );
+    let (coord, capture) = sc.capturing_coordinator(&config, &prefix);
     let mut c = connect(&prefix);
 
     // The built-in script (without chains) enables and homes every axis.
@@ -726,17 +729,7 @@ fn canbus_dump_sees_the_coordinators_sync_and_pdos() {
         ],
     );
     sc.wait_output(dump, &format!("listening on vbus:{bus}"), 1);
-    let capture = sc.path("capture");
-    let coord = sc.coordinator(
-        &config,
-        &prefix,
-        &[
-            "--demo",
-            "--no-chains",
-            "--capture",
-            capture.to_str().unwrap(),
-        ],
-    );
+    let (coord, capture) = sc.capturing_coordinator(&config, &prefix);
     sc.wait_output(coord, "drive ready: node 5 (TLC5xx \"z\")", 1);
     let status = sc.wait_exit(dump);
     assert!(
@@ -1157,17 +1150,7 @@ fn a_closed_terminal_stops_the_axes_and_disables_the_drives() {
         check(&config);
         let z_sim = sc.drive_sim(&config, &["z"]);
         sc.wait_running(&[z_sim]);
-        let capture = sc.path("capture");
-        let coord = sc.coordinator(
-            &config,
-            &prefix,
-            &[
-                "--demo",
-                "--no-chains",
-                "--capture",
-                capture.to_str().unwrap(),
-            ],
-        );
+        let (coord, capture) = sc.capturing_coordinator(&config, &prefix);
         let mut c = connect(&prefix);
         sc.wait_state(&mut c, coord, "z enabled and homed", |s| {
             s.axis_count == 1 && ready(&s.axes[0])
@@ -1431,17 +1414,7 @@ fn an_mtr_dci_in_cia_402_in_another_process_runs_a_move_from_one_set_point() {
     check(&config);
     let m_sim = sc.drive_sim(&config, &["m"]);
     sc.wait_running(&[m_sim]);
-    let capture = sc.path("capture");
-    let coord = sc.coordinator(
-        &config,
-        &prefix,
-        &[
-            "--demo",
-            "--no-chains",
-            "--capture",
-            capture.to_str().unwrap(),
-        ],
-    );
+    let (coord, capture) = sc.capturing_coordinator(&config, &prefix);
     let mut c = connect(&prefix);
     let s = sc.wait_state(&mut c, coord, "m online, enabled and homed", |s| {
         s.axis_count == 1 && axes(s).iter().all(ready)
