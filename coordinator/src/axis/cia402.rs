@@ -77,6 +77,18 @@ pub enum Layout {
 }
 
 impl Layout {
+    /// The layout of a `kind` drive commanded in CiA 402 (a generic drive in CSP, its
+    /// default mode); `None` for a device the coordinator does not command in CiA 402.
+    pub const fn of(kind: super::DeviceKind) -> Option<Layout> {
+        use super::DeviceKind;
+        match kind {
+            DeviceKind::Tlc5xx => Some(Layout::Tlc5xx),
+            DeviceKind::MtrDci => Some(Layout::MtrDci),
+            DeviceKind::Cia402 => Some(Layout::Generic(CyclicMode::Csp)),
+            DeviceKind::Emca | DeviceKind::CmmoSt => None,
+        }
+    }
+
     /// Bytes of the input image (TPDO1).
     pub const fn rx_len(self) -> usize {
         match self {

@@ -96,17 +96,6 @@ impl DeviceKind {
     pub fn label(self) -> &'static str {
         self.device().name
     }
-
-    /// How the device's CiA 402 profile differs from the standard, where the coordinator
-    /// commands it in CiA 402.
-    pub const fn cia402_profile(self) -> Option<&'static drivers::cia402::DeviceProfile> {
-        match self {
-            DeviceKind::MtrDci => Some(&drivers::cia402::MTR_DCI),
-            DeviceKind::Tlc5xx => Some(&drivers::cia402::TLC5XX),
-            DeviceKind::Cia402 => Some(&drivers::cia402::GENERIC),
-            DeviceKind::Emca | DeviceKind::CmmoSt => None,
-        }
-    }
 }
 
 impl core::fmt::Display for DeviceKind {
@@ -283,9 +272,7 @@ impl PointMove {
 pub fn takes_one_set_point_per_move(kind: DeviceKind, profile: Profile, mode: CyclicMode) -> bool {
     profile == Profile::Cia402
         && mode == CyclicMode::Pp
-        && kind
-            .cia402_profile()
-            .is_some_and(|p| !p.change_set_immediately)
+        && cia402::Layout::of(kind).is_some_and(|l| !l.profile().change_set_immediately)
 }
 
 /// Where an axis is, as the coordinator sees it.
@@ -421,17 +408,13 @@ impl DriveAxis {
                 Variant::CmmoSt,
                 cycle_ns,
             ))),
-            (DeviceKind::Tlc5xx, Profile::Cia402) => Ok(DriveAxis::Cia402(
-                cia402::Cia402Axis::new(cia402::Layout::Tlc5xx, cycle_ns),
-            )),
-            (DeviceKind::MtrDci, Profile::Cia402) => Ok(DriveAxis::Cia402(
-                cia402::Cia402Axis::new(cia402::Layout::MtrDci, cycle_ns),
-            )),
-            (DeviceKind::Cia402, Profile::Cia402) => Ok(DriveAxis::Cia402(
-                cia402::Cia402Axis::new(cia402::Layout::Generic(CyclicMode::Csp), cycle_ns),
-            )),
-            // Offered by the catalog without a master side here: refused the same way
-            // (`images_match_the_catalog_pdo1` keeps this arm unreachable).
+            (k, Profile::Cia402) => match cia402::Layout::of(k) {
+                Some(l) => Ok(DriveAxis::Cia402(cia402::Cia402Axis::new(l, cycle_ns))),
+                // Offered by the catalog without a master side here: refused the same way
+                // (`images_match_the_catalog_pdo1` keeps this arm unreachable).
+                None => Err(unsupported),
+            },
+            // FHPP on a device that does not speak it: `offers` refused it above.
             _ => Err(unsupported),
         }
     }
