@@ -752,14 +752,8 @@ impl Cia402Axis {
     /// `position` placed as many cycles ahead at `velocity` as the last handshake took; `last`
     /// is the path's end to compare for `motion_complete` (`None` for jog).
     fn stream(&mut self, fresh: bool, position: i64, velocity: i64, last: Option<i64>) {
-        let target = self.ahead(position, velocity, self.lead);
-        if !self.power() || !self.mode_active() {
-            if self.state() == Some(State::OperationEnabled) {
-                self.cw = Self::enable_op();
-                self.pp.reset();
-            }
-            self.target = target;
-            self.step = Step::Start;
+        if !self.pp_ready() {
+            self.target = self.ahead(position, velocity, self.lead);
             return;
         }
         self.handshake(fresh);
@@ -789,6 +783,20 @@ impl Cia402Axis {
         }
     }
 
+    /// Toward Operation enabled with profile position active: `true` once there. On the way
+    /// (bit 4 low, the handshake abandoned) the step starts over.
+    fn pp_ready(&mut self) -> bool {
+        if self.power() && self.mode_active() {
+            return true;
+        }
+        if self.state() == Some(State::OperationEnabled) {
+            self.cw = Self::enable_op();
+            self.pp.reset();
+        }
+        self.step = Step::Start;
+        false
+    }
+
     /// The set-point handshake's news in a fresh image: the request acknowledged (`true`), its
     /// target reached since.
     fn handshake(&mut self, fresh: bool) -> bool {
@@ -813,13 +821,7 @@ impl Cia402Axis {
     /// bit 8 while the path holds; done once the drive acknowledged the end and reached it.
     fn point_follow(&mut self, fresh: bool) {
         self.mode = OperationMode::ProfilePosition;
-        let sym = Controlword::MTR_SYMMETRICAL_RAMP;
-        if !self.power() || !self.mode_active() {
-            if self.state() == Some(State::OperationEnabled) {
-                self.cw = Self::enable_op();
-                self.pp.reset();
-            }
-            self.step = Step::Start;
+        if !self.pp_ready() {
             return;
         }
         if self.handshake(fresh) {
@@ -827,7 +829,7 @@ impl Cia402Axis {
         }
         let Some(m) = self.point else {
             // No path: stand where the drive is.
-            self.cw = self.pp.controlword(Self::enable_op()).with(sym, true);
+            self.cw = self.point_controlword(false);
             self.step = Step::Start;
             return;
         };
@@ -839,11 +841,7 @@ impl Cia402Axis {
         if (m.velocity == 0 || m.acceleration == 0) && !self.task_open {
             // A group member that does not move: no set-point (a task with v = 0 is not
             // executable on the MTR-DCI, seed 000 §5.6.4), done where it stands.
-            self.cw = self
-                .pp
-                .controlword(Self::enable_op())
-                .with(sym, true)
-                .with(Controlword::HALT, halt);
+            self.cw = self.point_controlword(halt);
             self.step = if !halt && self.sw().target_reached() {
                 Step::Done
             } else {
@@ -880,17 +878,22 @@ impl Cia402Axis {
             }
         }
         self.target = self.pp.target().unwrap_or(end);
-        self.cw = self
-            .pp
-            .controlword(Self::enable_op())
-            .with(sym, true)
-            .with(Controlword::HALT, halt);
+        self.cw = self.point_controlword(halt);
         let arrived = !halt
             && self.pp.state() == PpMasterState::Idle
             && self.acked == Some(end)
             && self.reached
             && self.sw().target_reached();
         self.step = if arrived { Step::Done } else { Step::Start };
+    }
+
+    /// One set-point per move: the handshake's bits, bit 15 (the drive brakes with 6083h),
+    /// bit 8 while `halt`.
+    fn point_controlword(&self, halt: bool) -> Controlword {
+        self.pp
+            .controlword(Self::enable_op())
+            .with(Controlword::MTR_SYMMETRICAL_RAMP, true)
+            .with(Controlword::HALT, halt)
     }
 
     /// Drops a move the drive holds unfinished (see `task_open`) with a quick stop, which keeps
@@ -1110,8 +1113,8 @@ mod tests {
 
     #[test]
     fn one_set_point_per_move_on_the_mtr_dci() {
-        // Operation enabled, target reached, mode PP.
-        let (ready, acked, moving) = (0x0637, 0x1237, 0x1237);
+        // Operation enabled: target reached; set-point acknowledged; moving.
+        let (ready, acked, moving) = (0x0637, 0x1237, 0x0237);
         let mut a = Cia402Axis::new(Layout::MtrDci, CYCLE);
         assert!(a.one_set_point_per_move());
         assert!(!axis().one_set_point_per_move());
@@ -1132,14 +1135,14 @@ mod tests {
         let (o, _) = ex(&mut a, &mtr_tpdo(acked, 100), follow());
         assert_eq!(o.controlword.0 & 0x0010, 0);
         for pos in [1_000, 3_000] {
-            let (o, fb) = ex(&mut a, &mtr_tpdo(moving & !0x1000, pos), follow());
+            let (o, fb) = ex(&mut a, &mtr_tpdo(moving, pos), follow());
             assert_eq!(o.controlword.0 & 0x0110, 0, "no new set-point, no halt");
             assert_eq!(a.profile_pdo(), None);
             assert!(!fb.motion_complete);
         }
         // Held: bit 8 only.
         a.set_move(Some(PointMove { halt: true, ..m }));
-        let (o, _) = ex(&mut a, &mtr_tpdo(0x0237, 3_500), follow());
+        let (o, _) = ex(&mut a, &mtr_tpdo(moving, 3_500), follow());
         assert_eq!(o.controlword.0 & 0x0110, 0x0100);
         // Stopped there, the move dropped: a standstill demand first quick-stops (0002h) to end
         // the drive's held move instead of releasing the halt into it.
