@@ -1266,13 +1266,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 };
                 // Such a drive runs the move on its own generator at the speed it was sent:
                 // a path running faster or slower would leave it behind or ahead.
+                let axes = self.target_axes(target)?;
                 let groups_moving = self.groups[g0..g1].iter().filter(|g| g.motion.is_some());
                 let members =
                     groups_moving.flat_map(|g| g.setup.axes.iter().map(|&m| usize::from(m)));
-                let solos = self
-                    .target_axes(target)?
-                    .into_iter()
-                    .map(usize::from)
+                let solos = axes
+                    .iter()
+                    .map(|&a| usize::from(a))
                     .filter(|&i| self.solos.is_some(i));
                 if members
                     .chain(solos)
@@ -1290,7 +1290,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                         let _ = m.set_override(percent.min(g.max_override));
                     }
                 }
-                for a in self.target_axes(target)? {
+                for a in axes {
                     let i = usize::from(a);
                     self.cold[i].override_percent = percent;
                     if let Some(s) = self.solos.get_mut(i) {

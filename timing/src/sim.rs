@@ -8,10 +8,11 @@
 //! Boot and homing are run first, unmeasured. Then every axis moves back and forth between a
 //! quarter and three quarters of its range, as a client would move it (a move through the
 //! client's path each time the axis is at a standstill again), since a machine that stands
-//! still costs its simulators less than one that works. Every cycle (the drives up to the SYNC, the coordinator's receive,
-//! step and send) is one sample: its wall time between two `CLOCK_MONOTONIC` readings; the
-//! moves are submitted between the samples. The machine time those cycles covered,
-//! times the drives, over the sum of the samples, is the drive-seconds per wall second.
+//! still costs its simulators less than one that works. Every cycle (the drives up to the
+//! SYNC, the coordinator's receive, step and send) is one sample: its wall time between two
+//! `CLOCK_MONOTONIC` readings; the moves are submitted between the samples. The machine time
+//! those cycles covered, times the drives, over the sum of the samples, is the drive-seconds
+//! per wall second.
 //!
 //! A monitor on each bus counts the frames by COB-ID (outside the timed spans), so the summary
 //! shows the bus traffic the figure was measured with: frames per cycle, and TPDO frames per
