@@ -9,9 +9,14 @@
 //! as the coordinator's cycle thread ([`enter_realtime`] at the given priority), since that is
 //! where the step runs: on the normal scheduler, every other process on a shared machine
 //! preempts it and the tail measures them. A refused priority is reported and the run goes on.
+//!
+//! Beside each cold series, its memory floor: the same cold copies, of which only the lines
+//! the step asks for at its start ([`coordinator::cycle::Cycle::for_each_hot_line`]) are read
+//! ([`read_lines`]), nothing computed. A cold step cannot be cheaper than bringing in its lines;
+//! the ratio of the two says how much of the cold figure is the machine's memory.
 
 use coordinator::axis::Image;
-use coordinator::config::Config;
+use coordinator::config::{Config, MAX_AXES, MAX_GROUPS};
 use coordinator::cycle::{BusFrame, CycleInput, CycleOutput};
 use coordinator::runtime::plan::plan;
 use coordinator::runtime::realtime_thread::{RealtimeSettings, enter_realtime, leave_realtime};
@@ -145,13 +150,25 @@ pub fn series_name(axes: usize, p: Profile, grouped: bool, cache: Cache) -> Stri
     )
 }
 
-/// Times the captured step `count` times (calibrated to the time asked for) on a thread set up
+/// The memory floor's series beside a machine's cold one: `8 axes, FHPP and CiA 402, grouped,
+/// cold, memory floor`.
+pub fn floor_name(axes: usize, p: Profile, grouped: bool) -> String {
+    format!(
+        "{}, memory floor",
+        series_name(axes, p, grouped, Cache::Cold)
+    )
+}
+
+/// Times the captured step (or, with `floor`, only the reading of those lines of the state)
+/// `count` times (calibrated to the time asked for) on a thread set up
 /// as the cycle thread; `done` counts samples for the progress display.
+#[allow(clippy::too_many_arguments)]
 fn measure(
     cap: &coordinator::runtime::stepper::Captured<'_>,
     name: &str,
     o: &StepOptions,
     cache: Cache,
+    floor: Option<&[usize]>,
     done: &AtomicU64,
     planned: &AtomicU64,
     run_start: drivers::time::Instant,
@@ -190,7 +207,10 @@ fn measure(
                 images: &mut modbus,
             };
             let t0 = monotonic_now();
-            cycle.step(&input, &mut out);
+            match floor {
+                None => cycle.step(&input, &mut out),
+                Some(lines) => read_lines(&**cycle, lines),
+            }
             let t1 = monotonic_now();
             std::hint::black_box(out.len);
             record(t0, t1.saturating_duration_since(t0).as_nanos() as u64);
@@ -233,6 +253,32 @@ fn measure(
     (s, count, granted)
 }
 
+/// Reads one byte at each offset in `lines` of `state`, the reads independent of one another,
+/// so that they can all be in flight at once: the cost of bringing those lines in and nothing
+/// else. Panics on an offset outside `state`.
+#[inline(never)]
+pub fn read_lines<T: ?Sized>(state: &T, lines: &[usize]) {
+    let size = std::mem::size_of_val(state);
+    let p = (state as *const T).cast::<std::mem::MaybeUninit<u8>>();
+    for &o in lines {
+        assert!(o < size, "line offset {o} outside a {size}-byte state");
+        // SAFETY: `o` is inside `*state` (checked above); read as `MaybeUninit`, a padding
+        // byte is a valid value too. Volatile, so that the read is made although its value is
+        // not used.
+        let _ = unsafe { std::ptr::read_volatile(p.add(o)) };
+    }
+}
+
+/// The lines a step asks for before it starts, as offsets into the state, each once; a line
+/// that starts before the state is read at its first byte.
+fn hot_lines(cycle: &coordinator::cycle::Cycle<'_, MAX_AXES, MAX_GROUPS>) -> Vec<usize> {
+    let mut v = Vec::new();
+    cycle.for_each_hot_line(&mut |o| v.push(o.max(0) as usize));
+    v.sort_unstable();
+    v.dedup();
+    v
+}
+
 /// Runs `timing step`; returns the run's summary part and one series per machine.
 pub fn run(o: &StepOptions) -> Result<(Run, Vec<Series>), String> {
     o.check()?;
@@ -248,7 +294,9 @@ pub fn run(o: &StepOptions) -> Result<(Run, Vec<Series>), String> {
     );
     run.set("cold_bytes", COLD_BYTES as u64);
     let mut out = Vec::new();
-    let parts = (list.len() * o.caches.len()) as u64;
+    // A cold series is followed by its memory floor.
+    let per_machine = o.caches.len() + usize::from(o.caches.contains(&Cache::Cold));
+    let parts = (list.len() * per_machine) as u64;
     let mut progress = Progress::new("step", parts * 100);
     // Each series's samples are placed in time since the run's start, one after the other.
     let run_start = monotonic_now();
@@ -272,8 +320,16 @@ pub fn run(o: &StepOptions) -> Result<(Run, Vec<Series>), String> {
         );
         // What one copy of the state weighs: a cold step reads its part of this from memory.
         run.set("state_bytes", std::mem::size_of_val(&*cap.cycle) as u64);
+        let lines = hot_lines(&cap.cycle);
+        run.set(&format!("hot_lines ({machine})"), lines.len() as u64);
+        let mut series: Vec<(String, Cache, Option<&[usize]>)> = Vec::new();
         for &cache in &o.caches {
-            let name = series_name(n, p, grouped, cache);
+            series.push((series_name(n, p, grouped, cache), cache, None));
+            if cache == Cache::Cold {
+                series.push((floor_name(n, p, grouped), cache, Some(&lines)));
+            }
+        }
+        for (name, cache, floor) in series {
             let done = AtomicU64::new(0);
             let planned = AtomicU64::new(u64::MAX);
             let measured = std::thread::scope(|scope| {
@@ -282,7 +338,7 @@ pub fn run(o: &StepOptions) -> Result<(Run, Vec<Series>), String> {
                 let worker = std::thread::Builder::new()
                     .name("step".into())
                     .spawn_scoped(scope, || {
-                        measure(&cap, &name, o, cache, &done, &planned, run_start)
+                        measure(&cap, &name, o, cache, floor, &done, &planned, run_start)
                     })
                     .map_err(|e| format!("cannot start the measuring thread: {e}"))?;
                 while !worker.is_finished() {
@@ -306,6 +362,14 @@ pub fn run(o: &StepOptions) -> Result<(Run, Vec<Series>), String> {
             progress.set(k * 100);
             run.add(&s, Some(count));
             out.push(s);
+            if floor.is_some() {
+                // How far the cold step is above what only reading its lines costs.
+                run.add_ratios(
+                    &series_name(n, p, grouped, Cache::Cold),
+                    &name,
+                    &["p50", "p99"],
+                );
+            }
         }
     }
     progress.finish();

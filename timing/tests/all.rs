@@ -208,6 +208,37 @@ fn all_writes_a_consistent_summary() {
         );
     }
 
+    // The step run: every cold series has its memory floor beside it, the ratio of the two,
+    // and the count of lines the floor read.
+    let step = &runs[1];
+    let step_series: Vec<&str> = step["series"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x["name"].as_str().unwrap())
+        .collect();
+    let cold: Vec<&str> = step_series
+        .iter()
+        .copied()
+        .filter(|n| n.ends_with(", cold"))
+        .collect();
+    assert!(!cold.is_empty(), "{step_series:?}");
+    for c in cold {
+        let floor = format!("{c}, memory floor");
+        assert!(
+            step_series.contains(&floor.as_str()),
+            "{floor} in {step_series:?}"
+        );
+        let pair =
+            step["ratios"].as_array().unwrap().iter().any(|q| {
+                q["numerator"]["series"] == c && q["denominator"]["series"] == floor.as_str()
+            });
+        assert!(pair, "no ratio {c} / {floor}: {}", step["ratios"]);
+        let machine = c.trim_end_matches(", cold");
+        let lines = &step["settings"][format!("hot_lines ({machine})")];
+        assert!(lines.as_u64().is_some_and(|n| n > 0), "{machine}: {lines}");
+    }
+
     // The sim run: its figures add up, and every drive sent its TPDO on every SYNC.
     let sim = &runs[2];
     let results = sim["settings"]["results"].as_array().unwrap();

@@ -111,6 +111,7 @@ struct StepArgs {
     single: bool,
     /// Where the step finds its state: cold (copies made ahead, out of the caches, as the
     /// criterion bench and the cycle thread after its sleep), hot (copied just before), both.
+    /// A cold series is followed by its memory floor (only the step's lines read, cold).
     #[arg(long, value_enum, default_value = "both")]
     cache: CacheArg,
     /// SCHED_FIFO priority of the measuring thread, as the cycle thread's (1..99; 0: the
