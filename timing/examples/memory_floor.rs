@@ -37,7 +37,7 @@ fn main() {
         Ok(v) if v.is_empty() => vec![1, 8, 16, 32, 64, 90, 128, 256, 512],
         Ok(v) => v,
         Err(a) => {
-            eprintln!("error: {a:?} is not a line count (a whole number, 1 or more)");
+            eprintln!("error: '{a}' is not a line count (a whole number, 1 or more)");
             std::process::exit(2);
         }
     };

@@ -406,6 +406,17 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_floor_reads_inside_the_state_only() {
+        // A struct with padding: a line may start in it, and reading it is no error.
+        #[allow(dead_code)]
+        struct Padded(u8, u64, [u16; 40]);
+        let s = Padded(1, 2, [3; 40]);
+        read_lines(&s, &[0, 64, size_of::<Padded>() - 1]);
+        let r = std::panic::catch_unwind(|| read_lines(&s, &[size_of::<Padded>()]));
+        assert!(r.is_err(), "an offset past the state must be refused");
+    }
+
+    #[test]
     fn sizes_out_of_range_are_refused() {
         let o = StepOptions {
             axes: vec![8, 129],
