@@ -2172,8 +2172,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
     }
 }
 
-/// Hands `f` the start and size of the first element of `x` (the line of a container that
-/// holds its length or indices).
+/// Hands `f` the first byte of `x`: for a container, the line that holds its length or
+/// indices.
 #[inline(always)]
 fn region_first<T>(f: &mut impl FnMut(*const u8, usize), x: &T) {
     f((x as *const T).cast(), 1);
