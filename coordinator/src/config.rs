@@ -601,13 +601,7 @@ pub fn axis_pdos_in(
     rpdos.extend(both.iter().skip(1).copied());
     tpdos.extend(both.iter().skip(1).copied());
     // A move's profile on RPDO2 (at most one a cycle: counted as if every cycle had one).
-    if crate::axis::takes_one_set_point_per_move(device.axis_kind(), profile.into(), mode)
-        && let Some(m) = device
-            .axis_kind()
-            .device()
-            .profile(profile.into())
-            .and_then(|f| f.profile_rpdo2)
-    {
+    if let Some(m) = crate::axis::profile_rpdo2_mapping(device.axis_kind(), profile.into(), mode) {
         rpdos.push(Pdo::every_sync(drivers::catalog::mapped_bytes(m) as u8));
     }
     (rpdos, tpdos)

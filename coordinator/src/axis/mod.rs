@@ -577,6 +577,20 @@ pub fn fpc_mapping(kind: DeviceKind, profile: Profile) -> Option<PdoMap> {
     })
 }
 
+/// The RPDO2 mapping that carries each move's profile (6081h, 6083h) to a drive that takes one
+/// set-point per move ([`takes_one_set_point_per_move`]), from the catalog; `None` for every
+/// other drive.
+pub fn profile_rpdo2_mapping(
+    kind: DeviceKind,
+    profile: Profile,
+    mode: CyclicMode,
+) -> Option<&'static [u32]> {
+    if !takes_one_set_point_per_move(kind, profile, mode) {
+        return None;
+    }
+    kind.device().profile(profile)?.profile_rpdo2
+}
+
 /// The parameter-channel codec of a Festo drive (classic FPC on the MTR-DCI, EFPC on the EMCA,
 /// little-endian on CANopen).
 pub fn fpc_codec(kind: DeviceKind) -> Option<drivers::fhpp::fpc::Codec> {

@@ -429,8 +429,7 @@ pub fn plan(cfg: &Config) -> Result<MachinePlan, String> {
                     }
                 }
             }
-            if axis::takes_one_set_point_per_move(k, p, a.mode())
-                && let Some(mapping) = k.device().profile(p).and_then(|f| f.profile_rpdo2)
+            if let Some(mapping) = axis::profile_rpdo2_mapping(k, p, a.mode())
                 && let Some(mut pp) = PdoPlan::sync(PdoDirection::Rpdo, 2, mapping)
             {
                 // Each move's profile (6081h, 6083h), taken as it arrives: in place before the
