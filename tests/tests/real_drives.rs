@@ -1389,9 +1389,6 @@ fn a_recording_of_a_machine_with_an_eds_replays_without_the_file() {
     assert!(text.contains("identical to the recording"), "{text}");
 }
 
-/// A user's coordinator homes a TLC5xx with method 17 (`homing_method = 17`) on the negative
-/// limit switch of a standalone drive-sim (`--limit-negative`): the boot writes 6098h, the
-/// script's homing finishes at the switch.
 /// The MTR-DCI in its CiA 402 profile takes one set-point per move (no "change set
 /// immediately"): across the process boundary, the move's profile goes out once on RPDO2 and
 /// the drive-sim process runs the move to its end, where the axis stands fault-free.
@@ -1454,6 +1451,9 @@ fn an_mtr_dci_in_cia_402_in_another_process_runs_a_move_from_one_set_point() {
     assert!((199_990..=200_000).contains(&a), "6083h {a}");
 }
 
+/// A user's coordinator homes a TLC5xx with method 17 (`homing_method = 17`) on the negative
+/// limit switch of a standalone drive-sim (`--limit-negative`): the boot writes 6098h, the
+/// script's homing finishes at the switch.
 #[test]
 fn the_configured_homing_method_homes_a_drive_sim_tlc5xx_on_its_limit_switch() {
     let mut sc = Scene::new("home17");
