@@ -53,6 +53,16 @@ impl std::fmt::Debug for SimDrive {
 }
 
 impl SimDrive {
+    /// Which simulator runs the drive: drives of one kind run the same code.
+    fn kind(&self) -> u8 {
+        match self {
+            SimDrive::MtrDci(_) => 0,
+            SimDrive::Emca(_) => 1,
+            SimDrive::Tlc5xx(_) => 2,
+            SimDrive::Cia402(_) => 3,
+        }
+    }
+
     fn steppable(&mut self) -> &mut dyn Steppable {
         match self {
             SimDrive::MtrDci(s) => s.as_mut(),
@@ -203,6 +213,11 @@ impl SimBus {
             )))
         };
         Ok(SimBus { drives, sync })
+    }
+
+    /// The simulators of the bus's drives, in order: buses alike in this run the same code.
+    pub fn kinds(&self) -> Vec<u8> {
+        self.drives.iter().map(|(_, d)| d.kind()).collect()
     }
 
     /// The drive of an axis.
