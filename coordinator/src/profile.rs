@@ -62,7 +62,7 @@
 
 pub mod fixed_point;
 
-pub use fixed_point::{CycleLen, PathPos, PathRate, Time};
+pub use fixed_point::{PathPos, PathRate, Time};
 
 /// Fractional bits of time (in cycles), for the planner's raw Q16 durations.
 const TIME_BITS: u32 = Time::BITS;
@@ -233,10 +233,10 @@ pub struct Sample {
     pub jerk: i64,
 }
 
-/// One polynomial piece of a segment: constant jerk from its start (kept apart, in
-/// [`Segment`]'s `starts`).
+/// One polynomial piece of a segment: constant jerk from `t0`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 struct Phase {
+    t0: Time,
     s0: PathPos,
     v0: PathRate,
     a0: PathRate,
@@ -247,9 +247,6 @@ struct Phase {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Segment {
     phases: [Phase; 7],
-    /// When each phase starts: apart from the phases, so that finding the phase of an instant
-    /// reads one cache line, not all seven phases.
-    starts: [Time; 7],
     count: usize,
     start: PathPos,
     end: PathPos,
@@ -287,27 +284,25 @@ impl Segment {
         end: Option<PathPos>,
     ) -> Segment {
         let mut phases = [Phase::default(); 7];
-        let mut starts = [Time::ZERO; 7];
         let (mut s, mut v, mut a, mut t) = (start, v0, a0, Time::ZERO);
         let mut count = 0;
-        for ((slot, t0), &(dur, j, a_set)) in phases.iter_mut().zip(&mut starts).zip(specs) {
+        for (slot, &(dur, j, a_set)) in phases.iter_mut().zip(specs) {
             if let Some(x) = a_set {
                 a = x;
             }
             *slot = Phase {
+                t0: t,
                 s0: s,
                 v0: v,
                 a0: a,
                 j,
             };
-            *t0 = t;
             (s, v, a) = eval(slot, dur);
             t = t.saturating_add(dur);
             count += 1;
         }
         Segment {
             phases,
-            starts,
             count,
             start,
             end: end.unwrap_or(s),
@@ -327,11 +322,13 @@ impl Segment {
 
     /// Index of the phase running at `tau`.
     fn phase_at(&self, tau: Time) -> usize {
-        // The last phase started by `tau` (the first if none has).
-        self.starts[..self.count]
-            .iter()
-            .rposition(|&t0| t0 <= tau)
-            .unwrap_or(0)
+        let mut i = 0;
+        for (k, p) in self.phases[..self.count].iter().enumerate() {
+            if p.t0 <= tau {
+                i = k;
+            }
+        }
+        i
     }
 
     /// The path state `tau` after the segment's start; O(1) (at most 7 phases).
@@ -345,9 +342,8 @@ impl Segment {
             };
         }
         let tau = tau.max(Time::ZERO);
-        let i = self.phase_at(tau);
-        let p = &self.phases[i];
-        let (s, v, a) = eval(p, tau - self.starts[i]);
+        let p = &self.phases[self.phase_at(tau)];
+        let (s, v, a) = eval(p, tau - p.t0);
         let (lo, hi) = if self.start <= self.end {
             (self.start, self.end)
         } else {
@@ -583,7 +579,7 @@ pub enum MoveState {
 pub struct PathMove<const N: usize> {
     start: [i64; N],
     delta: [i64; N],
-    cycle_len: CycleLen,
+    cycle_ns: u32,
     limits: PathLimits,
     quick: PathLimits,
     plan: Segment,
@@ -690,7 +686,7 @@ impl<const N: usize> PathMove<N> {
         Ok(PathMove {
             start,
             delta,
-            cycle_len: CycleLen::new(cycle_ns),
+            cycle_ns,
             limits,
             quick,
             plan,
@@ -725,7 +721,7 @@ impl<const N: usize> PathMove<N> {
         let d = self.delta.get(i).copied().unwrap_or(0);
         let rate = |x: u128, power: u32| {
             PathRate::from_int(x)
-                .per_second(d, self.cycle_len, power)
+                .per_second(d, self.cycle_ns, power)
                 .unsigned_abs()
         };
         let (v, a) = (
@@ -776,9 +772,9 @@ impl<const N: usize> PathMove<N> {
             let d = self.delta[i];
             Sample {
                 position: self.position(i, p.s),
-                velocity: p.v.per_second(d, self.cycle_len, 1),
-                acceleration: p.a.per_second(d, self.cycle_len, 2),
-                jerk: p.j.per_second(d, self.cycle_len, 3),
+                velocity: p.v.per_second(d, self.cycle_ns, 1),
+                acceleration: p.a.per_second(d, self.cycle_ns, 2),
+                jerk: p.j.per_second(d, self.cycle_ns, 3),
             }
         })
     }
@@ -851,11 +847,7 @@ impl<const N: usize> PathMove<N> {
 
     /// Advances one cycle (override ramp, path time, state) and returns the setpoints.
     pub fn step(&mut self) -> [Sample; N] {
-        let (mut p, r, dr) = self.advance();
-        // Time scaling: v * r, a * r² + v * dr, j * r³.
-        p.a = p.a.mul_time(r).mul_time(r) + p.v.mul_time(dr);
-        p.j = p.j.mul_time(r).mul_time(r).mul_time(r);
-        p.v = p.v.mul_time(r);
+        let p = self.advance();
         self.samples(p)
     }
 
@@ -863,19 +855,18 @@ impl<const N: usize> PathMove<N> {
     /// (what a cycle streaming setpoints needs; the acceleration and jerk conversions are the
     /// costly part of a sample).
     pub fn step_positions(&mut self, out: &mut [(i64, i64)]) {
-        let (p, r, _) = self.advance();
-        let v = p.v.mul_time(r);
+        let p = self.advance();
         for (i, o) in out.iter_mut().enumerate().take(N) {
             *o = (
                 self.position(i, p.s),
-                v.per_second(self.delta[i], self.cycle_len, 1),
+                p.v.per_second(self.delta[i], self.cycle_ns, 1),
             );
         }
     }
 
-    /// Advances the path by one cycle (override ramp, phase, state) and returns its state in
-    /// path time, with the rate per cycle `r` and its change `dr` that scale it to cycles.
-    fn advance(&mut self) -> (PathSample, Time, Time) {
+    /// Advances the path by one cycle (override ramp, phase, state) and returns its
+    /// time-scaled state.
+    fn advance(&mut self) -> PathSample {
         self.cycle += 1;
         let before = self.rate;
         if self.rate < self.rate_target {
@@ -884,7 +875,7 @@ impl<const N: usize> PathMove<N> {
             self.rate = (self.rate - self.rate_step).max(self.rate_target);
         }
         self.tau = self.tau.saturating_add(self.rate);
-        let p = self.seg.at(self.tau);
+        let mut p = self.seg.at(self.tau);
         if self.tau >= self.seg.duration {
             self.state = match self.state {
                 MoveState::Holding | MoveState::QuickStopping => MoveState::Stopped,
@@ -898,7 +889,12 @@ impl<const N: usize> PathMove<N> {
                 s => s,
             };
         }
-        (p, self.rate, self.rate - before)
+        // Time scaling: v * r, a * r² + v * dr, j * r³ (r = rate per cycle).
+        let (r, dr) = (self.rate, self.rate - before);
+        p.a = p.a.mul_time(r).mul_time(r) + p.v.mul_time(dr);
+        p.j = p.j.mul_time(r).mul_time(r).mul_time(r);
+        p.v = p.v.mul_time(r);
+        p
     }
 }
 

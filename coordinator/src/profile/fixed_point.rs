@@ -146,95 +146,30 @@ impl PathRate {
     /// over a time is an acceleration), the same when `t` is the override's rate (time
     /// scaling). The product saturates, then the shift rounds towards −∞.
     pub const fn mul_time(self, t: Time) -> PathRate {
-        PathRate(saturating_mul_i128(self.0, t.0 as i128) >> Time::BITS)
+        PathRate(self.0.saturating_mul(t.0 as i128) >> Time::BITS)
     }
 
     /// The path covered at this velocity over `t`, in whole sub-units (saturated product,
     /// rounded towards −∞).
     pub const fn over(self, t: Time) -> PathPos {
-        PathPos(saturating_mul_i128(self.0, t.0 as i128) >> (Time::BITS + PathRate::BITS))
+        PathPos(self.0.saturating_mul(t.0 as i128) >> (Time::BITS + PathRate::BITS))
     }
 
     /// An axis's share of this rate in increments per second^`power` (`power` = n, the cycle's
     /// power), for an axis moving `delta` increments over the whole path with a cycle of
-    /// `cycle`: `delta · rate / 2^96 · (1 s / cycle)^power`, truncated towards zero (a
+    /// `cycle_ns`: `delta · rate / 2^96 · (1 s / cycle)^power`, truncated towards zero (a
     /// reported velocity never exceeds the continuous one).
-    pub fn per_second(self, delta: i64, cycle: CycleLen, power: u32) -> i64 {
+    pub fn per_second(self, delta: i64, cycle_ns: u32, power: u32) -> i64 {
+        const NS_PER_S: u128 = 1_000_000_000;
         let neg = (delta < 0) != (self.0 < 0);
         // Q16 increments per cycle^power: the rate's 16 lowest fractional bits go first.
-        let mut r = saturating_mul_u128(delta.unsigned_abs() as u128, self.0.unsigned_abs() >> 16)
+        let mut r = ((delta.unsigned_abs() as u128).saturating_mul(self.0.unsigned_abs() >> 16))
             >> PathPos::BITS;
         for _ in 0..power {
-            r = cycle.per_second(r);
+            r = div_u128(r.saturating_mul(NS_PER_S), u64::from(cycle_ns));
         }
         let r = (r >> 16).min(i64::MAX as u128) as i64;
         if neg { -r } else { r }
-    }
-}
-
-/// Nanoseconds in a second.
-const NS_PER_S: u64 = 1_000_000_000;
-
-/// A cycle's length, and how many cycles make a second where that is a whole number (250 µs,
-/// 1 ms, 2 ms and every usual cycle): a rate per cycle then becomes a rate per second by a
-/// multiplication, where other cycles take a division, which costs the cycle step tens of
-/// nanoseconds per axis.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct CycleLen {
-    ns: u32,
-    /// `1 s / ns` when it divides exactly, else 0.
-    per_second: u64,
-}
-
-impl CycleLen {
-    /// A cycle of `ns` nanoseconds (1 or more).
-    pub const fn new(ns: u32) -> CycleLen {
-        let per_second = if ns != 0 && NS_PER_S.is_multiple_of(ns as u64) {
-            NS_PER_S / ns as u64
-        } else {
-            0
-        };
-        CycleLen { ns, per_second }
-    }
-
-    /// The length, ns.
-    pub const fn ns(self) -> u32 {
-        self.ns
-    }
-
-    /// `⌊r · 1 s / cycle⌋`, the product saturated first: `r` per cycle as per second.
-    fn per_second(self, r: u128) -> u128 {
-        // Below 2^98 neither product saturates (1 s < 2^30 ns), and where the cycle divides
-        // the second the two are the same number.
-        if self.per_second != 0 && r >> 98 == 0 {
-            r * self.per_second as u128
-        } else {
-            div_u128(r.saturating_mul(u128::from(NS_PER_S)), u64::from(self.ns))
-        }
-    }
-}
-
-/// `a · b`, saturated at the `i128` range. Where the operands are small enough that the
-/// product cannot overflow (as in every profile sample), a plain multiplication: the
-/// overflow check of `saturating_mul` is a 256-bit product.
-#[inline]
-pub const fn saturating_mul_i128(a: i128, b: i128) -> i128 {
-    // |a| < 2^(128 - la) and |b| < 2^(128 - lb): the product is below 2^127 when la + lb > 128.
-    if a.unsigned_abs().leading_zeros() + b.unsigned_abs().leading_zeros() > 128 {
-        a.wrapping_mul(b)
-    } else {
-        a.saturating_mul(b)
-    }
-}
-
-/// `a · b`, saturated at `u128::MAX`, as [`saturating_mul_i128`].
-#[inline]
-pub const fn saturating_mul_u128(a: u128, b: u128) -> u128 {
-    // The product is below 2^128 when la + lb >= 128.
-    if a.leading_zeros() + b.leading_zeros() >= 128 {
-        a.wrapping_mul(b)
-    } else {
-        a.saturating_mul(b)
     }
 }
 
@@ -372,73 +307,8 @@ mod tests {
     fn per_second_truncates_towards_zero() {
         // The whole path of 1000 inc at 1/1000 of it per cycle of 1 ms: 1000 inc/s.
         let v = PathRate::from_raw((((1u128 << 64) / 1000) as i128 + 1) << 32);
-        let ms = CycleLen::new(1_000_000);
-        assert_eq!(v.per_second(1000, ms, 1), 1000);
-        assert_eq!(v.per_second(-1000, ms, 1), -1000);
-        assert_eq!((-v).per_second(1000, ms, 1), -1000);
-    }
-
-    #[test]
-    fn per_second_by_multiplication_is_the_division() {
-        // Cycles that divide the second take the multiplication, the others the division;
-        // each against the plain formula, products in and beyond the multiplication's range.
-        for ns in [250_000u32, 1_000_000, 2_000_000, 3_000_000, 333_333, 1, 7] {
-            let c = CycleLen::new(ns);
-            assert_eq!(c.per_second != 0, 1_000_000_000u32.is_multiple_of(ns));
-            for r in [
-                0u128,
-                1,
-                12_345 << 16,
-                1 << 97,
-                (1 << 98) - 1,
-                1 << 98,
-                u128::MAX,
-            ] {
-                let plain = r.saturating_mul(1_000_000_000) / u128::from(ns);
-                assert_eq!(c.per_second(r), plain, "{r} per cycle of {ns} ns");
-            }
-        }
-    }
-
-    proptest::proptest! {
-        #[test]
-        fn products_are_saturating_mul(a: i128, b: i128, sa in 0u32..127, sb in 0u32..127) {
-            // Shifted down to cover every magnitude, not only the huge ones.
-            let (a, b) = (a >> sa, b >> sb);
-            proptest::prop_assert_eq!(saturating_mul_i128(a, b), a.saturating_mul(b));
-            let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
-            proptest::prop_assert_eq!(saturating_mul_u128(ua, ub), ua.saturating_mul(ub));
-        }
-    }
-
-    #[test]
-    fn products_saturate_only_where_they_overflow() {
-        let edge = [
-            0i128,
-            1,
-            -1,
-            3,
-            i64::MAX as i128,
-            i64::MIN as i128,
-            1 << 63,
-            (1 << 64) - 1,
-            1 << 64,
-            1 << 100,
-            -(1 << 100),
-            i128::MAX,
-            i128::MIN,
-            i128::MIN + 1,
-        ];
-        for a in edge {
-            for b in edge {
-                assert_eq!(saturating_mul_i128(a, b), a.saturating_mul(b), "{a} · {b}");
-                let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
-                assert_eq!(
-                    saturating_mul_u128(ua, ub),
-                    ua.saturating_mul(ub),
-                    "{ua} · {ub}"
-                );
-            }
-        }
+        assert_eq!(v.per_second(1000, 1_000_000, 1), 1000);
+        assert_eq!(v.per_second(-1000, 1_000_000, 1), -1000);
+        assert_eq!((-v).per_second(1000, 1_000_000, 1), -1000);
     }
 }
