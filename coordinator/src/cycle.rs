@@ -1533,15 +1533,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         let size = core::mem::size_of::<Self>() as isize;
         self.hot_regions(&mut |p, bytes| {
             // The same lines as `prefetch_bytes` asks for.
-            let skew = (p as isize) & 63;
-            let mut line = p as isize - skew;
-            while line < p as isize + bytes as isize {
-                let off = line - base;
+            for_each_line(p, bytes, |line| {
+                let off = line as isize - base;
                 if off > -64 && off < size {
                     f(off);
                 }
-                line += 64;
-            }
+            });
         });
     }
 
@@ -2185,23 +2182,29 @@ fn region<T>(f: &mut impl FnMut(*const u8, usize), items: &[T]) {
     f(items.as_ptr().cast(), core::mem::size_of_val(items));
 }
 
+/// Hands `f` the start of each 64-byte cache line that `bytes` bytes from `p` touch, from the
+/// line `p` is in, so that each line comes once.
+#[inline(always)]
+fn for_each_line(p: *const u8, bytes: usize, mut f: impl FnMut(*const u8)) {
+    let skew = (p as usize) & 63;
+    let line = p.wrapping_sub(skew);
+    let mut off = 0;
+    while off < skew + bytes {
+        f(line.wrapping_add(off));
+        off += 64;
+    }
+}
+
 /// Asks for the cache lines of `bytes` bytes from `p` (no-op off x86_64).
 #[inline(always)]
 fn prefetch_bytes(p: *const u8, bytes: usize) {
     #[cfg(target_arch = "x86_64")]
-    {
+    for_each_line(p, bytes, |line| {
         use core::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        // From the start of the line `p` is in, so that each line is asked for once.
-        let skew = (p as usize) & 63;
-        let line = p.wrapping_sub(skew).cast::<i8>();
-        let mut off = 0;
-        while off < skew + bytes {
-            // SAFETY: a prefetch is a hint: it never faults, whatever the address (and these
-            // are lines of the state the step is about to read).
-            unsafe { _mm_prefetch::<_MM_HINT_T0>(line.wrapping_add(off)) };
-            off += 64;
-        }
-    }
+        // SAFETY: a prefetch is a hint: it never faults, whatever the address (and these are
+        // lines of the state the step is about to read).
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(line.cast::<i8>()) };
+    });
     #[cfg(not(target_arch = "x86_64"))]
     let _ = (p, bytes);
 }
