@@ -211,12 +211,7 @@ fn all_writes_a_consistent_summary() {
     // The step run: every cold series has its memory floor beside it, the ratio of the two,
     // and the count of lines the floor read.
     let step = &runs[1];
-    let step_series: Vec<&str> = step["series"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x["name"].as_str().unwrap())
-        .collect();
+    let step_series = common::series_names(step);
     let cold: Vec<&str> = step_series
         .iter()
         .copied()

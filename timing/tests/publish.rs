@@ -44,12 +44,7 @@ fn publish_writes_a_consistent_summary() {
     assert_eq!(run["name"], "publish");
     assert_eq!(run["baselines"]["bare iceoryx2 pair"], "ran", "{run}");
 
-    let names: Vec<&str> = run["series"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x["name"].as_str().unwrap())
-        .collect();
+    let names = common::series_names(run);
     assert_eq!(
         names,
         [

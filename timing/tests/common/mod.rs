@@ -64,6 +64,17 @@ pub fn figure(run: &Value, series: &str, f: &str) -> u64 {
         .unwrap()
 }
 
+/// The names of a run's series in `summary.json`, in order.
+#[allow(dead_code)] // as above
+pub fn series_names(run: &Value) -> Vec<&str> {
+    run["series"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x["name"].as_str().unwrap())
+        .collect()
+}
+
 /// Samples in a series' `.hdr` file and in its timeline.
 #[allow(dead_code)] // as above
 pub fn samples_in_files(dir: &Path, file: &str) -> (u64, u64) {
