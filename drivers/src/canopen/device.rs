@@ -15,7 +15,10 @@ use super::guarding::{GuardingSlave, LifeGuardingEvent};
 use super::heartbeat::HeartbeatProducer;
 use super::nmt::{BootUpStyle, NmtSlave, NmtSlaveEvent, NmtState, ResetKind, Service};
 use super::od::{AccessType, DataType, EntryDef, ObjectAccess, ObjectDictionary, OdError, Value};
-use super::pdo::{CommParams, Mapping, PdoError, Rpdo, RpdoEvent, Tpdo, TransmissionType};
+use super::pdo::mapping::MAX_ENTRIES;
+use super::pdo::{
+    CommParams, Mapping, PdoError, Positions, Rpdo, RpdoEvent, Tpdo, TransmissionType,
+};
 use super::sdo::{SdoServer, SdoServerConfig, ServerEvent};
 use super::sync::{SyncCobId, SyncConsumer, SyncEvent};
 use super::{AbortCode, Address, FunctionCode, NodeId};
@@ -400,6 +403,9 @@ pub struct Device<'a, const N: usize, const B: usize, const SDO: usize, H: Devic
     config_errors: u32,
     /// The dictionary generation the TPDOs were last packed from.
     packed: Option<u32>,
+    /// Where each TPDO's and RPDO's mapped objects are in the dictionary (tried first).
+    tpdo_at: [Positions; 4],
+    rpdo_at: [Positions; 4],
     /// Some TPDO is valid and event-driven (254/255): only then does a poll read the
     /// dictionary's data of now or a TPDO have a deadline. Kept by [`Device::load_pdo`], the
     /// only place a TPDO's parameters change.
@@ -434,6 +440,8 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
             lost_events: 0,
             config_errors: 0,
             packed: None,
+            tpdo_at: [[u16::MAX; MAX_ENTRIES]; 4],
+            rpdo_at: [[u16::MAX; MAX_ENTRIES]; 4],
             event_tpdos: false,
         };
         d.load_communication(Instant::ZERO);
@@ -746,12 +754,13 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
             return;
         }
         self.packed = Some(generation);
-        for t in self.tpdo.iter_mut().flatten() {
+        for (t, at) in self.tpdo.iter_mut().zip(&mut self.tpdo_at) {
+            let Some(t) = t else { continue };
             if !t.comm().cob_id.valid {
                 continue;
             }
             let mut buf = [0u8; 8];
-            if let Ok(n) = t.mapping().pack_from_od(&self.od, &mut buf) {
+            if let Ok(n) = t.mapping().pack_from_od_at(&self.od, &mut buf, at) {
                 t.set_data(&buf[..n]);
             }
         }
@@ -778,9 +787,13 @@ impl<'a, const N: usize, const B: usize, const SDO: usize, H: DeviceHooks>
                 let pdo = k as u8 + 1;
                 match e {
                     RpdoEvent::Applied(values) => {
-                        let stored = self.rpdo[k]
-                            .as_ref()
-                            .map(|r| r.mapping().store_into_od(values.as_slice(), &mut self.od));
+                        let stored = self.rpdo[k].as_ref().map(|r| {
+                            r.mapping().store_into_od_at(
+                                values.as_slice(),
+                                &mut self.od,
+                                &mut self.rpdo_at[k],
+                            )
+                        });
                         match stored {
                             Some(Err(error)) => {
                                 self.push_event(DeviceEvent::RpdoError { pdo, error })

@@ -516,6 +516,55 @@ fn check_limits(def: &EntryDef<'_>, v: &Value<'_>) -> Result<(), AbortCode> {
     Ok(())
 }
 
+/// An object's address with the position it had in a dictionary when it was looked up
+/// ([`ObjectDictionary::resolve`]). Device code that reads and writes the same objects every
+/// cycle keeps these: an access through one checks the position with one compare instead of
+/// searching. A position that no longer holds the address (an insert moved the entries, or the
+/// handle came from another dictionary) falls back to the search, so a stale handle is slower,
+/// never wrong.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Resolved {
+    addr: Address,
+    pos: u16,
+}
+
+impl Resolved {
+    /// The object's address.
+    pub const fn address(self) -> Address {
+        self.addr
+    }
+}
+
+/// Where an access finds its entry: an [`Address`] (searched) or a [`Resolved`] handle.
+pub trait Locate: Copy {
+    /// The address of the entry.
+    fn address(self) -> Address;
+    /// The position to try first.
+    fn hint(self) -> Option<usize>;
+}
+
+impl Locate for Address {
+    #[inline]
+    fn address(self) -> Address {
+        self
+    }
+    #[inline]
+    fn hint(self) -> Option<usize> {
+        None
+    }
+}
+
+impl Locate for Resolved {
+    #[inline]
+    fn address(self) -> Address {
+        self.addr
+    }
+    #[inline]
+    fn hint(self) -> Option<usize> {
+        Some(usize::from(self.pos))
+    }
+}
+
 /// What a value access needs of an entry, kept apart from its definition: a compact array
 /// that the per-cycle reads and writes of device code touch, instead of the definitions.
 #[derive(Debug, Clone, Copy)]
@@ -523,7 +572,10 @@ struct Slot {
     offset: usize,
     len: usize,
     data_type: DataType,
-    /// Limits or a BOOLEAN: a typed write must check the value.
+    /// `data_type.class()` and its integer bits ([`int_bits`]), for the typed accesses.
+    class: TypeClass,
+    bits: u8,
+    /// Limits or a BOOLEAN: a write must check the value, not only its length.
     checked: bool,
 }
 
@@ -590,9 +642,6 @@ pub struct ObjectDictionary<'a, const N: usize, const BYTES: usize> {
     index: HashIndex<N>,
     /// Bumped by every change of a stored value.
     generation: u32,
-    /// Bumped by every insert: positions from [`ObjectDictionary::position`] hold while it
-    /// does not change.
-    layout: u32,
     arena: [u8; BYTES],
     used: usize,
 }
@@ -612,7 +661,6 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             keys: heapless::Vec::new(),
             index: HashIndex::new(),
             generation: 0,
-            layout: 0,
             arena: [0; BYTES],
             used: 0,
         }
@@ -652,6 +700,8 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             offset,
             len,
             data_type: def.data_type,
+            class: def.data_type.class(),
+            bits: int_bits(def.data_type) as u8,
             checked,
         };
         // Capacity checked above, so the insert cannot fail.
@@ -664,7 +714,6 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         let _ = self.defs.insert(pos, def);
         self.reindex();
         self.used += size;
-        self.layout = self.layout.wrapping_add(1);
         Ok(())
     }
 
@@ -734,21 +783,45 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         }
     }
 
-    /// The position of an entry, for [`ObjectDictionary::entry_at`] and
-    /// [`ObjectDictionary::set_raw_at`]: a caller that reads the definition and then writes
-    /// the value looks the address up once. Valid until the next insert.
-    pub(crate) fn position(&self, addr: Address) -> Result<usize, AbortCode> {
+    /// The position of `at`'s entry: its hint if that still holds the address, else found by
+    /// the search.
+    #[inline]
+    fn locate(&self, at: impl Locate) -> Result<usize, AbortCode> {
+        let addr = at.address();
+        if let Some(p) = at.hint()
+            && self.keys.get(p) == Some(&key(addr))
+        {
+            return Ok(p);
+        }
         self.find(addr)
     }
 
-    /// A counter bumped by every insert: positions from [`ObjectDictionary::position`] taken
-    /// under one value stay valid while it holds (device code that writes the same objects
-    /// every cycle keeps them).
-    pub(crate) fn layout(&self) -> u32 {
-        self.layout
+    /// The position of `addr`'s entry, trying `hint` first and keeping the position found in
+    /// it (a PDO engine's positions of its mapped objects).
+    #[inline]
+    pub(crate) fn locate_hinted(&self, addr: Address, hint: &mut u16) -> Result<usize, AbortCode> {
+        let p = usize::from(*hint);
+        if self.keys.get(p) == Some(&key(addr)) {
+            return Ok(p);
+        }
+        let p = self.find(addr)?;
+        *hint = u16::try_from(p).unwrap_or(u16::MAX);
+        Ok(p)
     }
 
-    /// [`ObjectDictionary::set_int`] at a position from [`ObjectDictionary::position`].
+    /// `addr` with the position of its entry now, for later accesses through the handle. An
+    /// address without an entry gives a handle that every access searches for (and refuses as
+    /// the address would be refused).
+    pub fn resolve(&self, addr: Address) -> Resolved {
+        let pos = self
+            .find(addr)
+            .ok()
+            .and_then(|p| u16::try_from(p).ok())
+            .unwrap_or(u16::MAX);
+        Resolved { addr, pos }
+    }
+
+    /// [`ObjectDictionary::set_int`] at a position from [`ObjectDictionary::locate_hinted`].
     pub(crate) fn set_int_at(&mut self, i: usize, v: i64) -> Result<(), AbortCode> {
         match self.slots.get(i).map(|s| s.data_type.class()) {
             Some(TypeClass::Signed | TypeClass::Unsigned) => self.store_int(i, Value::Signed(v)),
@@ -757,12 +830,12 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
         }
     }
 
-    /// The definition at a position from [`ObjectDictionary::position`].
+    /// The definition at a position from [`ObjectDictionary::locate_hinted`].
     pub(crate) fn entry_at(&self, i: usize) -> &EntryDef<'a> {
         &self.defs[i]
     }
 
-    /// [`ObjectDictionary::set_raw`] at a position from [`ObjectDictionary::position`].
+    /// [`ObjectDictionary::set_raw`] at a position from [`ObjectDictionary::locate_hinted`].
     pub(crate) fn set_raw_at(&mut self, i: usize, data: &[u8]) -> Result<(), AbortCode> {
         self.check_write(i, data)?;
         self.store(i, data);
@@ -770,19 +843,26 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     }
 
     /// The definition of an entry: `NoObject` or `NoSubIndex` if it does not exist.
-    pub fn entry(&self, addr: Address) -> Result<&EntryDef<'a>, AbortCode> {
-        self.find(addr).map(|i| &self.defs[i])
+    pub fn entry(&self, at: impl Locate) -> Result<&EntryDef<'a>, AbortCode> {
+        self.locate(at).map(|i| &self.defs[i])
+    }
+
+    /// The current value bytes of the entry at a position from
+    /// [`ObjectDictionary::locate_hinted`].
+    pub(crate) fn raw_at(&self, i: usize) -> &[u8] {
+        let s = &self.slots[i];
+        &self.arena[s.offset..s.offset + s.len]
     }
 
     /// The current value bytes, without the access check (device code, PDO transmission).
-    pub fn raw(&self, addr: Address) -> Result<&[u8], AbortCode> {
-        let s = &self.slots[self.find(addr)?];
+    pub fn raw(&self, at: impl Locate) -> Result<&[u8], AbortCode> {
+        let s = &self.slots[self.locate(at)?];
         Ok(&self.arena[s.offset..s.offset + s.len])
     }
 
     /// The current value, decoded.
-    pub fn value(&self, addr: Address) -> Result<Value<'_>, AbortCode> {
-        let s = &self.slots[self.find(addr)?];
+    pub fn value(&self, at: impl Locate) -> Result<Value<'_>, AbortCode> {
+        let s = &self.slots[self.locate(at)?];
         Ok(decode_value(
             s.data_type,
             &self.arena[s.offset..s.offset + s.len],
@@ -798,6 +878,9 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             Some(size) if data.len() < size => return Err(AbortCode::TooShort),
             None if data.len() > def.capacity => return Err(AbortCode::TooLong),
             _ => {}
+        }
+        if !self.slots[i].checked {
+            return Ok(());
         }
         let v = decode_value(def.data_type, data);
         if def.data_type == DataType::Boolean && v != Value::Unsigned(0) && v != Value::Unsigned(1)
@@ -854,37 +937,37 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     /// A local write by device code: no access check (read-only values are the device's to
     /// set), but type length and limits are checked.
-    pub fn set_raw(&mut self, addr: Address, data: &[u8]) -> Result<(), AbortCode> {
-        let i = self.find(addr)?;
+    pub fn set_raw(&mut self, at: impl Locate, data: &[u8]) -> Result<(), AbortCode> {
+        let i = self.locate(at)?;
         self.check_write(i, data)?;
         self.store(i, data);
         Ok(())
     }
 
     /// Sets a value of any kind (local write, see [`ObjectDictionary::set_raw`]).
-    pub fn set_value(&mut self, addr: Address, v: Value<'_>) -> Result<(), AbortCode> {
-        let i = self.find(addr)?;
+    pub fn set_value(&mut self, at: impl Locate, v: Value<'_>) -> Result<(), AbortCode> {
+        let i = self.locate(at)?;
         let dt = self.slots[i].data_type;
         let mut buf = [0u8; 8];
         if let Value::Bytes(b) = v {
-            return self.set_raw(addr, b);
+            return self.set_raw(at, b);
         }
         let n = encode_value(dt, &v, &mut buf)?;
-        self.set_raw(addr, &buf[..n])
+        self.set_raw(at, &buf[..n])
     }
 
-    fn get_unsigned(&self, addr: Address, max_bits: u32) -> Result<u64, AbortCode> {
-        let s = &self.slots[self.find(addr)?];
-        if s.data_type.class() != TypeClass::Unsigned || int_bits(s.data_type) > max_bits {
+    fn get_unsigned(&self, at: impl Locate, max_bits: u32) -> Result<u64, AbortCode> {
+        let s = &self.slots[self.locate(at)?];
+        if s.class != TypeClass::Unsigned || u32::from(s.bits) > max_bits {
             return Err(AbortCode::TypeMismatch);
         }
         Ok(le_u64(&self.arena[s.offset..s.offset + s.len]))
     }
 
-    fn get_signed(&self, addr: Address, max_bits: u32) -> Result<i64, AbortCode> {
-        let s = &self.slots[self.find(addr)?];
-        let bits = int_bits(s.data_type);
-        if s.data_type.class() != TypeClass::Signed || bits > max_bits {
+    fn get_signed(&self, at: impl Locate, max_bits: u32) -> Result<i64, AbortCode> {
+        let s = &self.slots[self.locate(at)?];
+        let bits = u32::from(s.bits);
+        if s.class != TypeClass::Signed || bits > max_bits {
             return Err(AbortCode::TypeMismatch);
         }
         // Sign-extend the stored little-endian bytes (device code reads actual values every
@@ -898,14 +981,14 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// code publishes its actual values through here every cycle.
     fn set_integer(
         &mut self,
-        addr: Address,
+        at: impl Locate,
         v: Value<'_>,
         class: TypeClass,
         max_bits: u32,
     ) -> Result<(), AbortCode> {
-        let i = self.find(addr)?;
-        let dt = self.slots[i].data_type;
-        if dt.class() != class || int_bits(dt) > max_bits {
+        let i = self.locate(at)?;
+        let slot = &self.slots[i];
+        if slot.class != class || u32::from(slot.bits) > max_bits {
             return Err(AbortCode::TypeMismatch);
         }
         self.store_int(i, v)
@@ -928,47 +1011,47 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// Sets an integer entry of any width and signedness from `v` (local write: the value must
     /// fit the entry's type and limits, access is not checked). For device code that publishes
     /// many values of different types.
-    pub fn set_int(&mut self, addr: Address, v: i64) -> Result<(), AbortCode> {
-        let i = self.find(addr)?;
+    pub fn set_int(&mut self, at: impl Locate, v: i64) -> Result<(), AbortCode> {
+        let i = self.locate(at)?;
         self.set_int_at(i, v)
     }
 
-    fn set_unsigned(&mut self, addr: Address, v: u64, max_bits: u32) -> Result<(), AbortCode> {
-        self.set_integer(addr, Value::Unsigned(v), TypeClass::Unsigned, max_bits)
+    fn set_unsigned(&mut self, at: impl Locate, v: u64, max_bits: u32) -> Result<(), AbortCode> {
+        self.set_integer(at, Value::Unsigned(v), TypeClass::Unsigned, max_bits)
     }
 
-    fn set_signed(&mut self, addr: Address, v: i64, max_bits: u32) -> Result<(), AbortCode> {
-        self.set_integer(addr, Value::Signed(v), TypeClass::Signed, max_bits)
+    fn set_signed(&mut self, at: impl Locate, v: i64, max_bits: u32) -> Result<(), AbortCode> {
+        self.set_integer(at, Value::Signed(v), TypeClass::Signed, max_bits)
     }
 
     /// A REAL32.
-    pub fn get_f32(&self, addr: Address) -> Result<f32, AbortCode> {
+    pub fn get_f32(&self, addr: impl Locate) -> Result<f32, AbortCode> {
         match self.value(addr)? {
             Value::Real32(v) => Ok(v),
             _ => Err(AbortCode::TypeMismatch),
         }
     }
     /// Sets a REAL32 or REAL64 (local write, limits checked).
-    pub fn set_f32(&mut self, addr: Address, v: f32) -> Result<(), AbortCode> {
+    pub fn set_f32(&mut self, addr: impl Locate, v: f32) -> Result<(), AbortCode> {
         self.set_value(addr, Value::Real32(v))
     }
     /// A REAL64.
-    pub fn get_f64(&self, addr: Address) -> Result<f64, AbortCode> {
+    pub fn get_f64(&self, addr: impl Locate) -> Result<f64, AbortCode> {
         match self.value(addr)? {
             Value::Real64(v) => Ok(v),
             _ => Err(AbortCode::TypeMismatch),
         }
     }
     /// Sets a REAL64 (local write, limits checked).
-    pub fn set_f64(&mut self, addr: Address, v: f64) -> Result<(), AbortCode> {
+    pub fn set_f64(&mut self, addr: impl Locate, v: f64) -> Result<(), AbortCode> {
         self.set_value(addr, Value::Real64(v))
     }
     /// A BOOLEAN.
-    pub fn get_bool(&self, addr: Address) -> Result<bool, AbortCode> {
+    pub fn get_bool(&self, addr: impl Locate) -> Result<bool, AbortCode> {
         Ok(self.get_unsigned(addr, 1)? != 0)
     }
     /// Sets a BOOLEAN.
-    pub fn set_bool(&mut self, addr: Address, v: bool) -> Result<(), AbortCode> {
+    pub fn set_bool(&mut self, addr: impl Locate, v: bool) -> Result<(), AbortCode> {
         self.set_unsigned(addr, v as u64, 1)
     }
 }
@@ -978,12 +1061,12 @@ macro_rules! typed_access {
         impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
             $(
                 #[doc = concat!("The value as `", stringify!($t), "`: `TypeMismatch` unless the entry's type fits in ", stringify!($bits), " bits of that signedness.")]
-                pub fn $get(&self, addr: Address) -> Result<$t, AbortCode> {
-                    Ok(self.$getter(addr, $bits)? as $t)
+                pub fn $get(&self, at: impl Locate) -> Result<$t, AbortCode> {
+                    Ok(self.$getter(at, $bits)? as $t)
                 }
                 #[doc = concat!("Sets the value from `", stringify!($t), "`: same type rule as the getter, and the value must fit the entry (local write: limits checked, access not).")]
-                pub fn $set(&mut self, addr: Address, v: $t) -> Result<(), AbortCode> {
-                    self.$setter(addr, v as _, $bits)
+                pub fn $set(&mut self, at: impl Locate, v: $t) -> Result<(), AbortCode> {
+                    self.$setter(at, v as _, $bits)
                 }
             )*
         }
@@ -1057,6 +1140,49 @@ mod tests {
         ])
         .unwrap();
         od
+    }
+
+    #[test]
+    fn resolved_handles_reach_their_entry_even_when_stale() {
+        let mut d = od();
+        let cw = d.resolve(CW);
+        let target = d.resolve(TARGET);
+        assert_eq!(cw.address(), CW);
+        assert_eq!(d.get_u16(cw), Ok(6));
+        d.set_u16(cw, 0x0F).unwrap();
+        assert_eq!(d.get_u16(CW), Ok(0x0F));
+        // Limits and types are checked through a handle as through the address.
+        assert_eq!(d.set_i32(target, 2000), Err(AbortCode::ValueTooHigh));
+        assert_eq!(d.get_u16(target), Err(AbortCode::TypeMismatch));
+        // Inserts before them move every entry: the handles still find theirs.
+        d.insert(EntryDef::new(
+            Address::new(0x1000, 0),
+            "device type",
+            DataType::Unsigned32,
+            AccessType::Ro,
+        ))
+        .unwrap();
+        d.insert(EntryDef::new(
+            Address::new(0x1001, 0),
+            "error",
+            DataType::Unsigned8,
+            AccessType::Ro,
+        ))
+        .unwrap();
+        assert_eq!(d.get_u16(cw), Ok(0x0F));
+        d.set_i32(target, -5).unwrap();
+        assert_eq!(d.get_i32(TARGET), Ok(-5));
+        // A handle from another dictionary never reaches a different entry there.
+        let other = od();
+        assert_eq!(other.get_u16(cw), Ok(6));
+        assert_eq!(other.get_i32(target), Ok(0));
+        // A handle of a missing object is refused as its address is.
+        let missing = d.resolve(Address::new(0x6040, 1));
+        assert_eq!(d.get_u16(missing), Err(AbortCode::NoSubIndex));
+        assert_eq!(
+            d.get_u16(d.resolve(Address::new(0x5555, 0))),
+            Err(AbortCode::NoObject)
+        );
     }
 
     #[test]

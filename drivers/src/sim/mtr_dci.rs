@@ -40,7 +40,9 @@ use crate::canopen::device::{
 };
 use crate::canopen::endpoint::Endpoint;
 use crate::canopen::nmt::{BootUpStyle, NmtState, ResetKind};
-use crate::canopen::od::{AccessType, DataType, EntryDef, ObjectDictionary, OdError, Value};
+use crate::canopen::od::{
+    AccessType, DataType, EntryDef, ObjectDictionary, OdError, Resolved, Value,
+};
 use crate::canopen::{AbortCode, Address, NodeId};
 use crate::catalog::{
     self, FHPP_RPDO1, FHPP_TPDO1, FPC_RPDO2 as FHPP_RPDO2, FPC_TPDO2 as FHPP_TPDO2,
@@ -515,6 +517,45 @@ struct CiaMirror {
     generation: u32,
 }
 
+/// The CiA 402 face's objects, found once in the node's dictionary: the face reads or writes
+/// them on every frame.
+#[derive(Debug, Clone, Copy)]
+struct CiaObjects {
+    controlword: Resolved,
+    statusword: Resolved,
+    mode: Resolved,
+    mode_display: Resolved,
+    position_actual: Resolved,
+    position_internal: Resolved,
+    target_position: Resolved,
+    target_torque: Resolved,
+    profile_velocity: Resolved,
+    profile_acceleration: Resolved,
+    profile_deceleration: Resolved,
+    homing_method: Resolved,
+    record_number: Resolved,
+}
+
+impl CiaObjects {
+    fn resolve(od: &FestoOd) -> CiaObjects {
+        CiaObjects {
+            controlword: od.resolve(CONTROLWORD),
+            statusword: od.resolve(STATUSWORD),
+            mode: od.resolve(MODE),
+            mode_display: od.resolve(MODE_DISPLAY),
+            position_actual: od.resolve(POSITION_ACTUAL),
+            position_internal: od.resolve(Address::new(0x6063, 0)),
+            target_position: od.resolve(TARGET_POSITION),
+            target_torque: od.resolve(TARGET_TORQUE),
+            profile_velocity: od.resolve(PROFILE_VELOCITY),
+            profile_acceleration: od.resolve(PROFILE_ACCELERATION),
+            profile_deceleration: od.resolve(Address::new(0x6084, 0)),
+            homing_method: od.resolve(HOMING_METHOD),
+            record_number: od.resolve(RECORD_NUMBER),
+        }
+    }
+}
+
 /// A Festo FHPP drive on CANopen: the [`Device`] and the drive core, as one [`Endpoint`].
 #[derive(Debug)]
 pub struct FestoNode {
@@ -525,6 +566,7 @@ pub struct FestoNode {
     /// after it. While neither changed, writing again would change nothing.
     cia_mirror: Option<CiaMirror>,
     emcy_active: heapless::Vec<u16, ACTIVE_EMCY>,
+    obj: CiaObjects,
 }
 
 impl core::fmt::Debug for FestoDevice {
@@ -562,12 +604,14 @@ impl FestoNode {
         let app = FestoApp { drive, cia };
         let mut dev = FestoDevice::new(node, od, comm.boot_up, app);
         dev.power_on(now);
+        let obj = CiaObjects::resolve(dev.od());
         let mut n = FestoNode {
             dev,
             input_mirror: None,
             reply_mirror: None,
             cia_mirror: None,
             emcy_active: heapless::Vec::new(),
+            obj,
         };
         n.advance(now);
         Ok(n)
@@ -623,23 +667,24 @@ impl FestoNode {
                 .cia_mirror
                 .filter(|m| m.generation == self.dev.od().generation())
                 .map(|m| m.inputs);
+            let o = self.obj;
             let od = self.dev.od_mut();
             if last.is_none_or(|l| l.0 != sw.0) {
-                let _ = od.set_u16(STATUSWORD, sw.0);
+                let _ = od.set_u16(o.statusword, sw.0);
             }
             if last.is_none_or(|l| l.1 != mode) {
-                let _ = od.set_i8(MODE_DISPLAY, mode);
+                let _ = od.set_i8(o.mode_display, mode);
             }
             if last.is_none_or(|l| l.2 != pos) {
                 // TPDO1 is re-sent only when the position moved by more than 1 inc (§7.4).
-                let sent = od.get_i32(POSITION_ACTUAL).unwrap_or(pos);
+                let sent = od.get_i32(o.position_actual).unwrap_or(pos);
                 if (i64::from(pos) - i64::from(sent)).abs() > 1 {
-                    let _ = od.set_i32(POSITION_ACTUAL, pos);
+                    let _ = od.set_i32(o.position_actual, pos);
                 }
-                let _ = od.set_i32(Address::new(0x6063, 0), pos);
+                let _ = od.set_i32(o.position_internal, pos);
             }
             if last.is_none_or(|l| l.3 != record) {
-                let _ = od.set_u8(RECORD_NUMBER, record);
+                let _ = od.set_u8(o.record_number, record);
             }
             self.cia_mirror = Some(CiaMirror {
                 inputs,
@@ -752,25 +797,28 @@ impl FestoNode {
     /// RPDO1 applied (`from_pdo`) or a CiA 402 object written by SDO.
     fn rpdo1(&mut self, now: Instant, from_pdo: bool) {
         let cia = self.dev.hooks().cia.is_some();
-        if cia && from_pdo && self.dev.od().get_i8(MODE) == Ok(OperationMode::ProfileTorque.code())
+        let o = self.obj;
+        if cia
+            && from_pdo
+            && self.dev.od().get_i8(o.mode) == Ok(OperationMode::ProfileTorque.code())
         {
             // In PT mode bytes 5..8 of RPDO1 are 6071h target torque (§7.4).
-            let raw = self.dev.od().get_i32(TARGET_POSITION).unwrap_or(0);
+            let raw = self.dev.od().get_i32(o.target_position).unwrap_or(0);
             let t = raw.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16;
-            let _ = self.dev.od_mut().set_i16(TARGET_TORQUE, t);
+            let _ = self.dev.od_mut().set_i16(o.target_torque, t);
         }
         let od = self.dev.od();
         if cia {
-            let cw = Controlword(od.get_u16(CONTROLWORD).unwrap_or(0));
-            let mode = od.get_i8(MODE).unwrap_or(1);
-            let record = od.get_u8(RECORD_NUMBER).unwrap_or(0);
-            let homing = od.get_i8(HOMING_METHOD).unwrap_or(27);
-            let torque = od.get_i16(TARGET_TORQUE).unwrap_or(0);
+            let cw = Controlword(od.get_u16(o.controlword).unwrap_or(0));
+            let mode = od.get_i8(o.mode).unwrap_or(1);
+            let record = od.get_u8(o.record_number).unwrap_or(0);
+            let homing = od.get_i8(o.homing_method).unwrap_or(27);
+            let torque = od.get_i16(o.target_torque).unwrap_or(0);
             let objects = PpObjects {
-                target: od.get_i32(TARGET_POSITION).unwrap_or(0),
-                velocity: od.get_u32(PROFILE_VELOCITY).unwrap_or(0),
-                acceleration: od.get_u32(PROFILE_ACCELERATION).unwrap_or(0),
-                deceleration: od.get_u32(Address::new(0x6084, 0)).unwrap_or(0),
+                target: od.get_i32(o.target_position).unwrap_or(0),
+                velocity: od.get_u32(o.profile_velocity).unwrap_or(0),
+                acceleration: od.get_u32(o.profile_acceleration).unwrap_or(0),
+                deceleration: od.get_u32(o.profile_deceleration).unwrap_or(0),
             };
             let app = self.dev.hooks_mut();
             if let Some(cia) = app.cia.as_mut() {

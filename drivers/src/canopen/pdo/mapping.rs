@@ -157,6 +157,11 @@ const fn mask(bits: u8) -> u64 {
     }
 }
 
+/// Where a mapping's objects were found in a dictionary, entry by entry (`u16::MAX`: not yet
+/// looked up): a PDO engine keeps these beside its mapping so that its frames do not search the
+/// dictionary again. A stale position is only tried and then replaced.
+pub type Positions = [u16; MAX_ENTRIES];
+
 /// A validated PDO mapping: up to 8 entries, at most 64 bits in total.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub struct Mapping {
@@ -357,16 +362,36 @@ impl Mapping {
         od: &ObjectDictionary<'_, N, B>,
         out: &mut [u8; 8],
     ) -> Result<usize, MappingError> {
+        self.pack_from_od_at(od, out, &mut [u16::MAX; MAX_ENTRIES])
+    }
+
+    /// [`Mapping::pack_from_od`], trying the entries' positions in `at` first and keeping
+    /// them there (a TPDO packs the same objects on every SYNC).
+    pub fn pack_from_od_at<const N: usize, const B: usize>(
+        &self,
+        od: &ObjectDictionary<'_, N, B>,
+        out: &mut [u8; 8],
+        at: &mut Positions,
+    ) -> Result<usize, MappingError> {
         let mut values = [0u64; MAX_ENTRIES];
-        for (i, (e, v)) in self.entries().iter().zip(values.iter_mut()).enumerate() {
+        for (i, ((e, v), hint)) in self
+            .entries()
+            .iter()
+            .zip(values.iter_mut())
+            .zip(at.iter_mut())
+            .enumerate()
+        {
             if e.is_dummy() {
                 continue;
             }
-            *v = le_u64(od.raw(e.addr).map_err(|code| MappingError::Object {
-                position: i as u8 + 1,
-                addr: e.addr,
-                code,
-            })?);
+            let p = od
+                .locate_hinted(e.addr, hint)
+                .map_err(|code| MappingError::Object {
+                    position: i as u8 + 1,
+                    addr: e.addr,
+                    code,
+                })?;
+            *v = le_u64(od.raw_at(p));
         }
         Ok(self.pack(&values, out))
     }
@@ -378,13 +403,24 @@ impl Mapping {
         values: &[u64],
         od: &mut ObjectDictionary<'_, N, B>,
     ) -> Result<(), PdoError> {
-        for (e, v) in self.entries().iter().zip(values) {
+        self.store_into_od_at(values, od, &mut [u16::MAX; MAX_ENTRIES])
+    }
+
+    /// [`Mapping::store_into_od`], trying the entries' positions in `at` first and keeping
+    /// them there (an RPDO stores into the same objects on every frame).
+    pub fn store_into_od_at<const N: usize, const B: usize>(
+        &self,
+        values: &[u64],
+        od: &mut ObjectDictionary<'_, N, B>,
+        at: &mut Positions,
+    ) -> Result<(), PdoError> {
+        for ((e, v), hint) in self.entries().iter().zip(values).zip(at.iter_mut()) {
             if e.is_dummy() {
                 continue;
             }
             let store = |code| PdoError::Store { addr: e.addr, code };
             // One lookup for the definition and the write.
-            let i = od.position(e.addr).map_err(store)?;
+            let i = od.locate_hinted(e.addr, hint).map_err(store)?;
             let def = od.entry_at(i);
             let size = def.storage_size().min(8);
             let raw = if def.data_type.class() == TypeClass::Signed {
@@ -578,6 +614,28 @@ mod tests {
         let mut out = [0u8; 8];
         let n = m.pack_from_od(&od, &mut out).unwrap();
         assert_eq!(&out[..n], &data);
+    }
+
+    #[test]
+    fn kept_positions_are_found_once_and_survive_a_moved_dictionary() {
+        let mut od = od();
+        let m = Mapping::from_raw(&[0x6040_0010, 0x2001_0018]).unwrap();
+        let mut at: Positions = [u16::MAX; MAX_ENTRIES];
+        m.store_into_od_at(&[0x0F, 0xFF_FFFF], &mut od, &mut at)
+            .unwrap();
+        // The positions were found and kept, the dummy-free entries only.
+        assert!(at[..2].iter().all(|&p| p != u16::MAX));
+        assert!(at[2..].iter().all(|&p| p == u16::MAX));
+        // Kept positions pointing at the wrong entries (as after an insert) are only tried.
+        let mut swapped = at;
+        swapped.swap(0, 1);
+        let mut out = [0u8; 8];
+        let n = m.pack_from_od_at(&od, &mut out, &mut swapped).unwrap();
+        assert_eq!(&out[..n], &[0x0F, 0x00, 0xFF, 0xFF, 0xFF]);
+        assert_eq!(swapped, at, "found again and kept");
+        m.store_into_od_at(&[0x06, 0x01], &mut od, &mut at).unwrap();
+        assert_eq!(od.get_u16(Address::new(0x6040, 0)), Ok(6));
+        assert_eq!(od.get_i32(Address::new(0x2001, 0)), Ok(1));
     }
 
     fn mapping_and_values() -> impl Strategy<Value = (Vec<u8>, Vec<u64>)> {

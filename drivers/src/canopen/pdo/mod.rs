@@ -10,4 +10,6 @@ pub mod mapping;
 pub use comm::{CobId, CommError, CommParams, TransmissionType};
 pub use config::{ConfigPlan, ConfigStep, PdoDirection, PdoSettings, PlanError, VerifyError};
 pub use engine::{Rpdo, RpdoEvent, Tpdo};
-pub use mapping::{Mapping, MappingEntry, MappingError, PdoError, PdoValues, sign_extend};
+pub use mapping::{
+    Mapping, MappingEntry, MappingError, PdoError, PdoValues, Positions, sign_extend,
+};

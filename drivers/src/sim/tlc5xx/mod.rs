@@ -44,7 +44,7 @@ use crate::can::Frame;
 use crate::canopen::device::{Device, DeviceEvent, DeviceHooks};
 use crate::canopen::endpoint::Endpoint;
 use crate::canopen::nmt::{BootUpStyle, NmtState, ResetKind};
-use crate::canopen::od::{EntryDef, OdError, le_u64};
+use crate::canopen::od::{EntryDef, OdError, Resolved, le_u64};
 use crate::canopen::{AbortCode, Address, NodeId};
 use crate::cia402::controlword::{AbsRel, Controlword};
 use crate::cia402::homing::{HomingCommand, HomingDevice, HomingMethod as Method};
@@ -63,6 +63,33 @@ use od::{OD_BYTES, OD_ENTRIES, TlcOd};
 
 /// How many dictionary values [`Tlc5xx`] publishes each tick.
 const PUBLISHED: usize = 23;
+
+/// The objects `Tlc5xx::publish` writes, in its order.
+const PUBLISHED_OBJECTS: [(u16, u8); PUBLISHED] = [
+    (0x6041, 0),
+    (0x6061, 0),
+    (0x6063, 0),
+    (0x6064, 0),
+    (0x2089, 0),
+    (0x6069, 0),
+    (0x606C, 0),
+    (0x208A, 0),
+    (0x20EB, 0),
+    (0x60F4, 0),
+    (0x2073, 0),
+    (0x2013, 0),
+    (0x208C, 0),
+    (0x60FD, 0),
+    (0x2048, 0),
+    (0x60FE, 1),
+    (0x2041, 0),
+    (0x2091, 0),
+    (0x20F1, 0),
+    (0x20B5, 0),
+    (0x2062, 0),
+    (0x2049, 0),
+    (0x603F, 0),
+];
 
 /// The CiA 301 device under the simulator (SDO downloads up to 64 bytes: strings are 16 at most).
 pub type TlcDevice = Device<'static, OD_ENTRIES, OD_BYTES, 64, TlcHooks>;
@@ -414,9 +441,8 @@ pub struct Tlc5xx {
     next_tick: Instant,
     /// The values `publish` last wrote, in its order (`None`: write it next time).
     published: [Option<i64>; PUBLISHED],
-    /// Where `publish`'s objects sit in the dictionary, and the layout they were found under
-    /// (found again after an insert).
-    publish_at: Option<(u32, [Option<u16>; PUBLISHED])>,
+    /// `publish`'s objects ([`PUBLISHED_OBJECTS`]), found once in the dictionary.
+    publish_at: [Resolved; PUBLISHED],
     /// 6093h/6094h/6097h as last read (they change only by SDO or RPDO writes and resets).
     scaling: Scaling,
     /// The settings a tick and every frame read, as last read (the same way).
@@ -489,6 +515,7 @@ impl Tlc5xx {
             velocity_threshold_time: Duration::ZERO,
             max_slippage: cfg.pv_max_slip_rpm.map(|r| per_rpm(r as u64)),
         });
+        let publish_at = PUBLISHED_OBJECTS.map(|(i, sub)| dev.od().resolve(a(i, sub)));
         let mut t = Tlc5xx {
             cfg,
             profile,
@@ -521,7 +548,7 @@ impl Tlc5xx {
             late: [None; 4],
             next_tick: now + cfg.tick,
             published: [None; PUBLISHED],
-            publish_at: None,
+            publish_at,
             scaling: Scaling {
                 increments_per_rev: 1,
                 position: (1, 1),
@@ -1433,59 +1460,43 @@ impl Tlc5xx {
         h.drive = state;
         h.mode = self.modes.active();
         h.fault_number = self.faults.first().map(|f| f.error_number());
-        let values: [(u16, u8, i64); PUBLISHED] = [
-            (0x6041, 0, sw as i64),
-            (0x6061, 0, mode as i64),
-            (0x6063, 0, i32c(st.position) as i64),
-            (0x6064, 0, i32c(position) as i64),
-            (0x2089, 0, i32c(position) as i64),
-            (0x6069, 0, i32c(st.velocity) as i64),
-            (0x606C, 0, i32c(velocity) as i64),
-            (0x208A, 0, i32c(velocity) as i64),
-            (
-                0x20EB,
-                0,
-                velocity.unsigned_abs().min(u16::MAX as u64) as i64,
-            ),
-            (0x60F4, 0, i32c(sc.inc_to_pos(st.following_error)) as i64),
-            (0x2073, 0, i32c(st.following_error) as i64),
-            (0x2013, 0, peak as i64),
-            (0x208C, 0, i32c(remaind) as i64),
-            (0x60FD, 0, inputs as i64),
-            (0x2048, 0, limits as i64),
-            (0x60FE, 1, outputs as i64),
-            (0x2041, 0, drive_stat as i64),
-            (0x2091, 0, state_ptp as i64),
-            (0x20F1, 0, state_home as i64),
-            (0x20B5, 0, state_list as i64),
-            (0x2062, 0, int_sig as i64),
-            (0x2049, 0, flt_sig as i64),
-            (0x603F, 0, error_code as i64),
+        // In the order of PUBLISHED_OBJECTS.
+        let values: [i64; PUBLISHED] = [
+            sw as i64,
+            mode as i64,
+            i32c(st.position) as i64,
+            i32c(position) as i64,
+            i32c(position) as i64,
+            i32c(st.velocity) as i64,
+            i32c(velocity) as i64,
+            i32c(velocity) as i64,
+            velocity.unsigned_abs().min(u16::MAX as u64) as i64,
+            i32c(sc.inc_to_pos(st.following_error)) as i64,
+            i32c(st.following_error) as i64,
+            peak as i64,
+            i32c(remaind) as i64,
+            inputs as i64,
+            limits as i64,
+            outputs as i64,
+            drive_stat as i64,
+            state_ptp as i64,
+            state_home as i64,
+            state_list as i64,
+            int_sig as i64,
+            flt_sig as i64,
+            error_code as i64,
         ];
         // Most of these change rarely: write only what differs from the last publish (a tick
         // would otherwise cost two dozen dictionary writes per drive).
         let od = self.dev.od_mut();
-        let layout = od.layout();
-        let at = match self.publish_at {
-            Some((l, at)) if l == layout => at,
-            _ => {
-                let mut at = [None; PUBLISHED];
-                for (slot, &(i, sub, _)) in at.iter_mut().zip(&values) {
-                    *slot = od
-                        .position(a(i, sub))
-                        .ok()
-                        .and_then(|p| u16::try_from(p).ok());
-                }
-                self.publish_at = Some((layout, at));
-                at
-            }
-        };
-        for (k, &(_, _, v)) in values.iter().enumerate() {
-            if self.published[k] != Some(v) {
-                if let Some(p) = at[k] {
-                    let _ = od.set_int_at(usize::from(p), v);
-                }
-                self.published[k] = Some(v);
+        for ((&v, last), &at) in values
+            .iter()
+            .zip(self.published.iter_mut())
+            .zip(&self.publish_at)
+        {
+            if *last != Some(v) {
+                let _ = od.set_int(at, v);
+                *last = Some(v);
             }
         }
     }
