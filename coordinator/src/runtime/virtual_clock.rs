@@ -4,7 +4,6 @@
 use std::io::Write;
 use std::time::Duration;
 
-use drivers::can::bit_timing::frame_duration;
 use drivers::can::{Bus, ClockMode, Frame, VirtualBus, VirtualBusConfig, VirtualPort};
 use drivers::time::Instant;
 
@@ -61,7 +60,6 @@ pub struct VirtualIo<'p> {
     /// What happened so far.
     pub summary: Summary,
     hash: FrameHash,
-    busy: Vec<Duration>,
     frames: Vec<u64>,
     status_lines_printed: usize,
     tty: bool,
@@ -143,7 +141,6 @@ impl<'p> VirtualIo<'p> {
     fn drain_monitors(&mut self) {
         let mut batch = [Frame::std8(0, [0; 8]); RECV_BATCH];
         for (b, m) in self.monitors.iter_mut().enumerate() {
-            let bitrate = self.plan.buses[b].bitrate;
             // A batch per lock of the bus instead of a lock per frame; the same frames in the
             // same order.
             while let Ok(n @ 1..) = m.recv_batch(&mut batch) {
@@ -154,7 +151,6 @@ impl<'p> VirtualIo<'p> {
                     self.hash.add(f);
                     self.frames[b] += 1;
                     self.summary.syncs_on_bus += u64::from(f.cob_id() == Some(0x080));
-                    self.busy[b] += frame_duration(f, bitrate);
                 }
                 if n < RECV_BATCH {
                     break;
@@ -446,7 +442,6 @@ impl<'p> VirtualRun<'p> {
                 text: Vec::new(),
                 summary: Summary::default(),
                 hash: FrameHash::default(),
-                busy: vec![Duration::ZERO; n],
                 frames: vec![0; n],
                 status_lines_printed: 0,
                 tty: out_is_tty(),
@@ -567,7 +562,8 @@ impl<'p> VirtualRun<'p> {
             .map(|(b, p)| BusFigures {
                 label: p.label(),
                 frames: self.io.frames[b],
-                load_percent: 100.0 * self.io.busy[b].as_secs_f64()
+                // The wire's own account of its busy time: the frames the monitor saw.
+                load_percent: 100.0 * self.io.buses[b].stats().busy.as_secs_f64()
                     / summary.machine_time.as_secs_f64().max(1e-9),
             })
             .collect();
