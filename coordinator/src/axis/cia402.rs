@@ -277,7 +277,6 @@ enum Step {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Cia402Axis {
     layout: Layout,
-    profile: DeviceProfile,
     cyclic: CyclicMode,
     cycle_ns: u32,
     settings: Cia402Settings,
@@ -299,7 +298,7 @@ pub struct Cia402Axis {
     since_request: u32,
     lead: u32,
     /// Jog/velocity streaming: the integrated position, units × 1e9.
-    jog_nano: Option<i128>,
+    jog_nano: Option<Wide>,
     homed: bool,
     /// Cycles since the last image arrived.
     gap: u32,
@@ -315,14 +314,26 @@ pub struct Cia402Axis {
     profile_pdo: Option<[u8; 8]>,
 }
 
+/// An `i128` kept as two 64-bit halves: as a field, an `i128` would align the whole axis state
+/// to 16 bytes and pad it, and the cycle reads every axis's state each cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+struct Wide([u64; 2]);
+
+impl Wide {
+    const fn new(v: i128) -> Wide {
+        Wide([v as u64, (v >> 64) as u64])
+    }
+    const fn get(self) -> i128 {
+        ((self.0[1] as i128) << 64) | self.0[0] as i128
+    }
+}
+
 impl Cia402Axis {
     /// The master side of a drive with `layout`, exchanged every `cycle_ns`; commanded in the
     /// generic layout's mode, otherwise in profile position (see [`Cia402Axis::with_csp`]).
     pub fn new(layout: Layout, cycle_ns: u32) -> Cia402Axis {
-        let profile = layout.profile();
         Cia402Axis {
             layout,
-            profile,
             cyclic: match layout {
                 Layout::Generic(m) => m,
                 _ => CyclicMode::Pp,
@@ -336,7 +347,7 @@ impl Cia402Axis {
             mode: OperationMode::ProfilePosition,
             demand: Demand::Disable,
             step: Step::Start,
-            pp: PpMaster::new(profile.abs_rel),
+            pp: PpMaster::new(layout.profile().abs_rel),
             requested: 0,
             acked: None,
             reached: false,
@@ -360,7 +371,7 @@ impl Cia402Axis {
     /// its own profile generator (the cycle plans the path as a trapezoid with the same
     /// limits, so the two agree).
     pub fn one_set_point_per_move(&self) -> bool {
-        self.cyclic == CyclicMode::Pp && !self.profile.change_set_immediately
+        self.cyclic == CyclicMode::Pp && !self.layout.profile().change_set_immediately
     }
 
     /// The move the path runs this cycle (see [`super::DriveAxis::set_move`]).
@@ -727,11 +738,13 @@ impl Cia402Axis {
         self.mode = OperationMode::ProfilePosition;
         let start = self.feedback.position;
         let moving = self.state() == Some(State::OperationEnabled);
-        let mut nano = self.jog_nano.unwrap_or(i128::from(start) * 1_000_000_000);
+        let mut nano = self
+            .jog_nano
+            .map_or(i128::from(start) * 1_000_000_000, Wide::get);
         if moving {
             nano += i128::from(velocity) * i128::from(self.cycle_ns);
         }
-        self.jog_nano = Some(nano);
+        self.jog_nano = Some(Wide::new(nano));
         let here = div_i128(nano, 1_000_000_000) as i64;
         if self.cyclic == CyclicMode::Csp {
             self.csp_follow(here, velocity);
@@ -763,7 +776,7 @@ impl Cia402Axis {
             let r = SetPointRequest {
                 target,
                 relative: false,
-                immediate: self.profile.change_set_immediately,
+                immediate: self.layout.profile().change_set_immediately,
             };
             if self.pp.request(r).is_ok() {
                 self.lead = lead;
@@ -1108,6 +1121,22 @@ mod tests {
         Demand::Follow {
             position: 0,
             velocity: 0,
+        }
+    }
+
+    #[test]
+    fn wide_keeps_every_i128() {
+        for v in [
+            0i128,
+            1,
+            -1,
+            i128::MAX,
+            i128::MIN,
+            1 << 64,
+            -(1 << 64) - 7,
+            123_456_789_000_000_000_000,
+        ] {
+            assert_eq!(Wide::new(v).get(), v);
         }
     }
 
