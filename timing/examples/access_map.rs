@@ -164,38 +164,37 @@ fn report(pipe: &str) -> Result<(), String> {
     for line in std::io::stdin().lock().lines() {
         let line = line.map_err(|e| e.to_string())?;
         let mut w = line.split_whitespace();
-        match w.next() {
-            Some(kind @ ("L" | "S" | "M")) => {
-                if layout.is_none() {
-                    match shared.get() {
-                        Some(Ok(text)) => layout = Some(parse_layout(text)?),
-                        Some(Err(e)) => return Err(e.clone()),
-                        None => continue,
-                    }
-                }
-                let Some(Layout {
-                    base,
-                    size,
-                    marks: (start, end),
-                    ..
-                }) = layout
-                else {
-                    continue;
-                };
-                let Some(addr) = w.next().and_then(|a| a.split(',').next()) else {
-                    continue;
-                };
-                let addr = hex(Some(addr))?;
-                if addr == start {
-                    on = true;
-                } else if addr == end {
-                    break;
-                } else if on && addr >= base && addr < base + size {
-                    let e = lines.entry((addr - base + base % LINE) / LINE).or_default();
-                    if kind == "L" { e.0 += 1 } else { e.1 += 1 }
-                }
+        // Lackey's data accesses: " L addr,size" (load), " S" (store), " M" (modify).
+        let Some(kind @ ("L" | "S" | "M")) = w.next() else {
+            continue;
+        };
+        if layout.is_none() {
+            match shared.get() {
+                Some(Ok(text)) => layout = Some(parse_layout(text)?),
+                Some(Err(e)) => return Err(e.clone()),
+                None => continue,
             }
-            _ => {}
+        }
+        let Some(Layout {
+            base,
+            size,
+            marks: (start, end),
+            ..
+        }) = layout
+        else {
+            continue;
+        };
+        let Some(addr) = w.next().and_then(|a| a.split(',').next()) else {
+            continue;
+        };
+        let addr = hex(Some(addr))?;
+        if addr == start {
+            on = true;
+        } else if addr == end {
+            break;
+        } else if on && addr >= base && addr < base + size {
+            let e = lines.entry((addr - base + base % LINE) / LINE).or_default();
+            if kind == "L" { e.0 += 1 } else { e.1 += 1 }
         }
     }
     let Some(Layout {
