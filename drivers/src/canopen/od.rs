@@ -813,17 +813,14 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
     /// address without an entry gives a handle that every access searches for (and refuses as
     /// the address would be refused).
     pub fn resolve(&self, addr: Address) -> Resolved {
-        let pos = self
-            .find(addr)
-            .ok()
-            .and_then(|p| u16::try_from(p).ok())
-            .unwrap_or(u16::MAX);
+        let mut pos = u16::MAX;
+        let _ = self.locate_hinted(addr, &mut pos);
         Resolved { addr, pos }
     }
 
     /// [`ObjectDictionary::set_int`] at a position from [`ObjectDictionary::locate_hinted`].
     pub(crate) fn set_int_at(&mut self, i: usize, v: i64) -> Result<(), AbortCode> {
-        match self.slots.get(i).map(|s| s.data_type.class()) {
+        match self.slots.get(i).map(|s| s.class) {
             Some(TypeClass::Signed | TypeClass::Unsigned) => self.store_int(i, Value::Signed(v)),
             Some(_) => Err(AbortCode::TypeMismatch),
             None => Err(AbortCode::NoObject),
@@ -856,17 +853,13 @@ impl<'a, const N: usize, const BYTES: usize> ObjectDictionary<'a, N, BYTES> {
 
     /// The current value bytes, without the access check (device code, PDO transmission).
     pub fn raw(&self, at: impl Locate) -> Result<&[u8], AbortCode> {
-        let s = &self.slots[self.locate(at)?];
-        Ok(&self.arena[s.offset..s.offset + s.len])
+        Ok(self.raw_at(self.locate(at)?))
     }
 
     /// The current value, decoded.
     pub fn value(&self, at: impl Locate) -> Result<Value<'_>, AbortCode> {
-        let s = &self.slots[self.locate(at)?];
-        Ok(decode_value(
-            s.data_type,
-            &self.arena[s.offset..s.offset + s.len],
-        ))
+        let i = self.locate(at)?;
+        Ok(decode_value(self.slots[i].data_type, self.raw_at(i)))
     }
 
     /// Checks a write of `data` to the entry at slot `i` (length, range, limits); access is the
