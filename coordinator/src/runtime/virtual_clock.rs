@@ -60,7 +60,6 @@ pub struct VirtualIo<'p> {
     /// What happened so far.
     pub summary: Summary,
     hash: FrameHash,
-    frames: Vec<u64>,
     status_lines_printed: usize,
     tty: bool,
     /// Every event of the cycle, as well, while set (tests).
@@ -138,6 +137,13 @@ impl<'p> VirtualIo<'p> {
         }
     }
 
+    /// Runs every bus's simulated drives up to `t`, in the run order ([`bus_run_order`]).
+    fn run_sims_until(&mut self, t: Instant) {
+        for &b in &self.run_order {
+            self.sims[b].run_until(&self.buses[b], t);
+        }
+    }
+
     fn drain_monitors(&mut self) {
         let mut batch = [Frame::std8(0, [0; 8]); RECV_BATCH];
         for (b, m) in self.monitors.iter_mut().enumerate() {
@@ -149,7 +155,6 @@ impl<'p> VirtualIo<'p> {
                         c.write(b, f);
                     }
                     self.hash.add(f);
-                    self.frames[b] += 1;
                     self.summary.syncs_on_bus += u64::from(f.cob_id() == Some(0x080));
                 }
                 if n < RECV_BATCH {
@@ -221,9 +226,7 @@ impl CycleIo for VirtualIo<'_> {
     fn wait(&mut self, rx: &mut dyn FnMut(BusFrame)) -> Wake {
         let now = if self.plan.cycle.sync_producer {
             let now = self.t0 + self.plan.period * (self.k as u32);
-            for &b in &self.run_order {
-                self.sims[b].run_until(&self.buses[b], now);
-            }
+            self.run_sims_until(now);
             self.drain_monitors();
             for b in 0..self.ports.len() {
                 self.take_all(b, rx);
@@ -413,7 +416,6 @@ impl<'p> VirtualRun<'p> {
             // Virtual time ends from outside the loop (`run_virtual`): recorded per cycle.
             lp.record(&r.path, &r.config, true, opts.script, None)?;
         }
-        let n = plan.buses.len();
         let capture = match &opts.capture {
             Some(dir) => {
                 let names: Vec<String> = plan.buses.iter().map(|b| b.name.clone()).collect();
@@ -442,7 +444,6 @@ impl<'p> VirtualRun<'p> {
                 text: Vec::new(),
                 summary: Summary::default(),
                 hash: FrameHash::default(),
-                frames: vec![0; n],
                 status_lines_printed: 0,
                 tty: out_is_tty(),
                 watch: None,
@@ -546,28 +547,29 @@ impl<'p> VirtualRun<'p> {
     pub fn finish(mut self, wall: Duration) -> Summary {
         let last = self.now();
         let plan = self.io.plan;
-        for &b in &self.io.run_order {
-            self.io.sims[b].run_until(&self.io.buses[b], last + plan.period);
-        }
+        self.io.run_sims_until(last + plan.period);
         self.io.drain_monitors();
         let mut summary = std::mem::take(&mut self.io.summary);
         summary.cycles = self.lp.cycles();
         summary.machine_time = last - self.io.t0;
         summary.wall = wall;
         summary.frames_sent = self.stepper.frames_sent;
+        // The wire's own account of its frames and busy time: the frames the monitor saw.
         summary.buses = plan
             .buses
             .iter()
-            .enumerate()
-            .map(|(b, p)| BusFigures {
-                label: p.label(),
-                frames: self.io.frames[b],
-                // The wire's own account of its busy time: the frames the monitor saw.
-                load_percent: 100.0 * self.io.buses[b].stats().busy.as_secs_f64()
-                    / summary.machine_time.as_secs_f64().max(1e-9),
+            .zip(&self.io.buses)
+            .map(|(p, bus)| {
+                let wire = bus.stats();
+                BusFigures {
+                    label: p.label(),
+                    frames: wire.frames,
+                    load_percent: 100.0 * wire.busy.as_secs_f64()
+                        / summary.machine_time.as_secs_f64().max(1e-9),
+                }
             })
             .collect();
-        summary.frames_on_bus = self.io.frames.iter().sum();
+        summary.frames_on_bus = summary.buses.iter().map(|b| b.frames).sum();
         summary.step_ns = self.stepper.step_figures();
         summary.frames_lost = (self.stepper.tx_refused, self.stepper.rx_dropped);
         summary.frame_hash = self.io.hash.value();
