@@ -66,6 +66,9 @@ pub struct VirtualIo<'p> {
     watch: Option<Vec<Event>>,
     /// `--capture DIR`: the buses' frames as they pass the monitors.
     capture: Option<InlineCapture>,
+    /// The frames taken from a port per lock of its bus, kept so that no cycle fills a fresh
+    /// buffer.
+    batch: [Frame; RECV_BATCH],
     capture_dir: Option<std::path::PathBuf>,
     /// SYNC-consumer mode: the SYNC being taken, frames after it, frames for the next cycle.
     held: Option<Frame>,
@@ -145,11 +148,11 @@ impl<'p> VirtualIo<'p> {
     }
 
     fn drain_monitors(&mut self) {
-        let mut batch = [Frame::std8(0, [0; 8]); RECV_BATCH];
+        let batch = &mut self.batch;
         for (b, m) in self.monitors.iter_mut().enumerate() {
             // A batch per lock of the bus instead of a lock per frame; the same frames in the
             // same order.
-            while let Ok(n @ 1..) = m.recv_batch(&mut batch) {
+            while let Ok(n @ 1..) = m.recv_batch(batch) {
                 for f in &batch[..n] {
                     if let Some(c) = &mut self.capture {
                         c.write(b, f);
@@ -166,9 +169,9 @@ impl<'p> VirtualIo<'p> {
 
     /// Every frame waiting at the coordinator's port on bus `b`, in order, a batch per lock.
     fn take_all(&mut self, b: usize, rx: &mut dyn FnMut(BusFrame)) {
-        let mut batch = [Frame::std8(0, [0; 8]); RECV_BATCH];
-        while let Ok(n @ 1..) = self.ports[b].recv_batch(&mut batch) {
-            for &f in &batch[..n] {
+        while let Ok(n @ 1..) = self.ports[b].recv_batch(&mut self.batch) {
+            for i in 0..n {
+                let f = self.batch[i];
                 self.take(b, f, rx);
             }
             if n < RECV_BATCH {
@@ -448,6 +451,7 @@ impl<'p> VirtualRun<'p> {
                 tty: out_is_tty(),
                 watch: None,
                 capture,
+                batch: [Frame::std8(0, [0; 8]); RECV_BATCH],
                 capture_dir: opts.capture.clone(),
                 held: None,
                 later: Vec::with_capacity(RX_CAPACITY),
