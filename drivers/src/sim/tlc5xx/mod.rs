@@ -476,6 +476,50 @@ impl Settings {
     ];
 }
 
+/// The objects whose writes [`Tlc5xx::written`] acts on, one bit each.
+struct Watched;
+
+impl Watched {
+    const SCALING: u32 = 1 << 0;
+    const SETTINGS: u32 = 1 << 1;
+    const MODE: u32 = 1 << 2;
+    const LIMIT_MIN: u32 = 1 << 3;
+    const LIMIT_MAX: u32 = 1 << 4;
+    const LIMIT_MIN_TLC: u32 = 1 << 5;
+    const LIMIT_MAX_TLC: u32 = 1 << 6;
+    const DIF_PEAK: u32 = 1 << 7;
+    const DRIVE_CTRL: u32 = 1 << 8;
+    const CONTROLWORD: u32 = 1 << 9;
+    const PV_TARGET: u32 = 1 << 10;
+    const PTP: u32 = 1 << 11;
+    const PTP_ADD: u32 = 1 << 12;
+    const PTP_REL: u32 = 1 << 13;
+    const LIST_START: u32 = 1 << 14;
+
+    /// The bit of object `index`/`sub` (0: none the drive acts on).
+    fn of(index: u16, sub: u8) -> u32 {
+        match (index, sub) {
+            // Position factor, velocity factor, feed constant: every sub-index.
+            (0x6093 | 0x6094 | 0x6097, _) => Self::SCALING,
+            (0x6060, 0) => Self::MODE,
+            (0x607D, 1) => Self::LIMIT_MIN,
+            (0x607D, 2) => Self::LIMIT_MAX,
+            (0x2053, 0) => Self::LIMIT_MIN_TLC,
+            (0x2052, 0) => Self::LIMIT_MAX_TLC,
+            (0x2013, 0) => Self::DIF_PEAK,
+            (0x2040, 0) => Self::DRIVE_CTRL,
+            (0x6040, 0) => Self::CONTROLWORD,
+            (0x60FF, 0) => Self::PV_TARGET,
+            (0x2090, 0) => Self::PTP,
+            (0x20E8, 0) => Self::PTP_ADD,
+            (0x2092, 0) => Self::PTP_REL,
+            (0x20B4, 0) => Self::LIST_START,
+            x if Settings::OBJECTS.contains(&x) => Self::SETTINGS,
+            _ => 0,
+        }
+    }
+}
+
 impl Tlc5xx {
     /// A drive powered on at `now`: Pre-operational, boot-up message queued, DSP402 in Switch on
     /// disabled. Fails only if the dictionary does not fit its capacity (a build error).
@@ -1176,59 +1220,57 @@ impl Tlc5xx {
 
     /// Objects written by SDO or an RPDO: act on them (all of one RPDO at once).
     fn written(&mut self, addrs: &[Address]) {
-        if addrs
-            .iter()
-            .any(|x| matches!(x.index, 0x6093 | 0x6094 | 0x6097))
-        {
+        // One pass over the list: each object the drive reacts to sets its bit.
+        let w = addrs.iter().fold(0, |m, x| m | Watched::of(x.index, x.sub));
+        let has = |bit: u32| w & bit != 0;
+        if has(Watched::SCALING) {
             self.scaling = self.compute_scaling();
         }
-        if addrs
-            .iter()
-            .any(|x| Settings::OBJECTS.contains(&(x.index, x.sub)))
-        {
+        if has(Watched::SETTINGS) {
             self.settings = self.read_settings();
         }
-        let has = |i: u16, s: u8| addrs.contains(&a(i, s));
-        if has(0x6060, 0) {
+        if has(Watched::MODE) {
             let code = self.dev.od().get_i8(a(0x6060, 0)).unwrap_or(1);
             let _ = self.modes.request(code, &self.profile);
             self.update_mode();
         }
         let od = self.dev.od_mut();
         // The software limits are one setting under two names (607Dh and 2052h/2053h).
-        for (x, y) in [((0x607D, 1), (0x2053, 0)), ((0x607D, 2), (0x2052, 0))] {
-            if has(x.0, x.1) {
-                let v = od.get_i32(a(x.0, x.1)).unwrap_or(0);
-                let _ = od.set_i32(a(y.0, y.1), v);
-            } else if has(y.0, y.1) {
-                let v = od.get_i32(a(y.0, y.1)).unwrap_or(0);
-                let _ = od.set_i32(a(x.0, x.1), v);
+        for (bx, x, by, y) in [
+            (Watched::LIMIT_MIN, a(0x607D, 1), Watched::LIMIT_MIN_TLC, a(0x2053, 0)),
+            (Watched::LIMIT_MAX, a(0x607D, 2), Watched::LIMIT_MAX_TLC, a(0x2052, 0)),
+        ] {
+            if has(bx) {
+                let v = od.get_i32(x).unwrap_or(0);
+                let _ = od.set_i32(y, v);
+            } else if has(by) {
+                let v = od.get_i32(y).unwrap_or(0);
+                let _ = od.set_i32(x, v);
             }
         }
-        if has(0x2013, 0) {
+        if has(Watched::DIF_PEAK) {
             self.dif_peak = 0;
         }
-        if has(0x2040, 0) {
+        if has(Watched::DRIVE_CTRL) {
             self.drive_ctrl();
         }
-        if has(0x6040, 0) {
+        if has(Watched::CONTROLWORD) {
             self.controlword();
         }
-        if has(0x60FF, 0) {
+        if has(Watched::PV_TARGET) {
             self.pv_start();
         }
-        if has(0x2090, 0) {
-            self.sig_ptp(false, has(0x20E8, 0));
+        if has(Watched::PTP) {
+            self.sig_ptp(false, has(Watched::PTP_ADD));
         }
-        if has(0x2092, 0) {
+        if has(Watched::PTP_REL) {
             self.sig_ptp(true, false);
         }
-        if has(0x20B4, 0) {
+        if has(Watched::LIST_START) {
             self.start_list();
         }
-        if has(0x2009, 0) || has(0x2008, 0) {
-            // No EEPROM image is simulated: the write is accepted and has no effect.
-        }
+        // 2008h/2009h (EEPROM store/restore): no EEPROM image is simulated, the write is
+        // accepted and has no effect.
     }
 
     fn update_mode(&mut self) {
