@@ -667,7 +667,7 @@ impl FestoNode {
                 .cia_mirror
                 .filter(|m| m.generation == self.dev.od().generation())
                 .map(|m| m.inputs);
-            let o = self.obj;
+            let o = &self.obj;
             let od = self.dev.od_mut();
             if last.is_none_or(|l| l.0 != sw.0) {
                 let _ = od.set_u16(o.statusword, sw.0);
@@ -797,7 +797,7 @@ impl FestoNode {
     /// RPDO1 applied (`from_pdo`) or a CiA 402 object written by SDO.
     fn rpdo1(&mut self, now: Instant, from_pdo: bool) {
         let cia = self.dev.hooks().cia.is_some();
-        let o = self.obj;
+        let o = &self.obj;
         if cia
             && from_pdo
             && self.dev.od().get_i8(o.mode) == Ok(OperationMode::ProfileTorque.code())
