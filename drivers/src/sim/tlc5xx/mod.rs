@@ -1237,8 +1237,18 @@ impl Tlc5xx {
         let od = self.dev.od_mut();
         // The software limits are one setting under two names (607Dh and 2052h/2053h).
         for (bx, x, by, y) in [
-            (Watched::LIMIT_MIN, a(0x607D, 1), Watched::LIMIT_MIN_TLC, a(0x2053, 0)),
-            (Watched::LIMIT_MAX, a(0x607D, 2), Watched::LIMIT_MAX_TLC, a(0x2052, 0)),
+            (
+                Watched::LIMIT_MIN,
+                a(0x607D, 1),
+                Watched::LIMIT_MIN_TLC,
+                a(0x2053, 0),
+            ),
+            (
+                Watched::LIMIT_MAX,
+                a(0x607D, 2),
+                Watched::LIMIT_MAX_TLC,
+                a(0x2052, 0),
+            ),
         ] {
             if has(bx) {
                 let v = od.get_i32(x).unwrap_or(0);
