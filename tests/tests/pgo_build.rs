@@ -33,7 +33,10 @@ fn text(o: &Output) -> String {
 /// rustc's own llvm-profdata, where the script looks for it.
 fn profdata() -> PathBuf {
     let out = |args: &[&str]| {
-        let o = Command::new("rustc").args(args).output().expect("rustc runs");
+        let o = Command::new("rustc")
+            .args(args)
+            .output()
+            .expect("rustc runs");
         String::from_utf8_lossy(&o.stdout).into_owned()
     };
     let host = out(&["-vV"])
