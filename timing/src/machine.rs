@@ -29,6 +29,11 @@ pub struct Machine {
     /// before the run (empty in folders written before this was kept).
     #[serde(default)]
     pub busy_before: Vec<BusyProcess>,
+    /// How the measuring binary was built: `debug`, `release`, or `release, trained on typical
+    /// runs (scripts/pgo-build)` (empty in folders written before this was kept): the
+    /// simulation's figures differ by a quarter between the last two.
+    #[serde(default)]
+    pub build: String,
 }
 
 impl Machine {
@@ -50,6 +55,7 @@ impl Machine {
                 busy::THRESHOLD_PERCENT,
                 busy::MAX_NAMED,
             ),
+            build: build_kind().to_owned(),
         }
     }
 
@@ -64,8 +70,13 @@ impl Machine {
         let busy = busy::describe(&self.busy_before)
             .map(|b| format!("\n{b}"))
             .unwrap_or_default();
+        let build = if self.build.is_empty() {
+            String::new()
+        } else {
+            format!("; {} build", self.build)
+        };
         format!(
-            "machine: {} ({} CPUs), kernel {} ({}), preemption {}\nload average: {:.2} {:.2} {:.2} at the start, {:.2} {:.2} {:.2} at the end{busy}",
+            "machine: {} ({} CPUs), kernel {} ({}), preemption {}{build}\nload average: {:.2} {:.2} {:.2} at the start, {:.2} {:.2} {:.2} at the end{busy}",
             self.cpu,
             self.cpus,
             self.kernel,
@@ -78,6 +89,15 @@ impl Machine {
             self.load_after[1],
             self.load_after[2],
         )
+    }
+}
+
+/// How this binary was built. `scripts/pgo-build` sets `MOTION_PGO` for its optimised build.
+fn build_kind() -> &'static str {
+    match (cfg!(debug_assertions), option_env!("MOTION_PGO").is_some()) {
+        (true, _) => "debug",
+        (false, false) => "release",
+        (false, true) => "release, trained on typical runs (scripts/pgo-build)",
     }
 }
 

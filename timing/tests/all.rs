@@ -92,6 +92,13 @@ fn all_writes_a_consistent_summary() {
             "machine.{key}"
         );
     }
+    // The test builds timing with debug assertions on (scripts/pgo-build's is "release,
+    // trained on typical runs (scripts/pgo-build)").
+    assert_eq!(s["machine"]["build"], "debug", "machine.build");
+    assert!(
+        String::from_utf8_lossy(&r.out.stdout).contains("; debug build"),
+        "the table names the build\n{ctx}"
+    );
     assert!(s["load"].is_null());
     let runs = s["runs"].as_array().unwrap();
     let names: Vec<&str> = runs.iter().map(|r| r["name"].as_str().unwrap()).collect();
