@@ -73,7 +73,7 @@ impl Machine {
         let build = if self.build.is_empty() {
             String::new()
         } else {
-            format!("; {} build", self.build)
+            format!("; build: {}", self.build)
         };
         format!(
             "machine: {} ({} CPUs), kernel {} ({}), preemption {}{build}\nload average: {:.2} {:.2} {:.2} at the start, {:.2} {:.2} {:.2} at the end{busy}",

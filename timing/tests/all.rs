@@ -96,7 +96,7 @@ fn all_writes_a_consistent_summary() {
     // trained on typical runs (scripts/pgo-build)").
     assert_eq!(s["machine"]["build"], "debug", "machine.build");
     assert!(
-        String::from_utf8_lossy(&r.out.stdout).contains("; debug build"),
+        String::from_utf8_lossy(&r.out.stdout).contains("; build: debug"),
         "the table names the build\n{ctx}"
     );
     assert!(s["load"].is_null());
