@@ -1,6 +1,6 @@
-//! The machine a run measured: CPU, kernel, preemption model, load average, and which
-//! real-time settings the run was granted. Written into `summary.json` beside the figures,
-//! since a latency figure means little without them.
+//! The machine a run measured: CPU, kernel, preemption model, load average, how the binary was
+//! built, and which real-time settings the run was granted. Written into `summary.json` beside
+//! the figures, since a latency figure means little without them.
 
 use serde::{Deserialize, Serialize};
 
