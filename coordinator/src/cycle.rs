@@ -302,16 +302,18 @@ impl<const A: usize> BusRt<A> {
 /// What the step reads of an axis every cycle. The sweep walks these from memory once per
 /// cycle (the cycle thread slept a period in between), so what only commands, the parameter
 /// channel's answers and the axis's own planning read is in [`AxisCold`].
+/// Five cache lines, aligned to them, so that an axis never straddles a sixth.
 #[derive(Clone, Debug)]
+#[repr(align(64))]
 struct AxisRt {
     /// `setup.transport`, `setup.late_cycles` and `setup.following_error`, read every cycle.
     transport: Transport,
     late_cycles: u16,
     following_error: i64,
+    /// The drive's state machine; its feedback is the axis's (the step keeps no copy).
     drive: DriveAxis,
     mode: AxisMode,
     online: bool,
-    feedback: Feedback,
     input: Option<Image>,
     missed: u16,
     /// The setpoint the coordinator last commanded (the start of the next move).
@@ -322,13 +324,18 @@ struct AxisRt {
     /// The drive's own fault already turned into `fault`, so it is raised once.
     drive_fault_seen: bool,
     group: Option<GroupId>,
-    /// A velocity or force record of the group drives this axis directly.
-    special: Option<Demand>,
-    /// The parameter channel (axes with `fpc`) and this cycle's reply bytes.
-    fpc: Option<fpc::Client>,
-    fpc_in: Option<Image>,
+    /// The axis's parameter channel in [`Cycle::fpcs`] (axes with `fpc`).
+    fpc: Option<u16>,
     last_state: AxisState,
     out: Image,
+}
+
+/// An axis's parameter channel (FHPP FPC on TPDO2/RPDO2) and this cycle's reply bytes: read
+/// every cycle, but only for the few axes that have one, so kept apart from [`AxisRt`].
+#[derive(Clone, Debug)]
+struct FpcRt {
+    client: fpc::Client,
+    input: Option<Image>,
 }
 
 /// What the step reads of an axis only when a command, a parameter reply or the axis's own
@@ -532,6 +539,11 @@ pub struct Cycle<'t, const A: usize, const G: usize> {
     cold: Vec<AxisCold, A>,
     /// The axes' single-axis moves and jogs, by axis index.
     solos: Solos<A>,
+    /// The parameter channels, in axis order ([`AxisRt::fpc`] indexes them).
+    fpcs: Vec<FpcRt, A>,
+    /// By axis index: the demand a velocity or force record of the axis's group gives it
+    /// directly. Read only while that group's `special_since` is set, and cleared with it.
+    specials: Vec<Option<Demand>, A>,
     groups: Vec<GroupRt<'t>, G>,
     buses: Vec<BusRt<A>, MAX_BUSES>,
     events: Deque<Event, EVENT_CAPACITY>,
@@ -560,6 +572,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             axes: Vec::new(),
             cold: Vec::new(),
             solos: Solos::new(),
+            fpcs: Vec::new(),
+            specials: Vec::new(),
             groups: Vec::new(),
             buses: Vec::new(),
             events: Deque::new(),
@@ -588,6 +602,23 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             }
             let drive = DriveAxis::in_mode(s.kind, s.profile, s.mode, setup.cycle_ns)
                 .map_err(|e| SetupError::Axis(id, e))?;
+            let client = crate::axis::fpc_codec(s.kind)
+                .filter(|_| s.fpc)
+                .map(|c| fpc::Client::new(c, FPC_TIMEOUT_CYCLES));
+            let fpc = match client {
+                Some(client) => {
+                    let k = c.fpcs.len() as u16;
+                    c.fpcs
+                        .push(FpcRt {
+                            client,
+                            input: None,
+                        })
+                        .map_err(|_| SetupError::Capacity(A))?;
+                    Some(k)
+                }
+                None => None,
+            };
+            c.specials.push(None).map_err(|_| SetupError::Capacity(A))?;
             c.axes
                 .push(AxisRt {
                     transport: s.transport,
@@ -596,7 +627,6 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     drive,
                     mode: AxisMode::Off,
                     online: false,
-                    feedback: Feedback::default(),
                     input: None,
                     missed: 0,
                     setpoint: 0,
@@ -605,14 +635,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     fault: FaultReason::None,
                     drive_fault_seen: false,
                     group: None,
-                    special: None,
-                    fpc: if s.fpc {
-                        crate::axis::fpc_codec(s.kind)
-                            .map(|c| fpc::Client::new(c, FPC_TIMEOUT_CYCLES))
-                    } else {
-                        None
-                    },
-                    fpc_in: None,
+                    fpc,
                     last_state: AxisState::Offline,
                     out: Image::default(),
                 })
@@ -682,7 +705,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             (m, _) => m,
         };
         Some(AxisStatus {
-            feedback: a.feedback,
+            feedback: *a.drive.feedback(),
             setpoint: a.setpoint,
             setpoint_velocity: if a.following { a.setpoint_velocity } else { 0 },
             fault: a.fault,
@@ -995,7 +1018,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 for a in self.admit_axes(t, AxisVerb::Enable)? {
                     let a = &mut self.axes[usize::from(a)];
                     a.mode = AxisMode::On;
-                    a.setpoint = a.feedback.position;
+                    a.setpoint = a.drive.feedback().position;
                 }
                 Ok(())
             }
@@ -1222,7 +1245,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     }
                     if a.mode == AxisMode::Homing {
                         a.mode = AxisMode::On;
-                        a.setpoint = a.feedback.position;
+                        a.setpoint = a.drive.feedback().position;
                     }
                 }
                 Ok(())
@@ -1386,7 +1409,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         if !a.online {
             return Err(Rejected::WrongState("drive not booted"));
         }
-        let Some(client) = &mut a.fpc else {
+        let Some(FpcRt { client, .. }) = a.fpc.and_then(|k| self.fpcs.get_mut(usize::from(k)))
+        else {
             return Err(Rejected::WrongState(
                 "no parameter channel (fpc) on this axis",
             ));
@@ -1480,7 +1504,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         self.prefetch();
         for a in self.axes.iter_mut() {
             a.input = None;
-            a.fpc_in = None;
+        }
+        for p in self.fpcs.iter_mut() {
+            p.input = None;
         }
         self.receive(input);
         self.supervise(now);
@@ -1515,6 +1541,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         region_first(f, &self.groups);
         region(f, self.groups.as_slice());
         region(f, &self.solos.running[..self.axes.len()]);
+        if !self.fpcs.is_empty() {
+            region(f, self.fpcs.as_slice());
+        }
         for b in &self.buses {
             region(f, &b.by_node);
             region_first(f, &b.heartbeat);
@@ -1562,8 +1591,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     }
                 }
                 FunctionCode::Tpdo(2) if !f.is_remote() => {
-                    if let Some(img) = Image::from_slice(f.data()) {
-                        self.axes[usize::from(axis)].fpc_in = Some(img);
+                    if let (Some(img), Some(k)) = (
+                        Image::from_slice(f.data()),
+                        self.axes[usize::from(axis)].fpc,
+                    ) && let Some(p) = self.fpcs.get_mut(usize::from(k))
+                    {
+                        p.input = Some(img);
                     }
                 }
                 FunctionCode::NmtErrorControl => {
@@ -1732,10 +1765,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let mut all_mc = true;
             for (i, &m) in self.groups[gi].setup.axes.iter().enumerate() {
                 let a = &self.axes[usize::from(m)];
-                pos[i] = a.feedback.position;
-                vel[i] = a.feedback.velocity;
-                force[i] = a.feedback.force;
-                all_mc &= a.feedback.motion_complete;
+                let fb = a.drive.feedback();
+                pos[i] = fb.position;
+                vel[i] = fb.velocity;
+                force[i] = fb.force;
+                all_mc &= fb.motion_complete;
             }
             let motion_done = match (&self.groups[gi].motion, self.groups[gi].special_since) {
                 // A velocity or force record "arrives" when the drives report it (speed or
@@ -1815,7 +1849,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     g.setup
                         .axes
                         .iter()
-                        .all(|&m| self.axes[usize::from(m)].feedback.motion_complete)
+                        .all(|&m| self.axes[usize::from(m)].drive.feedback().motion_complete)
                 };
                 let go = match (mode, g.motion.as_ref().map(|m| m.state())) {
                     (_, None) => true,
@@ -1846,7 +1880,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     && g.setup
                         .axes
                         .iter()
-                        .all(|&mm| self.axes[usize::from(mm)].feedback.motion_complete);
+                        .all(|&mm| self.axes[usize::from(mm)].drive.feedback().motion_complete);
                 let stopped = state == MoveState::Stopped;
                 if stopped && g.halt == GroupHalt::Stopping {
                     g.motion = None;
@@ -1910,7 +1944,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let v = self.cold[usize::from(m)].setup.limits.velocity as i64
                 * i64::from(r.velocity_percent)
                 / 100;
-            a.special = match (r.mode, sign) {
+            self.specials[usize::from(m)] = match (r.mode, sign) {
                 (_, 0) => None,
                 (RecordMode::Velocity, s) => Some(Demand::Velocity { velocity: s * v }),
                 (RecordMode::Force, s) => Some(Demand::Force {
@@ -1931,9 +1965,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         }
         let members = self.groups[gi].setup.axes.clone();
         for m in members {
+            self.specials[usize::from(m)] = None;
             let a = &mut self.axes[usize::from(m)];
-            a.special = None;
-            a.setpoint = a.feedback.position;
+            a.setpoint = a.drive.feedback().position;
         }
     }
 
@@ -1970,7 +2004,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 (a.setpoint, a.setpoint_velocity) = smp[0];
                 a.following = true;
                 let state = s.motion.state();
-                let arrived = state == MoveState::Done && a.feedback.motion_complete;
+                let arrived = state == MoveState::Done && a.drive.feedback().motion_complete;
                 let over = match (state, s.end) {
                     (MoveState::Stopped, SoloEnd::Arrive) => {
                         // Resumed while it was still ramping down: on along the path.
@@ -2007,10 +2041,15 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 };
                 a.drive.set_move(point);
             }
-            // A velocity or force record stands while its group is held or stopping.
-            let group_halted = a
-                .group
-                .is_some_and(|g| self.groups[usize::from(g)].halt != GroupHalt::None);
+            // A velocity or force record of the group drives the axis directly, and stands
+            // while its group is held or stopping.
+            let (group_halted, special) = match a.group.map(|g| &self.groups[usize::from(g)]) {
+                Some(g) if g.special_since.is_some() => {
+                    (g.halt != GroupHalt::None, self.specials[i])
+                }
+                Some(g) => (g.halt != GroupHalt::None, None),
+                None => (false, None),
+            };
             let a = &mut self.axes[i];
             let demand = match a.mode {
                 _ if !a.online => Demand::Disable,
@@ -2020,8 +2059,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 AxisMode::Homing => Demand::Home,
                 // Not stored: a jog is a planned single-axis motion (see `axis_status`).
                 AxisMode::Jog { .. } => Demand::Standstill,
-                AxisMode::On if a.special.is_some() && group_halted => Demand::Halt,
-                AxisMode::On if a.special.is_some() => a.special.unwrap_or(Demand::Standstill),
+                AxisMode::On if special.is_some() && group_halted => Demand::Halt,
+                AxisMode::On if special.is_some() => special.unwrap_or(Demand::Standstill),
                 AxisMode::On if a.following => Demand::Follow {
                     position: a.setpoint,
                     velocity: a.setpoint_velocity,
@@ -2030,12 +2069,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             };
             let input = a.input.as_ref().map(|i| i.bytes());
             let mut out = Image::default();
-            let fb = a.drive.exchange(input, &demand, &mut out);
+            // An image that cannot be decoded leaves the last feedback standing.
+            let _ = a.drive.exchange(input, &demand, &mut out);
             a.out = out;
-            if let Ok(fb) = fb {
-                a.feedback = fb;
-            }
-            let fb = a.feedback;
+            let fb = *a.drive.feedback();
             // Mode changes on completion.
             match a.mode {
                 AxisMode::Homing if fb.done && fb.homed => {
@@ -2057,7 +2094,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 AxisMode::Homing | AxisMode::QuickStopped | AxisMode::Off => {
                     self.axes[i].setpoint = fb.position;
                 }
-                AxisMode::On if a.special.is_some() => {
+                AxisMode::On if special.is_some() => {
                     self.axes[i].setpoint = fb.position;
                 }
                 _ => {}
@@ -2087,8 +2124,12 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     self.raise(i as AxisId, FaultReason::FollowingError { error: e, limit });
                 }
             }
-            let a = &mut self.axes[i];
-            if let (Some(client), Some(input)) = (&mut a.fpc, a.fpc_in)
+            if let Some(FpcRt {
+                client,
+                input: Some(input),
+            }) = self.axes[i]
+                .fpc
+                .and_then(|k| self.fpcs.get_mut(usize::from(k)))
                 && let Some(outcome) = client.handle_input(input.bytes())
             {
                 let p = self.cold[i].fpc_task.take().unwrap_or_default();
@@ -2151,8 +2192,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let Transport::Can { bus, node: n } = a.transport else {
                 continue;
             };
-            let rpdo2 = match &a.fpc {
-                Some(client) => Some(client.output()),
+            let rpdo2 = match a.fpc.and_then(|k| self.fpcs.get(usize::from(k))) {
+                Some(p) => Some(p.client.output()),
                 None => a.drive.profile_pdo(),
             };
             if let (true, Some(bytes), Some(id)) = (a.online, rpdo2, node(n))

@@ -417,6 +417,12 @@ impl Cia402Axis {
         self.cyclic
     }
 
+    /// What the drive reported last, as the last exchange returned it (kept when an image
+    /// could not be decoded).
+    pub fn feedback(&self) -> &Feedback {
+        &self.feedback
+    }
+
     /// Forgets the drive's state: offline until the next image.
     pub fn reset(&mut self) {
         *self = Cia402Axis {

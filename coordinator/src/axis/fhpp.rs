@@ -218,6 +218,12 @@ impl FhppAxis {
         &self.settings
     }
 
+    /// What the drive reported last, as the last exchange returned it (kept when an image
+    /// could not be decoded).
+    pub fn feedback(&self) -> &Feedback {
+        &self.feedback
+    }
+
     /// Forgets the drive's state: offline until the next image, the demand starts anew.
     pub fn reset(&mut self) {
         *self = FhppAxis::new(self.variant, self.cycle_ns)

@@ -480,6 +480,16 @@ impl DriveAxis {
         }
     }
 
+    /// What the drive reported last: what the last [`DriveAxis::exchange`] returned, or the
+    /// feedback before it when that exchange could not decode its image (a refused demand
+    /// reports `failed`). The cycle keeps no copy of its own.
+    pub fn feedback(&self) -> &Feedback {
+        match self {
+            DriveAxis::Fhpp(a) => a.feedback(),
+            DriveAxis::Cia402(a) => a.feedback(),
+        }
+    }
+
     /// Whether the drive takes one set-point per move (see
     /// [`takes_one_set_point_per_move`]): `Follow` then sends the move's end once, with its
     /// profile on RPDO2, and the cycle gives the move with [`DriveAxis::set_move`].
