@@ -286,7 +286,25 @@ struct BusRt<const A: usize> {
     heartbeat: HeartbeatConsumer<A, 32>,
     guarding: GuardingMaster<A, 32>,
     /// Node-ID → axis.
-    by_node: [Option<AxisId>; 128],
+    by_node: NodeMap,
+}
+
+/// Node-ID → axis of one bus, a byte per node (the axis index + 1; 0: none): two cache lines
+/// that the step asks for every cycle, where `Option<AxisId>` took eight. So a cycle has at
+/// most [`NodeMap::MAX_AXES`] axes.
+#[derive(Debug, Clone)]
+struct NodeMap([u8; 128]);
+
+impl NodeMap {
+    /// The most axes a byte can name.
+    const MAX_AXES: usize = u8::MAX as usize;
+
+    fn get(&self, node: usize) -> Option<AxisId> {
+        match self.0.get(node).copied() {
+            None | Some(0) => None,
+            Some(k) => Some(AxisId::from(k) - 1),
+        }
+    }
 }
 
 impl<const A: usize> BusRt<A> {
@@ -294,7 +312,7 @@ impl<const A: usize> BusRt<A> {
         BusRt {
             heartbeat: HeartbeatConsumer::new(),
             guarding: GuardingMaster::new(),
-            by_node: [None; 128],
+            by_node: NodeMap([0; 128]),
         }
     }
 }
@@ -530,7 +548,7 @@ pub struct GroupStatus {
     pub activity: GroupActivity,
 }
 
-/// The coordinator's cycle for up to `A` axes and `G` groups.
+/// The coordinator's cycle for up to `A` axes (at most 255) and `G` groups.
 #[derive(Debug, Clone)]
 pub struct Cycle<'t, const A: usize, const G: usize> {
     setup: CycleSetup,
@@ -587,18 +605,22 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         for _ in 0..setup.buses {
             c.buses.push(BusRt::new()).map_err(|_| SetupError::Buses)?;
         }
+        if axes.len() > NodeMap::MAX_AXES {
+            return Err(SetupError::Capacity(NodeMap::MAX_AXES.min(A)));
+        }
         for (i, s) in axes.iter().enumerate() {
             let id = i as AxisId;
             if let Transport::Can { bus, node: n } = s.transport {
                 let slot = c
                     .buses
                     .get_mut(usize::from(bus))
-                    .and_then(|b| b.by_node.get_mut(usize::from(n)))
+                    .and_then(|b| b.by_node.0.get_mut(usize::from(n)))
                     .ok_or(SetupError::Node(id))?;
-                if n == 0 || slot.is_some() {
+                if n == 0 || *slot != 0 {
                     return Err(SetupError::Node(id));
                 }
-                *slot = Some(id);
+                // `i` < NodeMap::MAX_AXES (checked above).
+                *slot = i as u8 + 1;
             }
             let drive = DriveAxis::in_mode(s.kind, s.profile, s.mode, setup.cycle_ns)
                 .map_err(|e| SetupError::Axis(id, e))?;
@@ -1545,7 +1567,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             region(f, self.fpcs.as_slice());
         }
         for b in &self.buses {
-            region(f, &b.by_node);
+            region(f, &b.by_node.0);
             region_first(f, &b.heartbeat);
             region_first(f, &b.guarding);
         }
@@ -1581,7 +1603,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let Some(bus) = self.buses.get_mut(usize::from(bf.bus)) else {
                 continue;
             };
-            let Some(axis) = bus.by_node.get(usize::from(n)).copied().flatten() else {
+            let Some(axis) = bus.by_node.get(usize::from(n)) else {
                 continue;
             };
             match fc {
@@ -1666,7 +1688,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let _ = bus.guarding.handle_timeout(now);
             while let Some(e) = self.buses[b].heartbeat.poll_event() {
                 if let HeartbeatEvent::Lost { node } = e
-                    && let Some(a) = self.buses[b].by_node[usize::from(node.get())]
+                    && let Some(a) = self.buses[b].by_node.get(usize::from(node.get()))
                 {
                     self.raise(a, FaultReason::HeartbeatLost);
                 }
@@ -1676,7 +1698,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     GuardingEvent::Lost { node } | GuardingEvent::ToggleError { node, .. } => node,
                     _ => continue,
                 };
-                if let Some(a) = self.buses[b].by_node[usize::from(n.get())] {
+                if let Some(a) = self.buses[b].by_node.get(usize::from(n.get())) {
                     self.raise(a, FaultReason::GuardingLost);
                 }
             }
@@ -2461,6 +2483,34 @@ mod tests {
             Some(SetupError::Capacity(1))
         );
         assert!(Cycle::<4, 2>::new(SETUP, &[axis(1), axis(2)], &[(g, &table)]).is_ok());
+    }
+
+    #[test]
+    fn a_node_map_names_up_to_255_axes() {
+        // A cycle of 256 axes is large: built on a thread with room for it.
+        std::thread::Builder::new()
+            .stack_size(64 << 20)
+            .spawn(|| {
+                let modbus = |slot: usize| AxisSetup {
+                    kind: DeviceKind::CmmoSt,
+                    transport: Transport::Modbus { slot: slot as u8 },
+                    ..axis(1)
+                };
+                let mut axes: std::vec::Vec<AxisSetup> = (0..254).map(modbus).collect();
+                // The last axis a byte can name is a CANopen node.
+                axes.push(axis(7));
+                let c = Cycle::<256, 1>::new(SETUP, &axes, &[]).unwrap();
+                assert_eq!(c.buses[0].by_node.get(7), Some(254));
+                assert_eq!(c.buses[0].by_node.get(6), None);
+                axes.push(axis(8));
+                assert_eq!(
+                    Cycle::<256, 1>::new(SETUP, &axes, &[]).err(),
+                    Some(SetupError::Capacity(255))
+                );
+            })
+            .unwrap()
+            .join()
+            .unwrap();
     }
 
     #[test]
