@@ -582,7 +582,9 @@ pub struct PathMove<const N: usize> {
     cycle_ns: u32,
     limits: PathLimits,
     quick: PathLimits,
-    plan: Segment,
+    /// The segment running (the plan, or a stop or resume planned since). The plan itself is
+    /// not kept: [`PathMove::planned`] recomputes it from the limits, so that the cycle's
+    /// swept state does not carry 600 bytes it never reads every cycle.
     seg: Segment,
     /// Path time in the current segment.
     tau: Time,
@@ -689,7 +691,6 @@ impl<const N: usize> PathMove<N> {
             cycle_ns,
             limits,
             quick,
-            plan,
             seg: plan,
             tau: Time::ZERO,
             rate: Time::ONE,
@@ -739,7 +740,19 @@ impl<const N: usize> PathMove<N> {
     /// The arrival cycle of the plan (without override or hold): the first cycle whose sample
     /// is exactly the target.
     pub fn duration_cycles(&self) -> u64 {
-        self.plan.duration.ceil_cycles()
+        self.planned().duration.ceil_cycles()
+    }
+
+    /// The whole move as [`PathMove::plan`] planned it: the same computation from the same
+    /// limits, so the same segment.
+    fn planned(&self) -> Segment {
+        let len = if self.delta.iter().all(|&d| d == 0) {
+            0
+        } else {
+            PathPos::END.raw() as u128
+        };
+        // It succeeded in `plan` with these limits; the running segment stands in otherwise.
+        plan_move(PathPos::ZERO, len, &self.limits).unwrap_or(self.seg)
     }
 
     /// The target positions, increments.
@@ -747,13 +760,15 @@ impl<const N: usize> PathMove<N> {
         core::array::from_fn(|i| self.start[i] + self.delta[i])
     }
 
-    /// The planned path at cycle `k` after the start (no override, no hold); O(1).
+    /// The planned path at cycle `k` after the start (no override, no hold); O(1): the plan
+    /// is computed again for each call.
     pub fn path_at(&self, k: u64) -> PathSample {
-        self.plan
+        self.planned()
             .at(Time::cycles(k.min(MAX_CYCLES as u64 + 1) as i64))
     }
 
-    /// The planned setpoints at cycle `k` after the start (no override, no hold); O(1).
+    /// The planned setpoints at cycle `k` after the start (no override, no hold); O(1), the
+    /// plan computed again for each call.
     pub fn sample(&self, k: u64) -> [Sample; N] {
         self.samples(self.path_at(k))
     }
