@@ -320,7 +320,8 @@ impl<const A: usize> BusRt<A> {
 /// What the step reads of an axis every cycle. The sweep walks these from memory once per
 /// cycle (the cycle thread slept a period in between), so what only commands, the parameter
 /// channel's answers and the axis's own planning read is in [`AxisCold`].
-/// Five cache lines, aligned to them, so that an axis never straddles a sixth.
+///
+/// Aligned to cache lines (it fills five, 320 bytes), so that no axis straddles one more.
 #[derive(Clone, Debug)]
 #[repr(align(64))]
 struct AxisRt {
