@@ -964,6 +964,42 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_plan_answers_the_same_after_holds_and_stops() {
+        // The plan is computed again for each query: from the planning limits, never from a
+        // stop's (quick-stop) limits or the running segment.
+        let limits = [
+            AxisLimits::new(50_000, 200_000, 4_000_000).with_quick_stop(9_000_000, 90_000_000),
+            AxisLimits::new(20_000, 900_000, 1_000_000),
+        ];
+        let target = Target::Relative([40_000, -7_000]);
+        let mut m = PathMove::plan([0, 10], target, &limits, Shape::SCurve, 2_000_000).unwrap();
+        let n = m.duration_cycles();
+        // The plan's samples are the path the move runs untouched.
+        let mut untouched = m.clone();
+        let run: std::vec::Vec<_> = (1..=n + 5).map(|_| untouched.step()).collect();
+        for k in 1..=n + 5 {
+            assert_eq!(m.sample(k), run[k as usize - 1], "cycle {k}");
+        }
+        let ks = [0, 1, n / 3, n / 2, n - 1, n, n + 5];
+        let before: std::vec::Vec<_> = ks.iter().map(|&k| m.sample(k)).collect();
+        for k in 0..n / 2 {
+            if k == 50 {
+                m.hold();
+            }
+            if k == 200 {
+                m.quick_stop();
+            }
+            let _ = m.step();
+        }
+        assert_ne!(m.state(), MoveState::Moving);
+        assert_eq!(m.duration_cycles(), n);
+        let after: std::vec::Vec<_> = ks.iter().map(|&k| m.sample(k)).collect();
+        assert_eq!(before, after);
+        assert_eq!(after[0][1].position, 10);
+        assert_eq!(after[ks.len() - 1][0].position, 40_000);
+    }
+
+    #[test]
     fn step_positions_matches_step() {
         let limits = [AxisLimits::new(50_000, 200_000, 4_000_000); 3];
         let start = [0, 100, -5000];
