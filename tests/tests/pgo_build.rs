@@ -9,6 +9,8 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
+use integration_tests::skip_or_fail;
+
 fn script() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scripts/pgo-build")
 }
@@ -62,12 +64,9 @@ fn the_check_names_the_tool_it_found_or_how_to_install_it() {
             "the check names the llvm-profdata it found\n{t}"
         );
     } else {
-        assert!(
-            std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
-            "llvm-profdata (rustup component llvm-tools) is missing and MOTION_REQUIRE_ALL=1\n{t}"
-        );
-        eprintln!(
-            "SKIPPED the found path of scripts/pgo-build --check: llvm-tools is not installed; checked the refusal"
+        skip_or_fail(
+            "the found path of scripts/pgo-build --check",
+            "llvm-profdata (rustup component llvm-tools) is not installed; checked the refusal",
         );
         assert_eq!(o.status.code(), Some(1), "{t}");
         assert!(
@@ -80,12 +79,11 @@ fn the_check_names_the_tool_it_found_or_how_to_install_it() {
 #[test]
 fn an_unknown_option_is_refused_naming_it_and_what_is_allowed() {
     if !profdata().exists() {
-        assert!(
-            std::env::var("MOTION_REQUIRE_ALL").as_deref() != Ok("1"),
-            "llvm-profdata (rustup component llvm-tools) is missing and MOTION_REQUIRE_ALL=1"
-        );
         // The tool is looked for first; its refusal is the other test's.
-        eprintln!("SKIPPED an_unknown_option_is_refused: llvm-tools is not installed");
+        skip_or_fail(
+            "an_unknown_option_is_refused_naming_it_and_what_is_allowed",
+            "llvm-profdata (rustup component llvm-tools) is not installed",
+        );
         return;
     }
     let o = run(&["--fast"]);
