@@ -679,11 +679,7 @@ impl<const N: usize> PathMove<N> {
             deceleration: quick[2].max(lim[2]),
             jerk: scurve.then_some(quick[3].max(lim[3])),
         };
-        let len = if delta.iter().all(|&d| d == 0) {
-            0
-        } else {
-            PathPos::END.raw() as u128
-        };
+        let len = path_length(&delta);
         let plan = plan_move(PathPos::ZERO, len, &limits)?;
         Ok(PathMove {
             start,
@@ -746,13 +742,8 @@ impl<const N: usize> PathMove<N> {
     /// The whole move as [`PathMove::plan`] planned it: the same computation from the same
     /// limits, so the same segment.
     fn planned(&self) -> Segment {
-        let len = if self.delta.iter().all(|&d| d == 0) {
-            0
-        } else {
-            PathPos::END.raw() as u128
-        };
         // It succeeded in `plan` with these limits; the running segment stands in otherwise.
-        plan_move(PathPos::ZERO, len, &self.limits).unwrap_or(self.seg)
+        plan_move(PathPos::ZERO, path_length(&self.delta), &self.limits).unwrap_or(self.seg)
     }
 
     /// The target positions, increments.
@@ -910,6 +901,16 @@ impl<const N: usize> PathMove<N> {
         p.j = p.j.mul_time(r).mul_time(r).mul_time(r);
         p.v = p.v.mul_time(r);
         p
+    }
+}
+
+/// The length of a move's path in sub-units: all of [`PathPos::END`], or none when no axis
+/// moves.
+fn path_length<const N: usize>(delta: &[i64; N]) -> u128 {
+    if delta.iter().all(|&d| d == 0) {
+        0
+    } else {
+        PathPos::END.raw() as u128
     }
 }
 
