@@ -305,6 +305,18 @@ impl NodeMap {
             Some(k) => Some(AxisId::from(k) - 1),
         }
     }
+
+    /// Names axis `axis` at node `node`; `false` for node 0, a node past 127, one already
+    /// named, or an axis a byte cannot name.
+    fn insert(&mut self, node: u8, axis: usize) -> bool {
+        match (self.0.get_mut(usize::from(node)), u8::try_from(axis + 1)) {
+            (Some(slot @ 0), Ok(k)) if node != 0 => {
+                *slot = k;
+                true
+            }
+            _ => false,
+        }
+    }
 }
 
 impl<const A: usize> BusRt<A> {
@@ -611,17 +623,13 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         }
         for (i, s) in axes.iter().enumerate() {
             let id = i as AxisId;
-            if let Transport::Can { bus, node: n } = s.transport {
-                let slot = c
+            if let Transport::Can { bus, node: n } = s.transport
+                && !c
                     .buses
                     .get_mut(usize::from(bus))
-                    .and_then(|b| b.by_node.0.get_mut(usize::from(n)))
-                    .ok_or(SetupError::Node(id))?;
-                if n == 0 || *slot != 0 {
-                    return Err(SetupError::Node(id));
-                }
-                // `i` < NodeMap::MAX_AXES (checked above).
-                *slot = i as u8 + 1;
+                    .is_some_and(|b| b.by_node.insert(n, i))
+            {
+                return Err(SetupError::Node(id));
             }
             let drive = DriveAxis::in_mode(s.kind, s.profile, s.mode, setup.cycle_ns)
                 .map_err(|e| SetupError::Axis(id, e))?;
