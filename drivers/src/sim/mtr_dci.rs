@@ -567,6 +567,9 @@ pub struct FestoNode {
     cia_mirror: Option<CiaMirror>,
     emcy_active: heapless::Vec<u16, ACTIVE_EMCY>,
     obj: CiaObjects,
+    /// The instant of the last [`FestoNode::advance`], while nothing has changed the node
+    /// since: another advance to the same instant would find nothing to do.
+    advanced_at: Option<Instant>,
 }
 
 impl core::fmt::Debug for FestoDevice {
@@ -612,6 +615,7 @@ impl FestoNode {
             cia_mirror: None,
             emcy_active: heapless::Vec::new(),
             obj,
+            advanced_at: None,
         };
         n.advance(now);
         Ok(n)
@@ -623,6 +627,7 @@ impl FestoNode {
     }
     /// The CANopen device, mutable.
     pub fn device_mut(&mut self) -> &mut FestoDevice {
+        self.advanced_at = None;
         &mut self.dev
     }
     /// The drive core.
@@ -631,6 +636,7 @@ impl FestoNode {
     }
     /// The drive core, for fault injection and the axis' environment.
     pub fn drive_mut(&mut self) -> &mut FhppDrive {
+        self.advanced_at = None;
         &mut self.dev.hooks_mut().drive
     }
     /// The CiA 402 state, if the node speaks CiA 402.
@@ -650,6 +656,7 @@ impl FestoNode {
         }
         self.mirror();
         self.forward_emcy();
+        self.advanced_at = Some(now);
     }
 
     /// Copies the drive's current images into the objects the TPDOs map.
@@ -889,10 +896,15 @@ impl Endpoint for FestoNode {
         self.dev.handle_frame(frame, now);
         self.drain_device_events(now);
         self.forward_emcy();
+        self.advanced_at = None;
     }
 
     fn poll_transmit(&mut self, now: Instant) -> Option<Frame> {
-        self.advance(now);
+        // A station asks until nothing is left to send, all at one instant: the drive and
+        // the dictionary are brought up to date once for them.
+        if self.advanced_at != Some(now) {
+            self.advance(now);
+        }
         self.dev.poll_transmit(now)
     }
 
@@ -905,6 +917,7 @@ impl Endpoint for FestoNode {
         self.dev.handle_timeout(now);
         self.drain_device_events(now);
         self.forward_emcy();
+        self.advanced_at = None;
     }
 }
 
