@@ -525,6 +525,23 @@ struct GroupRt<'t> {
     special_since: Option<u64>,
 }
 
+impl GroupRt<'_> {
+    /// The parts of the group the step reads, for asking for them ahead of it: all of it but
+    /// what its move leaves out ([`PathMove::cycle_regions`]).
+    fn cycle_regions(&self, f: &mut impl FnMut(*const u8, usize)) {
+        let Some(m) = &self.motion else {
+            return region(f, core::slice::from_ref(self));
+        };
+        let base = (self as *const Self).cast::<u8>();
+        let at = (m as *const PathMove<MAX_GROUP_AXES>).cast::<u8>();
+        f(base, at as usize - base as usize);
+        m.cycle_regions(f);
+        let after = at.wrapping_add(core::mem::size_of_val(m));
+        let end = (self as *const Self).wrapping_add(1).cast::<u8>();
+        f(after, end as usize - after as usize);
+    }
+}
+
 /// Published state of one axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct AxisStatus {
@@ -1570,7 +1587,9 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
         region_first(f, &self.axes);
         region(f, self.axes.as_slice());
         region_first(f, &self.groups);
-        region(f, self.groups.as_slice());
+        for g in &self.groups {
+            g.cycle_regions(f);
+        }
         region(f, &self.solos.running[..self.axes.len()]);
         if !self.fpcs.is_empty() {
             region(f, self.fpcs.as_slice());

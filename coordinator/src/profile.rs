@@ -233,10 +233,10 @@ pub struct Sample {
     pub jerk: i64,
 }
 
-/// One polynomial piece of a segment: constant jerk from `t0`.
+/// One polynomial piece of a segment: constant jerk from its start time (kept apart, in
+/// [`Segment`]'s `t0`). 64 bytes: one cache line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 struct Phase {
-    t0: Time,
     s0: PathPos,
     v0: PathRate,
     a0: PathRate,
@@ -244,10 +244,17 @@ struct Phase {
 }
 
 /// A planned piece of path: up to 7 constant-jerk phases from `start` to `end`.
+///
+/// Laid out for a cycle that reads one phase: the phases' start times and their count share
+/// the first cache line, which finding the running phase reads; each phase is a line of its
+/// own after it. So a cycle reads three of the segment's nine lines, not all of them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(C, align(64))]
 pub struct Segment {
-    phases: [Phase; 7],
+    /// When each phase starts, path time from the segment's start.
+    t0: [Time; 7],
     count: usize,
+    phases: [Phase; 7],
     start: PathPos,
     end: PathPos,
     duration: Time,
@@ -284,26 +291,28 @@ impl Segment {
         end: Option<PathPos>,
     ) -> Segment {
         let mut phases = [Phase::default(); 7];
+        let mut t0 = [Time::ZERO; 7];
         let (mut s, mut v, mut a, mut t) = (start, v0, a0, Time::ZERO);
         let mut count = 0;
-        for (slot, &(dur, j, a_set)) in phases.iter_mut().zip(specs) {
+        for ((slot, start_time), &(dur, j, a_set)) in phases.iter_mut().zip(&mut t0).zip(specs) {
             if let Some(x) = a_set {
                 a = x;
             }
             *slot = Phase {
-                t0: t,
                 s0: s,
                 v0: v,
                 a0: a,
                 j,
             };
+            *start_time = t;
             (s, v, a) = eval(slot, dur);
             t = t.saturating_add(dur);
             count += 1;
         }
         Segment {
-            phases,
+            t0,
             count,
+            phases,
             start,
             end: end.unwrap_or(s),
             duration: t,
@@ -323,8 +332,8 @@ impl Segment {
     /// Index of the phase running at `tau`.
     fn phase_at(&self, tau: Time) -> usize {
         let mut i = 0;
-        for (k, p) in self.phases[..self.count].iter().enumerate() {
-            if p.t0 <= tau {
+        for (k, &t0) in self.t0[..self.count].iter().enumerate() {
+            if t0 <= tau {
                 i = k;
             }
         }
@@ -342,8 +351,9 @@ impl Segment {
             };
         }
         let tau = tau.max(Time::ZERO);
-        let p = &self.phases[self.phase_at(tau)];
-        let (s, v, a) = eval(p, tau - p.t0);
+        let k = self.phase_at(tau);
+        let p = &self.phases[k];
+        let (s, v, a) = eval(p, tau - self.t0[k]);
         let (lo, hi) = if self.start <= self.end {
             (self.start, self.end)
         } else {
@@ -575,25 +585,29 @@ pub enum MoveState {
 }
 
 /// A time-synchronised move of `N` axes along a straight line in joint space.
+///
+/// In declared order ([`PathMove::cycle_regions`] relies on it): what every cycle reads, then
+/// the segment, then the limits, which only planning a stop or a resume reads.
 #[derive(Debug, Clone, PartialEq, Eq)]
+#[repr(C)]
 pub struct PathMove<const N: usize> {
     start: [i64; N],
     delta: [i64; N],
-    cycle_ns: u32,
-    limits: PathLimits,
-    quick: PathLimits,
-    /// The segment running (the plan, or a stop or resume planned since). The plan itself is
-    /// not kept: [`PathMove::planned`] recomputes it from the limits, so that the cycle's
-    /// swept state does not carry 600 bytes it never reads every cycle.
-    seg: Segment,
     /// Path time in the current segment.
     tau: Time,
     /// Path time per cycle (the override; `Time::ONE` at 100 %), its target and ramp step.
     rate: Time,
     rate_target: Time,
     rate_step: Time,
-    state: MoveState,
     cycle: u64,
+    cycle_ns: u32,
+    state: MoveState,
+    /// The segment running (the plan, or a stop or resume planned since). The plan itself is
+    /// not kept: [`PathMove::planned`] recomputes it from the limits, so that the cycle's
+    /// swept state does not carry 600 bytes it never reads every cycle.
+    seg: Segment,
+    limits: PathLimits,
+    quick: PathLimits,
 }
 
 impl<const N: usize> PathMove<N> {
@@ -870,6 +884,20 @@ impl<const N: usize> PathMove<N> {
         }
     }
 
+    /// The parts of this move that [`PathMove::step_positions`] reads, each handed to `f` as
+    /// its first byte and its length, for asking for them ahead of the step: all of it but the
+    /// segment's phases other than the running one and the next, and the limits.
+    pub fn cycle_regions(&self, f: &mut impl FnMut(*const u8, usize)) {
+        let base = (self as *const Self).cast::<u8>();
+        let phases = self.seg.phases.as_ptr_range();
+        f(base, phases.start as usize - base as usize);
+        let k = self.seg.phase_at(self.tau);
+        let running = &self.seg.phases[k..self.seg.count.clamp(k, k + 2)];
+        f(running.as_ptr().cast(), core::mem::size_of_val(running));
+        let seg_end = (&self.seg as *const Segment).wrapping_add(1).cast::<u8>();
+        f(phases.end.cast(), seg_end as usize - phases.end as usize);
+    }
+
     /// Advances the path by one cycle (override ramp, phase, state) and returns its
     /// time-scaled state.
     fn advance(&mut self) -> PathSample {
@@ -998,6 +1026,48 @@ mod tests {
         assert_eq!(before, after);
         assert_eq!(after[0][1].position, 10);
         assert_eq!(after[ks.len() - 1][0].position, 40_000);
+    }
+
+    #[test]
+    fn a_cycle_asks_for_the_running_phase_and_not_the_limits() {
+        // What `cycle_regions` hands out is what the cycle prefetches: it must hold every byte
+        // `step_positions` reads at the next step (the running phase, the segment's times and
+        // ends, the move's own fields) and leave out the limits and the phases not running.
+        let limits = [AxisLimits::new(50_000, 200_000, 4_000_000); 2];
+        let target = Target::Relative([40_000, -7_000]);
+        let mut m = PathMove::plan([0, 10], target, &limits, Shape::SCurve, 2_000_000).unwrap();
+        let n = m.duration_cycles();
+        let addr = |p: *const u8| p as usize;
+        let mut seen_phases = std::collections::BTreeSet::new();
+        for _ in 0..n + 2 {
+            let mut parts = std::vec::Vec::new();
+            m.cycle_regions(&mut |p, len| parts.push((addr(p), addr(p) + len)));
+            let held = |p: usize, len: usize| parts.iter().any(|&(a, b)| a <= p && p + len <= b);
+            let tau = m.tau.saturating_add(m.rate);
+            let k = m.seg.phase_at(tau);
+            if tau < m.seg.duration {
+                assert!(
+                    held(addr((&m.seg.phases[k] as *const Phase).cast()), 64),
+                    "phase {k}"
+                );
+                seen_phases.insert(k);
+            }
+            assert!(held(addr((&m.seg.t0 as *const [Time; 7]).cast()), 64));
+            assert!(held(addr((&m.seg.end as *const PathPos).cast()), 16));
+            assert!(held(addr((&m.tau as *const Time).cast()), 8));
+            assert!(held(addr((&m.delta as *const [i64; 2]).cast()), 16));
+            let out = |p: usize, len: usize| parts.iter().all(|&(a, b)| p + len <= a || b <= p);
+            assert!(out(addr((&m.limits as *const PathLimits).cast()), 160));
+            let asked: usize = parts.iter().map(|&(a, b)| b - a).sum();
+            assert!(
+                asked <= core::mem::size_of_val(&m) - 4 * 64 - 160,
+                "{asked} bytes"
+            );
+            let mut out = [(0, 0); 2];
+            m.step_positions(&mut out);
+        }
+        // An S-curve runs through all seven phases, and each was asked for in its turn.
+        assert_eq!(seen_phases.len(), 7);
     }
 
     #[test]
