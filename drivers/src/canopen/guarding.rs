@@ -270,6 +270,10 @@ pub struct GuardingMaster<const N: usize, const Q: usize = 16> {
     /// At or before every due poll's time (nodes with no poll outstanding; `None`: none), for
     /// the same reason in [`GuardingMaster::poll_transmit`].
     next_poll: Option<Instant>,
+    /// `(t, i)`: at `t`, no node before index `i` could be polled, and none has been freed
+    /// since. A run of polls at one instant (a station asks until nothing is left) then scans
+    /// each node once, not once per poll.
+    resume: Option<(Instant, usize)>,
 }
 
 impl<const N: usize, const Q: usize> Default for GuardingMaster<N, Q> {
@@ -288,6 +292,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
             earliest: None,
             index: NodeIndex::new(),
             next_poll: None,
+            resume: None,
         }
     }
 
@@ -326,6 +331,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         };
         self.earliest = min_deadline(self.earliest, g.life_deadline());
         self.next_poll = min_deadline(self.next_poll, Some(g.next_poll));
+        self.resume = None;
         self.nodes
             .push(g)
             .map_err(|_| GuardingError::TooManyNodes(N))?;
@@ -336,6 +342,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
     /// Stops guarding `node`.
     pub fn remove(&mut self, node: NodeId) {
         self.nodes.retain(|g| g.node != node);
+        self.resume = None;
         self.index.rebuild(self.nodes.iter().map(|g| g.node));
     }
 
@@ -400,6 +407,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
             if g.reply_deadline().is_some_and(|d| now >= d) {
                 g.awaiting = None;
                 self.next_poll = min_deadline(self.next_poll, Some(g.next_poll));
+                self.resume = None;
                 if let Err(e) = Self::push(
                     &mut self.events,
                     &mut self.dropped,
@@ -439,10 +447,16 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         if self.next_poll.is_none_or(|p| now < p) {
             return None;
         }
-        let Some(g) = self
+        let from = match self.resume {
+            Some((t, i)) if t == now => i,
+            _ => 0,
+        };
+        let Some((k, g)) = self
             .nodes
             .iter_mut()
-            .find(|g| now >= g.next_poll && g.awaiting.is_none())
+            .enumerate()
+            .skip(from)
+            .find(|(_, g)| now >= g.next_poll && g.awaiting.is_none())
         else {
             // None due: every waiting node's poll is later than `now`.
             self.next_poll = self
@@ -461,6 +475,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         g.awaiting = Some(now);
         let reply = g.reply_deadline();
         let node = g.node;
+        self.resume = Some((now, k + 1));
         self.earliest = min_deadline(self.earliest, reply);
         Some(guard_poll(node))
     }
@@ -511,6 +526,7 @@ impl<const N: usize, const Q: usize> GuardingMaster<N, Q> {
         let (_, reply) = GuardReply::from_frame(f)?;
         g.awaiting = None;
         self.next_poll = min_deadline(self.next_poll, Some(g.next_poll));
+        self.resume = None;
         if reply.toggle != g.toggle {
             let expected = g.toggle;
             // Resynchronise on the node's toggle, so one glitch is reported once.
@@ -720,6 +736,60 @@ mod tests {
         assert_eq!(m.poll_transmit(ms(1000)), Some(guard_poll(n(1))));
         assert_eq!(m.poll_transmit(ms(1000)), Some(guard_poll(n(2))));
         assert_eq!(m.poll_transmit(ms(1000)), None);
+    }
+
+    #[test]
+    fn polls_at_one_instant_go_in_node_order_and_each_instant_starts_over() {
+        // A run of polls at one instant resumes its scan where the last poll was found; the
+        // next instant, or a change to the nodes, scans from the first node again, so the
+        // lowest-index free node due is always the one polled.
+        let run = |m: &mut GuardingMaster<8>, t| {
+            core::iter::from_fn(|| m.poll_transmit(ms(t))).collect::<std::vec::Vec<_>>()
+        };
+        let polls = |ids: &[u8]| {
+            ids.iter()
+                .map(|&i| guard_poll(n(i)))
+                .collect::<std::vec::Vec<_>>()
+        };
+        let reply = |m: &mut GuardingMaster<8>, id, t| {
+            let r = GuardReply {
+                toggle: false,
+                state: NmtState::Operational,
+            };
+            m.handle_frame(&r.to_frame(n(id)), ms(t)).unwrap();
+        };
+        let mut m: GuardingMaster<8> = GuardingMaster::new();
+        for id in 1..=4 {
+            m.add_node(n(id), 100, 3, ms(0)).unwrap();
+        }
+        assert_eq!(run(&mut m, 0), polls(&[1, 2, 3, 4]));
+        // Nodes 2 to 4 answer; node 1 does not.
+        for id in 2..=4 {
+            reply(&mut m, id, 5);
+        }
+        assert_eq!(run(&mut m, 5), polls(&[]));
+        // At 100 ms node 1's reply is missed (it is free again) and every node is due.
+        assert_eq!(run(&mut m, 100), polls(&[1, 2, 3, 4]));
+        assert_eq!(events(&mut m)[..1], [GuardingEvent::NoReply { node: n(1) }]);
+
+        // Node 1 becomes due at 100 ms with nothing received in between: the scan at 100 ms
+        // must not resume behind it from the poll of node 2 at 50 ms.
+        let mut m: GuardingMaster<8> = GuardingMaster::new();
+        m.add_node(n(1), 100, 3, ms(0)).unwrap();
+        assert_eq!(run(&mut m, 0), polls(&[1]));
+        reply(&mut m, 1, 1);
+        m.add_node(n(2), 200, 3, ms(50)).unwrap();
+        assert_eq!(run(&mut m, 50), polls(&[2]));
+        assert_eq!(run(&mut m, 100), polls(&[1]));
+
+        // A node removed between two polls of one instant moves the others down.
+        let mut m: GuardingMaster<8> = GuardingMaster::new();
+        for id in 1..=3 {
+            m.add_node(n(id), 100, 3, ms(0)).unwrap();
+        }
+        assert_eq!(m.poll_transmit(ms(0)), Some(guard_poll(n(1))));
+        m.remove(n(1));
+        assert_eq!(run(&mut m, 0), polls(&[2, 3]));
     }
 
     #[test]
