@@ -506,14 +506,16 @@ enum GroupHalt {
 }
 
 #[derive(Clone, Debug)]
+#[repr(C)]
 struct GroupRt<'t> {
+    // In declared order: the move first (its lines aligned), the fields every cycle reads,
+    // the chain (its comparators at its end), and the move to start next last, so that what
+    // [`GroupRt::cycle_regions`] leaves out is whole lines.
+    motion: Option<PathMove<MAX_GROUP_AXES>>,
     setup: GroupSetup,
     table: &'t RecordTable,
-    chain: Chain,
-    motion: Option<PathMove<MAX_GROUP_AXES>>,
-    halt: GroupHalt,
-    /// A move given while another ran, to start when that one has stopped or arrived.
-    next: Option<(GroupMove, BufferMode)>,
+    /// The cycle a velocity or force record started in (its members run on `special`).
+    special_since: Option<u64>,
     override_percent: u16,
     /// The highest override the running move can take without any member exceeding its
     /// configured limits (time scaling multiplies velocity, acceleration and jerk by the
@@ -521,24 +523,55 @@ struct GroupRt<'t> {
     max_override: u16,
     /// A record to start once the running move has stopped (a step on the fly).
     pending: Option<u16>,
-    /// The cycle a velocity or force record started in (its members run on `special`).
-    special_since: Option<u64>,
+    halt: GroupHalt,
+    /// A move given while another ran (`next_move`), to start when that one has stopped
+    /// (aborting) or arrived (buffered).
+    next: Option<BufferMode>,
+    chain: Chain,
+    /// The move `next` starts; read only then, so the step does not ask for it every cycle.
+    next_move: GroupMove,
 }
 
 impl GroupRt<'_> {
     /// The parts of the group the step reads, for asking for them ahead of it: all of it but
-    /// what its move leaves out ([`PathMove::cycle_regions`]).
+    /// what its move ([`PathMove::for_each_skipped`]) and its chain
+    /// ([`Chain::for_each_skipped`]) leave out, and the move to start next.
     fn cycle_regions(&self, f: &mut impl FnMut(*const u8, usize)) {
-        let Some(m) = &self.motion else {
-            return region(f, core::slice::from_ref(self));
+        let mut skipped = heapless::Vec::<(*const u8, usize), 8>::new();
+        let mut skip = |p: *const u8, len: usize| {
+            let _ = skipped.push((p, len));
         };
-        let base = (self as *const Self).cast::<u8>();
-        let at = (m as *const PathMove<MAX_GROUP_AXES>).cast::<u8>();
-        f(base, at as usize - base as usize);
-        m.cycle_regions(f);
-        let after = at.wrapping_add(core::mem::size_of_val(m));
-        let end = (self as *const Self).wrapping_add(1).cast::<u8>();
-        f(after, end as usize - after as usize);
+        PathMove::for_each_skipped(&self.motion, &mut skip);
+        self.chain.for_each_skipped(&mut skip);
+        // From the next move to the end of the group (`repr(C)`: it comes last).
+        skip(
+            (&self.next_move as *const GroupMove).cast(),
+            core::mem::size_of::<Self>() - core::mem::offset_of!(GroupRt<'static>, next_move),
+        );
+        let whole = (self as *const Self).cast::<u8>();
+        complement(whole, core::mem::size_of::<Self>(), &mut skipped, f);
+    }
+}
+
+/// Hands `f` the parts of the `len` bytes from `base` outside the `skipped` ranges (each a
+/// first byte and a length, inside them and not overlapping), in address order.
+fn complement(
+    base: *const u8,
+    len: usize,
+    skipped: &mut [(*const u8, usize)],
+    f: &mut impl FnMut(*const u8, usize),
+) {
+    skipped.sort_unstable_by_key(|&(p, _)| p as usize);
+    let mut at = 0;
+    for &(p, n) in skipped.iter() {
+        let start = (p as usize).wrapping_sub(base as usize);
+        if start > at {
+            f(base.wrapping_add(at), start - at);
+        }
+        at = at.max(start + n);
+    }
+    if len > at {
+        f(base.wrapping_add(at), len - at);
     }
 }
 
@@ -717,6 +750,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     motion: None,
                     halt: GroupHalt::None,
                     next: None,
+                    next_move: GroupMove {
+                        targets: [AxisTarget::Keep; MAX_GROUP_AXES],
+                        velocity_percent: 0,
+                    },
                     override_percent: 100,
                     max_override: 100,
                     pending: None,
@@ -1209,7 +1246,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                 {
                     m.hold();
                 }
-                g.next = Some((mv, buffer));
+                g.next = Some(buffer);
+                g.next_move = mv;
                 Ok(())
             }
             Command::StartChain { group, record } => {
@@ -1891,10 +1929,11 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             }
             // A move given while another ran: aborting, once that one has stopped on its path;
             // buffered, once it has arrived.
-            if let Some((mv, mode)) = self.groups[gi].next
+            if let Some(mode) = self.groups[gi].next
                 && self.groups[gi].halt == GroupHalt::None
             {
                 let g = &self.groups[gi];
+                let mv = g.next_move;
                 let arrived = || {
                     g.setup
                         .axes
@@ -2453,6 +2492,29 @@ fn scale(l: &AxisLimits, v: u8, acc: u8, jerk: u8) -> AxisLimits {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn complement_hands_out_the_parts_between_the_skipped_ones() {
+        let bytes = [0u8; 256];
+        let base = bytes.as_ptr();
+        let mut out = std::vec::Vec::new();
+        let mut parts = |skipped: &mut [(*const u8, usize)]| {
+            out.clear();
+            complement(base, 256, skipped, &mut |p, n| {
+                out.push((p as usize - base as usize, n))
+            });
+            out.clone()
+        };
+        // In any order; touching ranges leave nothing between them; the ends are kept.
+        let at = |o: usize| base.wrapping_add(o);
+        assert_eq!(
+            parts(&mut [(at(192), 32), (at(64), 64), (at(128), 16)]),
+            [(0, 64), (144, 48), (224, 32)]
+        );
+        assert_eq!(parts(&mut [(at(0), 16), (at(200), 56)]), [(16, 184)]);
+        assert_eq!(parts(&mut []), [(0, 256)]);
+        assert_eq!(parts(&mut [(at(0), 256)]), []);
+    }
     use crate::records::{Record, RecordTable};
 
     fn axis(node: u8) -> AxisSetup {

@@ -62,6 +62,8 @@
 
 pub mod fixed_point;
 
+use core::num::NonZeroU128;
+
 pub use fixed_point::{PathPos, PathRate, Time};
 
 /// Fractional bits of time (in cycles), for the planner's raw Q16 durations.
@@ -203,8 +205,10 @@ pub struct PathLimits {
     pub acceleration: u128,
     /// Deceleration.
     pub deceleration: u128,
-    /// Jerk (`None` for a trapezoid).
-    pub jerk: Option<u128>,
+    /// Jerk (`None` for a trapezoid). Never 0, and so its `Option` has no spare values: an
+    /// empty `Option<PathMove>` is told by the move's state, which every cycle reads, not by
+    /// this tag, which the cycle leaves out ([`PathMove::for_each_skipped`]).
+    pub jerk: Option<NonZeroU128>,
 }
 
 /// The path state at one instant.
@@ -399,7 +403,11 @@ fn plan_move(start: PathPos, len: u128, lim: &PathLimits) -> Result<Segment, Pla
             Some(start),
         ));
     }
-    let (am, dm, jm) = (lim.acceleration, lim.deceleration, lim.jerk);
+    let (am, dm, jm) = (
+        lim.acceleration,
+        lim.deceleration,
+        lim.jerk.map(NonZeroU128::get),
+    );
     let len17 = len << (TIME_BITS + 1);
     let twice_ramps = |v: u128| {
         let (tj, ta) = ramp(v, am, jm);
@@ -495,7 +503,7 @@ fn plan_stop(now: PathSample, lim: &PathLimits, limit: PathPos) -> Segment {
     let q16 = |t: u128| Time::from_raw(t as i64);
     let q32 = PathRate::from_raw;
     let none = PathRate::ZERO;
-    let specs: [Spec; 3] = match lim.jerk {
+    let specs: [Spec; 3] = match lim.jerk.map(NonZeroU128::get) {
         None => {
             let t = ceil_div((vq as u128) << TIME_BITS, dm << COEF_BITS);
             let d = if t == 0 {
@@ -685,13 +693,13 @@ impl<const N: usize> PathMove<N> {
             velocity: lim[0],
             acceleration: lim[1],
             deceleration: lim[2],
-            jerk: scurve.then_some(lim[3]),
+            jerk: NonZeroU128::new(lim[3]).filter(|_| scurve),
         };
         let quick = PathLimits {
             velocity: lim[0],
             acceleration: lim[1],
             deceleration: quick[2].max(lim[2]),
-            jerk: scurve.then_some(quick[3].max(lim[3])),
+            jerk: NonZeroU128::new(quick[3].max(lim[3])).filter(|_| scurve),
         };
         let len = path_length(&delta);
         let plan = plan_move(PathPos::ZERO, len, &limits)?;
@@ -884,18 +892,34 @@ impl<const N: usize> PathMove<N> {
         }
     }
 
-    /// The parts of this move that [`PathMove::step_positions`] reads, each handed to `f` as
-    /// its first byte and its length, for asking for them ahead of the step: all of it but the
-    /// segment's phases other than the running one and the next, and the limits.
-    pub fn cycle_regions(&self, f: &mut impl FnMut(*const u8, usize)) {
-        let base = (self as *const Self).cast::<u8>();
-        let phases = self.seg.phases.as_ptr_range();
-        f(base, phases.start as usize - base as usize);
-        let k = self.seg.phase_at(self.tau);
-        let running = &self.seg.phases[k..self.seg.count.clamp(k, k + 2)];
-        f(running.as_ptr().cast(), core::mem::size_of_val(running));
-        let seg_end = (&self.seg as *const Segment).wrapping_add(1).cast::<u8>();
-        f(phases.end.cast(), seg_end as usize - phases.end as usize);
+    /// The parts of `motion` that the cycle does not read, each handed to `f` as its first
+    /// byte and its length (at most three), so that it need not ask for them ahead of its
+    /// step. Of a move, [`PathMove::step_positions`] does not read the segment's phases other
+    /// than the running one and the next, nor the limits (only planning a stop or a resume
+    /// does). Of no move, only the move's own fields are read: the move's state is the
+    /// `Option`'s only niche, so it tells that there is none.
+    pub fn for_each_skipped(motion: &Option<Self>, f: &mut impl FnMut(*const u8, usize)) {
+        let Some(m) = motion else {
+            let from = core::mem::offset_of!(Self, seg);
+            let at = (motion as *const Option<Self>).cast::<u8>();
+            f(
+                at.wrapping_add(from),
+                core::mem::size_of::<Option<Self>>() - from,
+            );
+            return;
+        };
+        let k = m.seg.phase_at(m.tau);
+        let (before, rest) = m.seg.phases.split_at(k);
+        let after = &rest[rest.len().min(m.seg.count.saturating_sub(k).min(2))..];
+        for part in [before, after] {
+            f(part.as_ptr().cast(), core::mem::size_of_val(part));
+        }
+        // The limits to the end of the move (`repr(C)`: they come last, then padding).
+        let from = core::mem::offset_of!(Self, limits);
+        f(
+            (&m.limits as *const PathLimits).cast(),
+            core::mem::size_of::<Self>() - from,
+        );
     }
 
     /// Advances the path by one cycle (override ramp, phase, state) and returns its
@@ -1030,44 +1054,64 @@ mod tests {
 
     #[test]
     fn a_cycle_asks_for_the_running_phase_and_not_the_limits() {
-        // What `cycle_regions` hands out is what the cycle prefetches: it must hold every byte
-        // `step_positions` reads at the next step (the running phase, the segment's times and
-        // ends, the move's own fields) and leave out the limits and the phases not running.
+        // What `for_each_skipped` hands out, the cycle does not ask for ahead of its step: it
+        // must leave out nothing `step_positions` reads at the next step (the running phase,
+        // the segment's times and ends, the move's own fields) and leave out the limits and
+        // at least four of the seven phases.
         let limits = [AxisLimits::new(50_000, 200_000, 4_000_000); 2];
         let target = Target::Relative([40_000, -7_000]);
-        let mut m = PathMove::plan([0, 10], target, &limits, Shape::SCurve, 2_000_000).unwrap();
-        let n = m.duration_cycles();
+        let plan = PathMove::plan([0, 10], target, &limits, Shape::SCurve, 2_000_000).unwrap();
+        let n = plan.duration_cycles();
+        let mut motion = Some(plan);
         let addr = |p: *const u8| p as usize;
         let mut seen_phases = std::collections::BTreeSet::new();
         for _ in 0..n + 2 {
-            let mut parts = std::vec::Vec::new();
-            m.cycle_regions(&mut |p, len| parts.push((addr(p), addr(p) + len)));
-            let held = |p: usize, len: usize| parts.iter().any(|&(a, b)| a <= p && p + len <= b);
+            let mut skipped = std::vec::Vec::new();
+            PathMove::for_each_skipped(&motion, &mut |p, len| {
+                skipped.push((addr(p), addr(p) + len))
+            });
+            let Some(m) = motion.as_mut() else {
+                unreachable!()
+            };
+            let asked = |p: usize, len: usize| skipped.iter().all(|&(a, b)| p + len <= a || b <= p);
             let tau = m.tau.saturating_add(m.rate);
             let k = m.seg.phase_at(tau);
             if tau < m.seg.duration {
                 assert!(
-                    held(addr((&m.seg.phases[k] as *const Phase).cast()), 64),
+                    asked(addr((&m.seg.phases[k] as *const Phase).cast()), 64),
                     "phase {k}"
                 );
                 seen_phases.insert(k);
             }
-            assert!(held(addr((&m.seg.t0 as *const [Time; 7]).cast()), 64));
-            assert!(held(addr((&m.seg.end as *const PathPos).cast()), 16));
-            assert!(held(addr((&m.tau as *const Time).cast()), 8));
-            assert!(held(addr((&m.delta as *const [i64; 2]).cast()), 16));
-            let out = |p: usize, len: usize| parts.iter().all(|&(a, b)| p + len <= a || b <= p);
-            assert!(out(addr((&m.limits as *const PathLimits).cast()), 160));
-            let asked: usize = parts.iter().map(|&(a, b)| b - a).sum();
-            assert!(
-                asked <= core::mem::size_of_val(&m) - 4 * 64 - 160,
-                "{asked} bytes"
-            );
+            assert!(asked(addr((&m.seg.t0 as *const [Time; 7]).cast()), 64));
+            assert!(asked(addr((&m.seg.end as *const PathPos).cast()), 16));
+            assert!(asked(addr((&m.tau as *const Time).cast()), 8));
+            assert!(asked(addr((&m.delta as *const [i64; 2]).cast()), 16));
+            let left_out =
+                |p: usize, len: usize| skipped.iter().any(|&(a, b)| a <= p && p + len <= b);
+            let lim = core::mem::size_of::<PathLimits>();
+            assert!(left_out(addr((&m.limits as *const PathLimits).cast()), lim));
+            assert!(left_out(addr((&m.quick as *const PathLimits).cast()), lim));
+            let bytes: usize = skipped.iter().map(|&(a, b)| b - a).sum();
+            assert!(bytes >= 4 * 64 + 2 * lim, "{bytes} bytes");
             let mut out = [(0, 0); 2];
             m.step_positions(&mut out);
         }
         // An S-curve runs through all seven phases, and each was asked for in its turn.
         assert_eq!(seen_phases.len(), 7);
+        // No move: its own fields are asked for (its state tells `None`), not its segment.
+        // The state is the `Option`'s only niche: no tag of its own.
+        assert_eq!(
+            core::mem::size_of::<Option<PathMove<2>>>(),
+            core::mem::size_of::<PathMove<2>>()
+        );
+        let none: Option<PathMove<2>> = None;
+        let at = addr((&none as *const Option<PathMove<2>>).cast());
+        let mut skipped = std::vec::Vec::new();
+        PathMove::for_each_skipped(&none, &mut |p, len| skipped.push((addr(p) - at, len)));
+        let seg = core::mem::offset_of!(PathMove<2>, seg);
+        assert_eq!(skipped, [(seg, core::mem::size_of::<PathMove<2>>() - seg)]);
+        assert!(core::mem::offset_of!(PathMove<2>, state) < seg);
     }
 
     #[test]

@@ -552,21 +552,25 @@ pub struct ChainStatus {
 }
 
 /// One group's record chain. `Copy`, no heap, a few hundred bytes.
+///
+/// In declared order, the comparators last: [`Chain::for_each_skipped`] leaves out the end of
+/// the chain from them on.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[repr(C)]
 pub struct Chain {
-    state: ChainState,
-    record: Option<u16>,
     /// When the record was entered: the time base of its time condition and start delay.
     entered: Instant,
+    since: Instant,
     /// When the record's move arrived.
     arrived: Option<Instant>,
+    record: Option<u16>,
+    reached: Option<u16>,
+    state: ChainState,
+    rc1: bool,
+    rcc: bool,
     /// The comparators of the step condition and of the alternative (never active where the
     /// condition is not a comparator).
     comparators: [Comparator; 2],
-    rc1: bool,
-    rcc: bool,
-    reached: Option<u16>,
-    since: Instant,
 }
 
 /// Pushes onto a step's actions; a step pushes at most two, so the capacity of four is never
@@ -660,6 +664,20 @@ impl Chain {
             state: self.state,
             reached: self.reached,
             since: self.since,
+        }
+    }
+
+    /// The part of the chain that its step does not read while no record runs (the
+    /// comparators), handed to `f` as its first byte and its length, so that the cycle need
+    /// not ask for it ahead of its step then.
+    pub fn for_each_skipped(&self, f: &mut impl FnMut(*const u8, usize)) {
+        if !self.is_running() {
+            // From the comparators to the end of the chain (`repr(C)`: they come last).
+            let from = core::mem::offset_of!(Chain, comparators);
+            f(
+                self.comparators.as_ptr().cast(),
+                core::mem::size_of::<Chain>() - from,
+            );
         }
     }
 
@@ -877,6 +895,30 @@ mod tests {
             quantity: Quantity::Position,
             window: Window::new(min, max, Duration::from_millis(damping_ms)),
         }
+    }
+
+    #[test]
+    fn an_idle_chain_leaves_out_its_comparators_and_a_running_one_nothing() {
+        let t = table(&[
+            (0, rec(StepCondition::End, 0)),
+            (1, rec(position(0, 900, 1100, 0), 0)),
+        ]);
+        let mut c = Chain::new();
+        let skipped = |c: &Chain| {
+            let at = (c as *const Chain) as usize;
+            let mut out = Vec::new();
+            c.for_each_skipped(&mut |p, len| out.push((p as usize - at, len)));
+            out
+        };
+        // The comparators to the end: everything the step does not read while idle.
+        let from = core::mem::offset_of!(Chain, comparators);
+        assert_eq!(skipped(&c), [(from, core::mem::size_of::<Chain>() - from)]);
+        assert!(
+            from <= 64,
+            "the rest of the chain fits a line: {from} bytes"
+        );
+        c.start(&t, 1, Instant::ZERO).unwrap();
+        assert_eq!(skipped(&c), []);
     }
 
     /// One group in virtual time: 1 ms cycles, scripted actual values and inputs.
