@@ -594,7 +594,7 @@ pub enum MoveState {
 
 /// A time-synchronised move of `N` axes along a straight line in joint space.
 ///
-/// In declared order ([`PathMove::cycle_regions`] relies on it): what every cycle reads, then
+/// In declared order ([`PathMove::for_each_skipped`] relies on it): what every cycle reads, then
 /// the segment, then the limits, which only planning a stop or a resume reads.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[repr(C)]
