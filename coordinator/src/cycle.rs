@@ -535,43 +535,50 @@ struct GroupRt<'t> {
 impl GroupRt<'_> {
     /// The parts of the group the step reads, for asking for them ahead of it: all of it but
     /// what its move ([`PathMove::for_each_skipped`]) and its chain
-    /// ([`Chain::for_each_skipped`]) leave out, and the move to start next.
+    /// ([`Chain::for_each_skipped`]) leave out, and the move to start next. In `repr(C)`
+    /// order the parts left out come in address order, as [`Gaps`] needs them.
     fn cycle_regions(&self, f: &mut impl FnMut(*const u8, usize)) {
-        let mut skipped = heapless::Vec::<(*const u8, usize), 8>::new();
-        let mut skip = |p: *const u8, len: usize| {
-            let _ = skipped.push((p, len));
-        };
-        PathMove::for_each_skipped(&self.motion, &mut skip);
-        self.chain.for_each_skipped(&mut skip);
+        let mut gaps = Gaps::new((self as *const Self).cast(), f);
+        PathMove::for_each_skipped(&self.motion, &mut |p, n| gaps.skip(p, n));
+        self.chain.for_each_skipped(&mut |p, n| gaps.skip(p, n));
         // From the next move to the end of the group (`repr(C)`: it comes last).
-        skip(
+        let next = core::mem::offset_of!(GroupRt<'static>, next_move);
+        gaps.skip(
             (&self.next_move as *const GroupMove).cast(),
-            core::mem::size_of::<Self>() - core::mem::offset_of!(GroupRt<'static>, next_move),
+            core::mem::size_of::<Self>() - next,
         );
-        let whole = (self as *const Self).cast::<u8>();
-        complement(whole, core::mem::size_of::<Self>(), &mut skipped, f);
+        gaps.finish(core::mem::size_of::<Self>());
     }
 }
 
-/// Hands `f` the parts of the `len` bytes from `base` outside the `skipped` ranges (each a
-/// first byte and a length, inside them and not overlapping), in address order.
-fn complement(
+/// Hands `f` the parts of a region outside the ranges skipped in it, as they are skipped:
+/// each range a first byte and a length inside the region, in address order, not overlapping.
+struct Gaps<'f, F: FnMut(*const u8, usize)> {
     base: *const u8,
-    len: usize,
-    skipped: &mut [(*const u8, usize)],
-    f: &mut impl FnMut(*const u8, usize),
-) {
-    skipped.sort_unstable_by_key(|&(p, _)| p as usize);
-    let mut at = 0;
-    for &(p, n) in skipped.iter() {
-        let start = (p as usize).wrapping_sub(base as usize);
-        if start > at {
-            f(base.wrapping_add(at), start - at);
-        }
-        at = at.max(start + n);
+    /// Bytes from `base` handed out or skipped so far.
+    at: usize,
+    f: &'f mut F,
+}
+
+impl<'f, F: FnMut(*const u8, usize)> Gaps<'f, F> {
+    fn new(base: *const u8, f: &'f mut F) -> Self {
+        Gaps { base, at: 0, f }
     }
-    if len > at {
-        f(base.wrapping_add(at), len - at);
+
+    fn skip(&mut self, p: *const u8, len: usize) {
+        let start = (p as usize).wrapping_sub(self.base as usize);
+        debug_assert!(start >= self.at, "skipped ranges out of order");
+        if start > self.at {
+            (self.f)(self.base.wrapping_add(self.at), start - self.at);
+        }
+        self.at = self.at.max(start + len);
+    }
+
+    /// The region is `len` bytes: hands out what follows the last range skipped.
+    fn finish(self, len: usize) {
+        if len > self.at {
+            (self.f)(self.base.wrapping_add(self.at), len - self.at);
+        }
     }
 }
 
@@ -2494,26 +2501,30 @@ mod tests {
     use super::*;
 
     #[test]
-    fn complement_hands_out_the_parts_between_the_skipped_ones() {
+    fn gaps_hand_out_the_parts_between_the_skipped_ones() {
         let bytes = [0u8; 256];
         let base = bytes.as_ptr();
-        let mut out = std::vec::Vec::new();
-        let mut parts = |skipped: &mut [(*const u8, usize)]| {
-            out.clear();
-            complement(base, 256, skipped, &mut |p, n| {
-                out.push((p as usize - base as usize, n))
-            });
-            out.clone()
-        };
-        // In any order; touching ranges leave nothing between them; the ends are kept.
         let at = |o: usize| base.wrapping_add(o);
+        let parts = |skipped: &[(usize, usize)]| {
+            let mut out = std::vec::Vec::new();
+            let mut f = |p: *const u8, n| out.push((p as usize - base as usize, n));
+            let mut gaps = Gaps::new(base, &mut f);
+            for &(o, n) in skipped {
+                gaps.skip(at(o), n);
+            }
+            gaps.finish(256);
+            out
+        };
+        // Touching ranges leave nothing between them; the ends are kept.
         assert_eq!(
-            parts(&mut [(at(192), 32), (at(64), 64), (at(128), 16)]),
+            parts(&[(64, 64), (128, 16), (192, 32)]),
             [(0, 64), (144, 48), (224, 32)]
         );
-        assert_eq!(parts(&mut [(at(0), 16), (at(200), 56)]), [(16, 184)]);
-        assert_eq!(parts(&mut []), [(0, 256)]);
-        assert_eq!(parts(&mut [(at(0), 256)]), []);
+        assert_eq!(parts(&[(0, 16), (200, 56)]), [(16, 184)]);
+        assert_eq!(parts(&[]), [(0, 256)]);
+        assert_eq!(parts(&[(0, 256)]), []);
+        // An empty range skips nothing.
+        assert_eq!(parts(&[(32, 0), (64, 0)]), [(0, 32), (32, 32), (64, 192)]);
     }
     use crate::records::{Record, RecordTable};
 
