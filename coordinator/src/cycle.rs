@@ -1857,6 +1857,8 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             let mut vel = [0i64; MAX_GROUP_AXES];
             let mut force = [0i32; MAX_GROUP_AXES];
             let n = self.groups[gi].setup.axes.len();
+            // Every member's motion complete: the drives' feedback stays as it is until the
+            // axes' exchange, after the groups, so this holds for the whole group step.
             let mut all_mc = true;
             for (i, &m) in self.groups[gi].setup.axes.iter().enumerate() {
                 let a = &self.axes[usize::from(m)];
@@ -1941,16 +1943,10 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
             {
                 let g = &self.groups[gi];
                 let mv = g.next_move;
-                let arrived = || {
-                    g.setup
-                        .axes
-                        .iter()
-                        .all(|&m| self.axes[usize::from(m)].drive.feedback().motion_complete)
-                };
                 let go = match (mode, g.motion.as_ref().map(|m| m.state())) {
                     (_, None) => true,
                     (BufferMode::Aborting, Some(MoveState::Stopped | MoveState::Done)) => true,
-                    (BufferMode::Buffered, Some(MoveState::Done)) => arrived(),
+                    (BufferMode::Buffered, Some(MoveState::Done)) => all_mc,
                     _ => false,
                 };
                 if go {
@@ -1972,11 +1968,7 @@ impl<'t, const A: usize, const G: usize> Cycle<'t, A, G> {
                     (a.setpoint, a.setpoint_velocity) = samples[i];
                     a.following = true;
                 }
-                let arrived = state == MoveState::Done
-                    && g.setup
-                        .axes
-                        .iter()
-                        .all(|&mm| self.axes[usize::from(mm)].drive.feedback().motion_complete);
+                let arrived = state == MoveState::Done && all_mc;
                 let stopped = state == MoveState::Stopped;
                 if stopped && g.halt == GroupHalt::Stopping {
                     g.motion = None;
@@ -2499,6 +2491,7 @@ fn scale(l: &AxisLimits, v: u8, acc: u8, jerk: u8) -> AxisLimits {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::records::{Record, RecordTable};
 
     #[test]
     fn gaps_hand_out_the_parts_between_the_skipped_ones() {
@@ -2526,7 +2519,6 @@ mod tests {
         // An empty range skips nothing.
         assert_eq!(parts(&[(32, 0), (64, 0)]), [(0, 32), (32, 32), (64, 192)]);
     }
-    use crate::records::{Record, RecordTable};
 
     fn axis(node: u8) -> AxisSetup {
         AxisSetup {

@@ -1070,9 +1070,7 @@ mod tests {
             PathMove::for_each_skipped(&motion, &mut |p, len| {
                 skipped.push((addr(p), addr(p) + len))
             });
-            let Some(m) = motion.as_mut() else {
-                unreachable!()
-            };
+            let m = motion.as_mut().unwrap();
             let asked = |p: usize, len: usize| skipped.iter().all(|&(a, b)| p + len <= a || b <= p);
             let tau = m.tau.saturating_add(m.rate);
             let k = m.seg.phase_at(tau);
