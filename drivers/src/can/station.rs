@@ -100,10 +100,15 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
     /// its frames through `held` when given.
     fn exchange(&mut self, now: Instant, mut held: Option<&mut HeldBus<'_>>) -> usize {
         let mut moved = 0;
+        let mut handled = false;
         loop {
             match self.recv(&mut held) {
                 Ok(Some(f)) => {
-                    self.endpoint.handle_frame(&f, f.timestamp());
+                    // The controller's acceptance filter: other nodes' frames never reach it.
+                    if self.endpoint.accepts(&f) {
+                        self.endpoint.handle_frame(&f, f.timestamp());
+                        handled = true;
+                    }
                     moved += 1;
                 }
                 Ok(None) => break,
@@ -113,10 +118,10 @@ impl<B: Bus, E: Endpoint> Station<B, E> {
                 }
             }
         }
-        // Without a frame received, the deadline is still the one known from the end of the
+        // Without a frame handed over, the deadline is still the one known from the end of the
         // previous step in this run (nothing else touched the endpoint meanwhile).
         let due = match self.known {
-            Some(d) if moved == 0 => d,
+            Some(d) if !handled => d,
             _ => self.endpoint.poll_timeout(),
         };
         if due.is_some_and(|t| t <= now) {

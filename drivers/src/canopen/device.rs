@@ -860,6 +860,17 @@ impl<const N: usize, const B: usize, H: DeviceHooks> ObjectAccess for Checked<'_
 impl<const N: usize, const B: usize, const SDO: usize, H: DeviceHooks> Endpoint
     for Device<'_, N, B, SDO, H>
 {
+    /// The identifiers its services answer to: NMT module control, its error control, its
+    /// SDO, the SYNC, its valid PDOs. On any other `handle_frame` changes nothing.
+    fn accepts(&self, frame: &Frame) -> bool {
+        NmtSlave::accepts(frame)
+            || self.guarding.accepts(frame)
+            || self.sdo.accepts(frame)
+            || self.sync.as_ref().is_some_and(|s| s.accepts(frame))
+            || self.rpdo.iter().flatten().any(|r| r.accepts(frame))
+            || self.tpdo.iter().flatten().any(|t| t.accepts(frame))
+    }
+
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
         let state = self.nmt.state();
         if state == NmtState::Initialising {

@@ -6,8 +6,16 @@ use crate::time::Instant;
 
 /// A participant on a CAN bus, fed frames and time, returning frames to send.
 pub trait Endpoint {
-    /// Takes one received frame (every frame on the bus; the endpoint ignores what is not for it).
+    /// Takes one received frame: every frame on the bus that [`Endpoint::accepts`] lets
+    /// through (the endpoint still ignores what is not for it).
     fn handle_frame(&mut self, frame: &Frame, now: Instant);
+    /// Whether `frame` can concern this endpoint: the acceptance filter a CAN controller
+    /// applies before the stack sees a frame. A loop need not hand over a frame this refuses;
+    /// `handle_frame` must do nothing with it. The default lets every frame through.
+    fn accepts(&self, frame: &Frame) -> bool {
+        let _ = frame;
+        true
+    }
     /// The next frame to send at `now`, if any. Called until it returns `None`.
     fn poll_transmit(&mut self, now: Instant) -> Option<Frame>;
     /// When the endpoint next needs [`Endpoint::handle_timeout`] (a timer, a periodic frame).
@@ -17,6 +25,9 @@ pub trait Endpoint {
 }
 
 impl<E: Endpoint + ?Sized> Endpoint for &mut E {
+    fn accepts(&self, frame: &Frame) -> bool {
+        (**self).accepts(frame)
+    }
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
         (**self).handle_frame(frame, now)
     }
@@ -33,6 +44,9 @@ impl<E: Endpoint + ?Sized> Endpoint for &mut E {
 
 #[cfg(feature = "std")]
 impl<E: Endpoint + ?Sized> Endpoint for Box<E> {
+    fn accepts(&self, frame: &Frame) -> bool {
+        (**self).accepts(frame)
+    }
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
         (**self).handle_frame(frame, now)
     }

@@ -640,11 +640,16 @@ impl GuardingSlave {
         (!life.is_zero()).then_some(life)
     }
 
+    /// Whether `f` is on this node's error-control COB-ID (a poll, or another device's
+    /// answer on the same identifier).
+    pub fn accepts(&self, f: &Frame) -> bool {
+        f.cob_id() == Some(ids::NMT_ERROR_CONTROL + self.node.get() as u16)
+    }
+
     /// Answers a poll for this node with `toggle | state` (its RTR DLC is not checked: masters
     /// send 0 or 1). While initialising the device does not answer. Other frames give `None`.
     pub fn handle_frame(&mut self, f: &Frame, now: Instant, state: NmtState) -> Option<Frame> {
-        let own = ids::NMT_ERROR_CONTROL + self.node.get() as u16;
-        if f.cob_id() != Some(own) || !f.is_remote() || state == NmtState::Initialising {
+        if !self.accepts(f) || !f.is_remote() || state == NmtState::Initialising {
             return None;
         }
         // Life guarding starts with the first poll (CiA 301), not during initialisation.

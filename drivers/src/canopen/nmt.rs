@@ -361,11 +361,16 @@ impl NmtSlave {
         self.boot_up_pending = true;
     }
 
+    /// Whether `f` is on the module-control COB-ID (for any node).
+    pub fn accepts(f: &Frame) -> bool {
+        f.cob_id() == Some(ids::NMT)
+    }
+
     /// Obeys a module-control frame. Frames on other COB-IDs and commands for other nodes give
     /// `Ok(None)`; a malformed NMT frame gives the typed error and changes nothing. While
     /// initialising the device does not listen yet.
     pub fn handle_frame(&mut self, f: &Frame) -> Result<Option<NmtSlaveEvent>, NmtError> {
-        if f.cob_id() != Some(ids::NMT) {
+        if !Self::accepts(f) {
             return Ok(None);
         }
         let req = NmtRequest::from_frame(f)?;

@@ -236,13 +236,18 @@ impl SyncConsumer {
         })
     }
 
+    /// Whether `f` is on the SYNC COB-ID this consumer listens to.
+    pub fn accepts(&self, f: &Frame) -> bool {
+        f.cob_id() == Some(self.id)
+    }
+
     /// Feeds a frame. Frames on other COB-IDs give `Ok(None)`; a malformed SYNC a typed error.
     pub fn handle_frame(
         &mut self,
         f: &Frame,
         now: Instant,
     ) -> Result<Option<SyncEvent>, SyncError> {
-        if f.cob_id() != Some(self.id) {
+        if !self.accepts(f) {
             return Ok(None);
         }
         let counter = decode_sync(f)?;

@@ -890,6 +890,12 @@ fn load_image(od: &FestoOd, addrs: &[Address]) -> [u8; 8] {
 }
 
 impl Endpoint for FestoNode {
+    /// The device's identifiers only: another node's frame does not make the drive catch up,
+    /// as a real drive's controller never hands it to the drive.
+    fn accepts(&self, frame: &Frame) -> bool {
+        self.dev.accepts(frame)
+    }
+
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
         // The drive first catches up, so a SYNC samples the image of this instant.
         self.advance(now);
@@ -1272,6 +1278,9 @@ macro_rules! festo_device {
             }
         }
         impl $crate::canopen::endpoint::Endpoint for $t {
+            fn accepts(&self, frame: &$crate::can::Frame) -> bool {
+                self.0.accepts(frame)
+            }
             fn handle_frame(&mut self, frame: &$crate::can::Frame, now: $crate::time::Instant) {
                 self.0.handle_frame(frame, now)
             }

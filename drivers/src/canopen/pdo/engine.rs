@@ -129,10 +129,16 @@ impl Tpdo {
         }
     }
 
+    /// Whether `frame` is on this PDO's identifier while the PDO is valid (a remote request
+    /// for it, or another device's frame on the same identifier).
+    pub fn accepts(&self, frame: &Frame) -> bool {
+        self.comm.cob_id.valid && self.comm.cob_id.matches(frame)
+    }
+
     /// A frame was received; returns whether it was a remote request this PDO answers.
     pub fn handle_frame(&mut self, frame: &Frame, _now: Instant) -> bool {
         let c = &self.comm.cob_id;
-        if !c.valid || !c.rtr_allowed || !frame.is_remote() || !c.matches(frame) {
+        if !c.rtr_allowed || !frame.is_remote() || !self.accepts(frame) {
             return false;
         }
         match self.comm.transmission {
@@ -263,10 +269,14 @@ impl<const Q: usize> Rpdo<Q> {
         let _ = self.events.push_back(e);
     }
 
+    /// Whether `frame` is on this PDO's identifier while the PDO is valid.
+    pub fn accepts(&self, frame: &Frame) -> bool {
+        self.comm.cob_id.valid && self.comm.cob_id.matches(frame)
+    }
+
     /// A frame was received; returns whether it is this PDO's.
     pub fn handle_frame(&mut self, frame: &Frame, _now: Instant) -> bool {
-        let c = &self.comm.cob_id;
-        if !c.valid || frame.is_remote() || !c.matches(frame) {
+        if frame.is_remote() || !self.accepts(frame) {
             return false;
         }
         match self.mapping.unpack_values(frame.data()) {

@@ -1412,6 +1412,11 @@ impl Cia402Drive {
 }
 
 impl Endpoint for Cia402Drive {
+    /// The device's identifiers only: another node's frame does not make the drive catch up.
+    fn accepts(&self, frame: &Frame) -> bool {
+        self.dev.accepts(frame)
+    }
+
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
         self.catch_up(now);
         // CiA 301: a synchronous PDO outside the window is discarded.

@@ -1582,6 +1582,11 @@ impl Tlc5xx {
 }
 
 impl Endpoint for Tlc5xx {
+    /// The device's identifiers only: another node's frame does not make the drive catch up.
+    fn accepts(&self, frame: &Frame) -> bool {
+        self.dev.accepts(frame)
+    }
+
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
         self.catch_up(now);
         // "If a synchronous PDO arrives later [than the window], it cannot be evaluated until
