@@ -133,8 +133,9 @@ pub struct FhppAxis {
     order: ByteOrder,
     cycle_ns: u32,
     settings: FhppSettings,
-    /// The last image decoded.
-    status: Option<InputImage>,
+    /// The drive's last image as received (its SCON.OPM checked). The parts a cycle reads are
+    /// decoded where they are read: a cycle decodes only the bits it looks at.
+    status: Option<[u8; IMAGE_LEN]>,
     feedback: Feedback,
     /// What was sent last.
     ccon: Ccon,
@@ -274,11 +275,14 @@ impl FhppAxis {
 
     /// Decodes the drive's image into `status` and the position/velocity feedback.
     fn take_input(&mut self, bytes: &[u8]) -> Result<(), AxisError> {
-        let b = bytes.get(..IMAGE_LEN).ok_or(AxisError::Short {
-            len: bytes.len(),
-            need: IMAGE_LEN,
-        })?;
-        let img = InputImage::from_bytes(b, self.variant, self.order)
+        let b: [u8; IMAGE_LEN] = bytes
+            .get(..IMAGE_LEN)
+            .and_then(|b| b.try_into().ok())
+            .ok_or(AxisError::Short {
+                len: bytes.len(),
+                need: IMAGE_LEN,
+            })?;
+        let img = InputImage::from_bytes(&b, self.variant, self.order)
             .map_err(|_| AxisError::Decode("FHPP SCON.OPM holds a reserved mode"))?;
         let had = self.status.is_some();
         let mut position = self.feedback.position;
@@ -331,7 +335,7 @@ impl FhppAxis {
         };
         self.feedback.position = position;
         self.feedback.force = force;
-        self.status = Some(img);
+        self.status = Some(b);
         self.gap = 0;
         Ok(())
     }
@@ -414,7 +418,8 @@ impl FhppAxis {
     }
 
     fn scon_spos(&self) -> Option<(Scon, Spos)> {
-        self.status.map(|s| (s.scon, s.spos))
+        self.status
+            .map(|b| (Scon::from_byte(b[0]), Spos::from_byte(b[1])))
     }
 
     /// The operating mode the current payload asks for.
@@ -763,14 +768,15 @@ impl FhppAxis {
         let f = &mut self.feedback;
         f.done = self.step == Step::Done;
         f.failed = self.step == Step::Failed;
-        let Some(img) = self.status else {
+        let Some(b) = self.status else {
             f.state = AxisState::Offline;
             return;
         };
-        let (scon, spos) = (img.scon, img.spos);
+        let (scon, spos) = (Scon::from_byte(b[0]), Spos::from_byte(b[1]));
         f.homed = spos.referenced;
         f.warning = scon.warn;
-        f.status = u16::from(scon.to_byte()) | u16::from(spos.to_byte()) << 8;
+        // SCON and SPOS as received (every bit of both is a flag or the checked OPM).
+        f.status = u16::from_le_bytes([b[0], b[1]]);
         f.motion_complete = match self.demand {
             Demand::Follow { .. } => f.done,
             Demand::Home | Demand::DriveRecord { .. } | Demand::Velocity { .. } => f.done,

@@ -359,6 +359,8 @@ impl OutputImage {
 
     /// The 8 bytes; multi-byte values in `order`. The OPM bits written are those of the payload
     /// (record select or direct), whatever `ccon.opm` holds, so the image is self-consistent.
+    // Inlined where it is called, as `InputImage::from_bytes`.
+    #[inline]
     pub fn to_bytes(&self, order: ByteOrder) -> [u8; 8] {
         let mut ccon = self.ccon;
         let mut out = [0u8; 8];

@@ -340,6 +340,9 @@ impl InputImage {
     }
 
     /// Decodes 8 bytes; the payload follows SCON.OPM.
+    // Inlined where it is called: a caller that reads part of the image lets the compiler
+    // drop the decoding of the rest (the coordinator's cycle, once per FHPP axis).
+    #[inline]
     pub fn from_bytes(
         bytes: &[u8],
         variant: Variant,
