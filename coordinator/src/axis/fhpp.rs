@@ -914,6 +914,29 @@ mod tests {
     }
 
     #[test]
+    fn the_status_word_is_scon_and_spos_as_received_and_a_reserved_mode_keeps_the_last() {
+        let mut a = axis(Variant::MtrDci);
+        // Every SCON flag and the direct mode; SPOS with MC, MOV, DEV and REF.
+        let (_, fb) = ex(&mut a, Some(&inp(0x7F, 0xB4, 0, 0, 0)), Demand::Standstill);
+        assert_eq!(fb.status, 0xB47F);
+        assert!(fb.warning && fb.homed);
+        assert_eq!(fb.state, AxisState::Fault);
+        let (_, fb) = ex(&mut a, Some(&inp(0x13, 0x05, 0, 0, 7)), Demand::Standstill);
+        assert_eq!(fb.status, 0x0513);
+        assert_eq!(fb.position, 7);
+        // OPM 3 is reserved: refused, and the image before it stays the drive's last.
+        let mut out = Image::default();
+        let e = a.exchange(
+            Some(&inp(0xD3, 0x00, 0, 0, 9)),
+            &Demand::Standstill,
+            &mut out,
+        );
+        assert!(matches!(e, Err(AxisError::Decode(_))));
+        assert_eq!(a.feedback.status, 0x0513);
+        assert_eq!(a.feedback.position, 7);
+    }
+
+    #[test]
     fn no_image_yet_is_offline_and_passive() {
         let mut a = axis(Variant::Emca);
         let (out, fb) = ex(&mut a, None, Demand::Standstill);
