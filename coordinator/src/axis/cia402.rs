@@ -281,6 +281,9 @@ pub struct Cia402Axis {
     cycle_ns: u32,
     settings: Cia402Settings,
     input: Option<Input>,
+    /// The state the last image's statusword shows (checked when it was taken: a pattern
+    /// outside the state machine is refused), decoded once per image.
+    state: Option<State>,
     feedback: Feedback,
     cw: Controlword,
     target: i32,
@@ -341,6 +344,7 @@ impl Cia402Axis {
             cycle_ns: cycle_ns.max(1),
             settings: Cia402Settings::default(),
             input: None,
+            state: None,
             feedback: Feedback::default(),
             cw: Controlword(0),
             target: 0,
@@ -445,14 +449,16 @@ impl Cia402Axis {
         self.gap = self.gap.saturating_add(1);
         if let Some(bytes) = input {
             match decode_input(self.layout, bytes) {
-                Ok(i) if State::from_statusword(i.statusword).is_ok() => {
-                    self.take_input(i);
-                    fresh = true;
-                }
-                Ok(_) => {
-                    self.write_safe(out);
-                    return Err(AxisError::Decode("undefined CiA 402 statusword pattern"));
-                }
+                Ok(i) => match State::from_statusword(i.statusword) {
+                    Ok(state) => {
+                        self.take_input(i, state);
+                        fresh = true;
+                    }
+                    Err(_) => {
+                        self.write_safe(out);
+                        return Err(AxisError::Decode("undefined CiA 402 statusword pattern"));
+                    }
+                },
                 Err(e) => {
                     self.write_safe(out);
                     return Err(e);
@@ -485,7 +491,7 @@ impl Cia402Axis {
         }
     }
 
-    fn take_input(&mut self, i: Input) {
+    fn take_input(&mut self, i: Input, state: State) {
         let position = i64::from(i.position);
         self.feedback.velocity = match self.input {
             Some(_) => {
@@ -496,7 +502,7 @@ impl Cia402Axis {
         };
         self.gap = 0;
         self.feedback.position = position;
-        if State::from_statusword(i.statusword) != Ok(State::OperationEnabled) {
+        if state != State::OperationEnabled {
             // Leaving Operation enabled (quick stop, disable, fault) ends every move.
             self.task_open = false;
         }
@@ -504,6 +510,7 @@ impl Cia402Axis {
             self.homed = true;
         }
         self.input = Some(i);
+        self.state = Some(state);
     }
 
     fn begin(&mut self, demand: &Demand) {
@@ -534,8 +541,7 @@ impl Cia402Axis {
     }
 
     fn state(&self) -> Option<State> {
-        self.input
-            .and_then(|i| State::from_statusword(i.statusword).ok())
+        self.state
     }
 
     fn sw(&self) -> Statusword {

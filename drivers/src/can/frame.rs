@@ -43,6 +43,7 @@ impl Eq for Frame {}
 
 impl Frame {
     /// A data frame with a standard (11-bit) identifier.
+    #[inline]
     pub fn new_std(id: u16, data: &[u8]) -> Result<Frame, FrameError> {
         let sid = StandardId::new(id).ok_or(FrameError::StandardIdRange(id as u32))?;
         Self::new_data(Id::Standard(sid), data)
@@ -55,6 +56,7 @@ impl Frame {
     }
 
     /// A data frame with any identifier.
+    #[inline]
     pub fn new_data(id: Id, data: &[u8]) -> Result<Frame, FrameError> {
         if data.len() > 8 {
             return Err(FrameError::DataLength(data.len()));
