@@ -1481,6 +1481,26 @@ mod tests {
     }
 
     #[test]
+    fn an_undefined_statusword_is_refused_and_the_state_before_it_stays() {
+        let mut a = axis();
+        let (_, fb) = ex(&mut a, &tpdo(0x0027, 40, 1), Demand::Standstill);
+        assert_ne!(fb.state, AxisState::Offline);
+        let before = a.state();
+        assert_eq!(before, Some(State::OperationEnabled));
+        let mut out = Image::default();
+        // xxxx xxxx x0xx 0001: no state of the CiA 402 machine.
+        let e = a.exchange(Some(&tpdo(0x0001, 50, 1)), &Demand::Standstill, &mut out);
+        assert!(matches!(e, Err(AxisError::Decode(_))));
+        assert_eq!(out.data[1] & 0x01, 0x01, "bit 8 halt");
+        assert_eq!(a.state(), before);
+        assert_eq!(a.feedback().position, 40);
+        // The next good image is taken again, its state with it.
+        let (_, fb) = ex(&mut a, &tpdo(0x0040, 60, 1), Demand::Disable);
+        assert_eq!(a.state(), Some(State::SwitchOnDisabled));
+        assert_eq!(fb.position, 60);
+    }
+
+    #[test]
     fn force_teach_and_records_are_refused_with_halt() {
         let mut a = axis();
         ex(&mut a, &tpdo(0x0027, 0, 1), Demand::Standstill);
