@@ -62,7 +62,7 @@ impl FhppRig {
         self.drive.step_to(self.t);
         let input = self.drive.input();
         let was = self.out.data[1] & 0x02;
-        self.fb = self.axis.exchange(Some(&input), &d, &mut self.out).unwrap();
+        self.fb = *self.axis.exchange(Some(&input), &d, &mut self.out).unwrap();
         if was == 0 && self.out.data[1] & 0x02 != 0 {
             self.starts += 1;
         }
@@ -387,7 +387,7 @@ impl<E: Endpoint> CoRig<E> {
         }
         let input = tpdo.map(|f| f.data().to_vec());
         let was = self.out.data[0] & 0x10;
-        self.fb = self
+        self.fb = *self
             .axis
             .exchange(input.as_deref(), &d, &mut self.out)
             .unwrap();

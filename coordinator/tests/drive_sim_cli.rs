@@ -947,7 +947,7 @@ fn home_with_the_coordinators_axis(extra: &[&str], method: i8) -> Feedback {
         } else {
             Demand::Standstill
         };
-        let fb = axis.exchange(input.as_deref(), &demand, &mut out).unwrap();
+        let fb = *axis.exchange(input.as_deref(), &demand, &mut out).unwrap();
         send(&mut bus, Frame::new_std(rpdo1, out.bytes()).unwrap());
         if !homing && fb.done && fb.state == AxisState::Ready {
             homing = true;

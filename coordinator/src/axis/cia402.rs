@@ -442,7 +442,7 @@ impl Cia402Axis {
         input: Option<&[u8]>,
         demand: &Demand,
         out: &mut Image,
-    ) -> Result<Feedback, AxisError> {
+    ) -> Result<&Feedback, AxisError> {
         let mut fresh = false;
         self.profile_pdo = None;
         // Cycles since the last image, for the velocity estimate.
@@ -479,7 +479,7 @@ impl Cia402Axis {
         self.run(fresh);
         *out = self.output().to_image(self.layout);
         self.update_feedback();
-        Ok(self.feedback)
+        Ok(&self.feedback)
     }
 
     fn output(&self) -> Output {
@@ -1113,7 +1113,7 @@ mod tests {
 
     fn ex(a: &mut Cia402Axis, input: &[u8], d: Demand) -> (Output, Feedback) {
         let mut out = Image::default();
-        let fb = a.exchange(Some(input), &d, &mut out).unwrap();
+        let fb = *a.exchange(Some(input), &d, &mut out).unwrap();
         assert_eq!(usize::from(out.len), a.layout().tx_len());
         (Output::from_bytes(a.layout(), out.bytes()).unwrap(), fb)
     }

@@ -238,7 +238,7 @@ impl FhppAxis {
         input: Option<&[u8]>,
         demand: &Demand,
         out: &mut Image,
-    ) -> Result<Feedback, AxisError> {
+    ) -> Result<&Feedback, AxisError> {
         // Cycles since the last image, for the velocity estimate.
         self.gap = self.gap.saturating_add(1);
         let fresh = match input {
@@ -270,7 +270,7 @@ impl FhppAxis {
         };
         *out = image_of(image.to_bytes(self.order));
         self.update_feedback();
-        Ok(self.feedback)
+        Ok(&self.feedback)
     }
 
     /// Decodes the drive's image into `status` and the position/velocity feedback.
@@ -854,7 +854,7 @@ mod tests {
         let mut out = Image::default();
         let fb = a.exchange(input, &d, &mut out).unwrap();
         assert_eq!(out.len, 8);
-        (out.data, fb)
+        (out.data, *fb)
     }
 
     #[test]

@@ -448,7 +448,7 @@ impl DriveAxis {
         input: Option<&[u8]>,
         demand: &Demand,
         out: &mut Image,
-    ) -> Result<Feedback, AxisError> {
+    ) -> Result<&Feedback, AxisError> {
         match self {
             DriveAxis::Fhpp(a) => a.exchange(input, demand, out),
             DriveAxis::Cia402(a) => a.exchange(input, demand, out),

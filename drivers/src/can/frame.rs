@@ -117,6 +117,7 @@ impl Frame {
         }
     }
     /// The 11-bit identifier of a standard frame (a CANopen COB-ID), `None` for extended frames.
+    #[inline]
     pub fn cob_id(&self) -> Option<u16> {
         match self.id {
             Id::Standard(s) => Some(s.as_raw()),
@@ -136,6 +137,7 @@ impl Frame {
         self.dlc
     }
     /// The data bytes (empty for remote frames).
+    #[inline]
     pub fn data(&self) -> &[u8] {
         if self.rtr {
             &[]

@@ -365,6 +365,7 @@ impl<const N: usize, const Q: usize> HeartbeatConsumer<N, Q> {
 }
 
 /// The earlier of two optional deadlines (`None`: none).
+#[inline]
 pub(crate) fn min_deadline(a: Option<Instant>, b: Option<Instant>) -> Option<Instant> {
     match (a, b) {
         (Some(a), Some(b)) => Some(a.min(b)),
