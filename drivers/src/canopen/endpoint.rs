@@ -10,8 +10,9 @@ pub trait Endpoint {
     /// through (the endpoint still ignores what is not for it).
     fn handle_frame(&mut self, frame: &Frame, now: Instant);
     /// Whether `frame` can concern this endpoint: the acceptance filter a CAN controller
-    /// applies before the stack sees a frame. A loop need not hand over a frame this refuses;
-    /// `handle_frame` must do nothing with it. The default lets every frame through.
+    /// applies before the stack sees a frame. A loop may leave out a frame this refuses, so it
+    /// must refuse only frames that change nothing the endpoint sends or shows. The default
+    /// lets every frame through.
     fn accepts(&self, frame: &Frame) -> bool {
         let _ = frame;
         true

@@ -1583,8 +1583,10 @@ impl Tlc5xx {
 
 impl Endpoint for Tlc5xx {
     /// The device's identifiers only: another node's frame does not make the drive catch up.
+    /// The SYNC also when the device's own SYNC consumer is not configured: the deferral of
+    /// late PDOs counts from it regardless.
     fn accepts(&self, frame: &Frame) -> bool {
-        self.dev.accepts(frame)
+        self.dev.accepts(frame) || (!frame.is_remote() && frame.cob_id() == Some(self.sync_cob()))
     }
 
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
