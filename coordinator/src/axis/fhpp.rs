@@ -273,15 +273,13 @@ impl FhppAxis {
         Ok(&self.feedback)
     }
 
-    /// Decodes the drive's image into `status` and the position/velocity feedback.
+    /// Checks the drive's image, keeps it in `status` and takes the position, velocity and
+    /// force feedback from it.
     fn take_input(&mut self, bytes: &[u8]) -> Result<(), AxisError> {
-        let b: [u8; IMAGE_LEN] = bytes
-            .get(..IMAGE_LEN)
-            .and_then(|b| b.try_into().ok())
-            .ok_or(AxisError::Short {
-                len: bytes.len(),
-                need: IMAGE_LEN,
-            })?;
+        let b: [u8; IMAGE_LEN] = *bytes.first_chunk::<IMAGE_LEN>().ok_or(AxisError::Short {
+            len: bytes.len(),
+            need: IMAGE_LEN,
+        })?;
         let img = InputImage::from_bytes(&b, self.variant, self.order)
             .map_err(|_| AxisError::Decode("FHPP SCON.OPM holds a reserved mode"))?;
         let had = self.status.is_some();

@@ -120,6 +120,10 @@ impl CobId {
     pub fn matches(self, frame: &Frame) -> bool {
         frame.is_extended() == self.extended && frame.raw_id() == self.id
     }
+    /// Whether the PDO is valid and `frame` carries its identifier: what its engine accepts.
+    pub fn accepts(self, frame: &Frame) -> bool {
+        self.valid && self.matches(frame)
+    }
     /// A data frame with this identifier, `None` if the identifier or length is out of range.
     pub fn data_frame(self, data: &[u8]) -> Option<Frame> {
         if self.extended {

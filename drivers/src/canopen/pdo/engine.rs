@@ -132,7 +132,7 @@ impl Tpdo {
     /// Whether `frame` is on this PDO's identifier while the PDO is valid (a remote request
     /// for it, or another device's frame on the same identifier).
     pub fn accepts(&self, frame: &Frame) -> bool {
-        self.comm.cob_id.valid && self.comm.cob_id.matches(frame)
+        self.comm.cob_id.accepts(frame)
     }
 
     /// A frame was received; returns whether it was a remote request this PDO answers.
@@ -271,7 +271,7 @@ impl<const Q: usize> Rpdo<Q> {
 
     /// Whether `frame` is on this PDO's identifier while the PDO is valid.
     pub fn accepts(&self, frame: &Frame) -> bool {
-        self.comm.cob_id.valid && self.comm.cob_id.matches(frame)
+        self.comm.cob_id.accepts(frame)
     }
 
     /// A frame was received; returns whether it is this PDO's.

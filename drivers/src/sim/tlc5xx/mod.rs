@@ -1556,8 +1556,9 @@ impl Tlc5xx {
 
     // ---- the 1007h window ----------------------------------------------------------------
 
-    fn sync_cob(&self) -> u16 {
-        self.settings.sync_cob
+    /// Whether `frame` is a SYNC on the COB-ID 1005h names.
+    fn is_sync(&self, frame: &Frame) -> bool {
+        !frame.is_remote() && frame.cob_id() == Some(self.settings.sync_cob)
     }
 
     /// The synchronous RPDO `frame` is for, if it arrives after the 1007h window.
@@ -1586,7 +1587,7 @@ impl Endpoint for Tlc5xx {
     /// The SYNC also when the device's own SYNC consumer is not configured: the deferral of
     /// late PDOs counts from it regardless.
     fn accepts(&self, frame: &Frame) -> bool {
-        self.dev.accepts(frame) || (!frame.is_remote() && frame.cob_id() == Some(self.sync_cob()))
+        self.dev.accepts(frame) || self.is_sync(frame)
     }
 
     fn handle_frame(&mut self, frame: &Frame, now: Instant) {
@@ -1599,7 +1600,7 @@ impl Endpoint for Tlc5xx {
             *slot = Some(*frame);
             return;
         }
-        let sync = !frame.is_remote() && frame.cob_id() == Some(self.sync_cob());
+        let sync = self.is_sync(frame);
         self.dev.handle_frame(frame, now);
         self.drain();
         if sync && self.dev.state() == NmtState::Operational {
