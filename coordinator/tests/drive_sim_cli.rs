@@ -7,7 +7,7 @@
 //! the test failed. Bus names, ports and files are unique per test (pid and a counter).
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{TcpListener, TcpStream};
+use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -29,6 +29,10 @@ use drivers::canopen::{AbortCode, Address, NodeId};
 use drivers::sim::emca::Emca;
 use drivers::sim::mtr_dci::{MtrDci, Profile};
 use drivers::time::monotonic_now;
+
+/// Ports for the CMMO-ST servers drive-sim binds, chosen as the integration tests choose them.
+#[path = "../../tests/src/port.rs"]
+mod port;
 
 const BIN: &str = env!("CARGO_BIN_EXE_drive-sim");
 
@@ -240,25 +244,6 @@ fn expected_device_types() -> (Vec<u8>, Vec<u8>, Vec<u8>) {
     (tlc, mtr.to_le_bytes().to_vec(), emca.to_le_bytes().to_vec())
 }
 
-/// A free TCP port on 127.0.0.1, never the same twice in this process: the OS may hand a
-/// probed and closed port to the next probe, and two tests of this file (run in parallel) would
-/// then start two CMMO-ST servers on one port, one client talking to the other's server.
-fn free_port() -> u16 {
-    static GIVEN: Mutex<Vec<u16>> = Mutex::new(Vec::new());
-    loop {
-        let port = TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        let mut given = GIVEN.lock().unwrap_or_else(|e| e.into_inner());
-        if !given.contains(&port) {
-            given.push(port);
-            return port;
-        }
-    }
-}
-
 fn transact(c: &mut TcpStream, req: &[u8]) -> Vec<u8> {
     c.write_all(req).unwrap();
     let mut head = [0u8; 6];
@@ -321,7 +306,7 @@ fn machine() -> Machine {
     let bus_b = unique("dsb");
     // A SocketCAN interface name; drive-sim never opens it.
     let real = unique("rc");
-    let port = free_port();
+    let port = port::server_port();
     let mut text = format!(
         "cycle_us = 2000\n\n\
          [[buses]]\nname = \"{bus_a}\"\nkind = \"vbus\"\n\n\
@@ -609,7 +594,7 @@ fn festo_processes_answer_sdo_with_their_own_dictionaries() {
 
 #[test]
 fn cmmo_st_process_answers_a_modbus_client() {
-    let addr = format!("127.0.0.1:{}", free_port());
+    let addr = format!("127.0.0.1:{}", port::server_port());
     let _child = Proc::spawn(&["--device", "cmmo-st", "--modbus", &addr, "--duration", "30"]);
     let mut c = connect(&addr);
     assert_cmmo_powered_on(&mut c);

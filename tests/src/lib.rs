@@ -2,6 +2,7 @@
 //! that runs a master and devices on the in-process virtual bus in virtual time.
 
 pub mod candump;
+pub mod port;
 
 use std::time::Duration;
 

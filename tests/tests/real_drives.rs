@@ -15,13 +15,13 @@
 
 use std::fmt::Write as _;
 use std::fs::File;
-use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use integration_tests::candump::{Logged, SYNC, first_change, numbered, read_log};
+use integration_tests::port::server_port;
 use shm_api::client::Client;
 use shm_api::contract::{
     AxisState, CommandRequest, MachineState, axis_flags, axis_mode, axis_state, event_id, fault,
@@ -66,15 +66,6 @@ fn unique(tag: &str) -> String {
         std::process::id(),
         N.fetch_add(1, Ordering::Relaxed)
     )
-}
-
-/// A free TCP port on 127.0.0.1 (the OS picks it; it is free again once the probe is closed).
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 /// Machines running at once in this test binary: one. Each takes 0.3 to 0.8 of a CPU (debug
@@ -465,7 +456,7 @@ fn one_axis_machine(
 fn a_machine_of_drives_in_other_processes() {
     let mut sc = Scene::new("machine");
     let (bus_a, bus_b) = (unique("rda"), unique("rdb"));
-    let port = free_port();
+    let port = server_port();
     let prefix = unique("t-real-machine-");
     // t (TLC5xx) and m (MTR-DCI) on bus A, e (EMCA) on bus B, g (CMMO-ST) on Modbus TCP; the
     // group "cross" spans both buses.
