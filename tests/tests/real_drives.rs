@@ -323,22 +323,42 @@ impl Scene {
 
 impl Drop for Scene {
     fn drop(&mut self) {
+        let failing = std::thread::panicking();
+        if failing {
+            // A failing test asks its processes to stop as a user would, so that their closing
+            // lines (drive-sim's longest pause, the coordinator's summary) are in the logs
+            // printed below.
+            for p in &self.procs {
+                if p.status.is_none() {
+                    // SAFETY: kill(2) on our own child's pid, not yet reaped; no memory is
+                    // involved.
+                    unsafe { libc::kill(p.child.id() as libc::pid_t, libc::SIGTERM) };
+                }
+            }
+            let end = Instant::now() + Duration::from_secs(3);
+            for p in &mut self.procs {
+                while p.status.is_none() && Instant::now() < end {
+                    p.status = p.child.try_wait().ok().flatten();
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            }
+        }
         for p in &mut self.procs {
             if p.status.is_none() {
                 let _ = p.child.kill();
                 p.status = p.child.wait().ok();
             }
         }
-        if std::thread::panicking() {
+        if failing {
             for p in &self.procs {
                 let text = std::fs::read_to_string(&p.log).unwrap_or_default();
                 let lines: Vec<&str> = text.lines().collect();
                 let shown = &lines[lines.len().saturating_sub(400)..];
+                let status = p.status.map_or("status unknown".into(), |s| s.to_string());
                 eprintln!(
-                    "--- {} ({}), {:?}; its last {} of {} lines:\n{}\n---",
+                    "--- {} ({}), {status}; its last {} of {} lines:\n{}\n---",
                     p.label,
                     p.args.join(" "),
-                    p.status,
                     shown.len(),
                     lines.len(),
                     shown.join("\n")
