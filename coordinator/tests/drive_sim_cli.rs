@@ -125,10 +125,11 @@ impl Proc {
 
 impl Drop for Proc {
     fn drop(&mut self) {
-        if std::thread::panicking() {
+        // Only a child not yet reaped: a reaped one's pid may belong to another process now.
+        if std::thread::panicking() && matches!(self.child.try_wait(), Ok(None)) {
             // A failing test asks the process to stop as a user would, so that its closing
             // counters (connections, refusals, frames) are in the output printed below.
-            // SAFETY: kill(2) on our own child's pid; no memory is involved.
+            // SAFETY: kill(2) on our own child's pid, not yet reaped; no memory is involved.
             unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
             let end = WallInstant::now() + Duration::from_secs(3);
             while WallInstant::now() < end && matches!(self.child.try_wait(), Ok(None)) {
