@@ -1,19 +1,24 @@
 //! TCP ports on 127.0.0.1 for servers another process binds (a `drive-sim` CMMO-ST's Modbus
 //! TCP server), chosen by a test before that process starts.
 //!
-//! A port from `bind("127.0.0.1:0")` lies in the kernel's ephemeral range and is free for
-//! anyone from the moment the probe closes until the server binds it. In that window another
-//! probe may be handed the same port, and its short-lived listener completes a client's
-//! connect and then resets it (CI saw a test's first request to a starting drive-sim fail
-//! with "connection reset by peer"); or an outgoing connection takes it as its source port
-//! and the server's bind fails. The kernel hands out neither kind of port below its ephemeral
-//! range, so the ports come from there: this process's id picks where in that range, a
-//! counter moves on for each call, and a bind probe skips a port something already holds.
+//! A port is probed by binding a socket to it **without listening**. A listening probe, as
+//! `TcpListener::bind` makes, is open for only microseconds, but a test running beside this one
+//! may fork to start its own process in that moment: the child holds a copy of the listener
+//! until its exec closes it, milliseconds later on a busy host. A client dialling the port
+//! then is accepted by that copy and reset when it closes (seen here: a test's first request to
+//! a starting drive-sim got "connection reset by peer", and drive-sim counted no connection).
+//! A socket that is only bound accepts nothing; with `SO_REUSEADDR`, as a server sets it, it
+//! does not keep the server from binding either.
+//!
+//! The ports lie below the kernel's ephemeral range, which it never hands to `bind` on port 0
+//! or to an outgoing connection: otherwise one of those could take the port between the
+//! test's choice and the server's bind. This process's id picks where in that range to start,
+//! a counter moves on for each call, and a port something holds is skipped.
 //!
 //! This file is used by `integration-tests` (as `port`) and by the coordinator's own process
 //! tests (by path), so both choose ports the same way.
 
-use std::net::TcpListener;
+use std::net::{Ipv4Addr, SocketAddrV4};
 use std::sync::atomic::{AtomicU32, Ordering};
 
 /// The lowest port handed out: below it lie the registered services a developer's machine may
@@ -34,14 +39,30 @@ pub fn server_port() -> u16 {
         "no ports below the ephemeral range ({top}) to choose from"
     );
     let start = std::process::id().wrapping_mul(PER_PROCESS) % span;
-    loop {
+    let candidates = core::iter::from_fn(|| {
         let n = CALLS.fetch_add(1, Ordering::Relaxed);
         assert!(n < span, "every port from {LOWEST} to {top} is taken");
-        let port = u16::try_from(LOWEST + (start + n) % span).expect("below the ephemeral range");
-        if TcpListener::bind(("127.0.0.1", port)).is_ok() {
-            return port;
-        }
-    }
+        Some(u16::try_from(LOWEST + (start + n) % span).expect("below the ephemeral range"))
+    });
+    first_free(candidates).expect("the candidates never end")
+}
+
+/// The first of `ports` a server could bind on 127.0.0.1 now.
+fn first_free(ports: impl IntoIterator<Item = u16>) -> Option<u16> {
+    ports.into_iter().find(|&port| bindable(port))
+}
+
+/// Whether a server could bind `port` on 127.0.0.1: a socket is bound to it as a server binds
+/// (`SO_REUSEADDR`), never listens, and is closed at once (it is close-on-exec besides).
+fn bindable(port: u16) -> bool {
+    use socket2::{Domain, Socket, Type};
+    let addr = SocketAddrV4::new(Ipv4Addr::LOCALHOST, port);
+    Socket::new(Domain::IPV4, Type::STREAM, None)
+        .and_then(|s| {
+            s.set_reuse_address(true)?;
+            s.bind(&addr.into())
+        })
+        .is_ok()
 }
 
 /// The first port of the kernel's ephemeral range (`ip_local_port_range`; Linux's default
@@ -56,6 +77,7 @@ fn ephemeral_low() -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::net::TcpListener;
 
     #[test]
     fn ports_lie_below_the_ephemeral_range_and_are_not_repeated() {
@@ -75,14 +97,22 @@ mod tests {
 
     #[test]
     fn a_port_something_holds_is_skipped() {
-        let first = server_port();
-        // Hold the next few candidates, then ask: the answer is none of them.
-        let held: Vec<TcpListener> = (1..4)
-            .filter_map(|k| TcpListener::bind(("127.0.0.1", first + k)).ok())
-            .collect();
-        let next = server_port();
-        for l in &held {
-            assert_ne!(next, l.local_addr().unwrap().port());
-        }
+        // Ports from the ephemeral range, which `server_port` never hands out: holding one of
+        // its own range here could catch a connection meant for a drive-sim of a test running
+        // beside this one (the file is built into such test binaries too).
+        let held = TcpListener::bind("127.0.0.1:0").unwrap();
+        let held_port = held.local_addr().unwrap().port();
+        // Bound without listening, as `bindable` probes: a copy a forked child may hold for a
+        // moment does not make the port look taken.
+        let freed =
+            socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
+        freed.set_reuse_address(true).unwrap();
+        freed
+            .bind(&SocketAddrV4::new(Ipv4Addr::LOCALHOST, 0).into())
+            .unwrap();
+        let freed_port = freed.local_addr().unwrap().as_socket().unwrap().port();
+        drop(freed);
+        assert_eq!(first_free([held_port]), None);
+        assert_eq!(first_free([held_port, freed_port]), Some(freed_port));
     }
 }
