@@ -49,20 +49,17 @@ pub fn server_port() -> u16 {
 
 /// The first of `ports` a server could bind on 127.0.0.1 now.
 fn first_free(ports: impl IntoIterator<Item = u16>) -> Option<u16> {
-    ports.into_iter().find(|&port| bindable(port))
+    ports.into_iter().find(|&port| bound_only(port).is_ok())
 }
 
-/// Whether a server could bind `port` on 127.0.0.1: a socket is bound to it as a server binds
-/// (`SO_REUSEADDR`), never listens, and is closed at once (it is close-on-exec besides).
-fn bindable(port: u16) -> bool {
+/// A socket bound to 127.0.0.1:`port` as a server binds it (`SO_REUSEADDR`) that never
+/// listens (and is close-on-exec), so it accepts nothing, even in a forked child's copy.
+fn bound_only(port: u16) -> std::io::Result<socket2::Socket> {
     use socket2::{Domain, Socket, Type};
-    let addr = SocketAddrV4::new(Ipv4Addr::LOCALHOST, port);
-    Socket::new(Domain::IPV4, Type::STREAM, None)
-        .and_then(|s| {
-            s.set_reuse_address(true)?;
-            s.bind(&addr.into())
-        })
-        .is_ok()
+    let s = Socket::new(Domain::IPV4, Type::STREAM, None)?;
+    s.set_reuse_address(true)?;
+    s.bind(&SocketAddrV4::new(Ipv4Addr::LOCALHOST, port).into())?;
+    Ok(s)
 }
 
 /// The first port of the kernel's ephemeral range (`ip_local_port_range`; Linux's default
@@ -102,14 +99,9 @@ mod tests {
         // beside this one (the file is built into such test binaries too).
         let held = TcpListener::bind("127.0.0.1:0").unwrap();
         let held_port = held.local_addr().unwrap().port();
-        // Bound without listening, as `bindable` probes: a copy a forked child may hold for a
+        // Bound without listening, as `first_free` probes: a copy a forked child may hold for a
         // moment does not make the port look taken.
-        let freed =
-            socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None).unwrap();
-        freed.set_reuse_address(true).unwrap();
-        freed
-            .bind(&SocketAddrV4::new(Ipv4Addr::LOCALHOST, 0).into())
-            .unwrap();
+        let freed = bound_only(0).unwrap();
         let freed_port = freed.local_addr().unwrap().as_socket().unwrap().port();
         drop(freed);
         assert_eq!(first_free([held_port]), None);
