@@ -33,6 +33,9 @@ use drivers::time::monotonic_now;
 /// Ports for the CMMO-ST servers drive-sim binds, chosen as the integration tests choose them.
 #[path = "../../tests/src/port.rs"]
 mod port;
+/// A failing test's drive-sim stopped as the integration tests stop theirs.
+#[path = "../../tests/src/stop.rs"]
+mod stop;
 
 const BIN: &str = env!("CARGO_BIN_EXE_drive-sim");
 
@@ -125,16 +128,8 @@ impl Proc {
 
 impl Drop for Proc {
     fn drop(&mut self) {
-        // Only a child not yet reaped: a reaped one's pid may belong to another process now.
-        if std::thread::panicking() && matches!(self.child.try_wait(), Ok(None)) {
-            // A failing test asks the process to stop as a user would, so that its closing
-            // counters (connections, refusals, frames) are in the output printed below.
-            // SAFETY: kill(2) on our own child's pid, not yet reaped; no memory is involved.
-            unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
-            let end = WallInstant::now() + Duration::from_secs(3);
-            while WallInstant::now() < end && matches!(self.child.try_wait(), Ok(None)) {
-                std::thread::sleep(Duration::from_millis(20));
-            }
+        if std::thread::panicking() {
+            stop::ask_to_stop([&mut self.child], Duration::from_secs(3));
         }
         let _ = self.child.kill();
         let _ = self.child.wait();

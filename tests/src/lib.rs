@@ -3,6 +3,7 @@
 
 pub mod candump;
 pub mod port;
+pub mod stop;
 
 use std::time::Duration;
 

@@ -325,23 +325,12 @@ impl Drop for Scene {
     fn drop(&mut self) {
         let failing = std::thread::panicking();
         if failing {
-            // A failing test asks its processes to stop as a user would, so that their closing
-            // lines (drive-sim's longest pause, the coordinator's summary) are in the logs
-            // printed below.
-            for p in &self.procs {
-                if p.status.is_none() {
-                    // SAFETY: kill(2) on our own child's pid, not yet reaped; no memory is
-                    // involved.
-                    unsafe { libc::kill(p.child.id() as libc::pid_t, libc::SIGTERM) };
-                }
-            }
-            let end = Instant::now() + Duration::from_secs(3);
-            for p in &mut self.procs {
-                while p.status.is_none() && Instant::now() < end {
-                    p.status = p.child.try_wait().ok().flatten();
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-            }
+            // Their closing lines (drive-sim's longest pause, the coordinator's summary) then
+            // are in the logs printed below.
+            integration_tests::stop::ask_to_stop(
+                self.procs.iter_mut().map(|p| &mut p.child),
+                Duration::from_secs(3),
+            );
         }
         for p in &mut self.procs {
             if p.status.is_none() {
